@@ -1,0 +1,59 @@
+"""Backend and precision: which Dr.Jit array types the kernels are built from.
+
+Every kernel module takes its types from a ``Types`` bundle instead of hard-coding
+``drjit.cuda`` or ``drjit.llvm``: ``types()`` gives ``drjit.auto``'s choice (CUDA when a GPU
+is present, LLVM otherwise); ``types("llvm")`` forces the CPU backend. ``precision`` selects
+float32 (default) or float64 for every floating-point array, so the same code renders in
+double precision.
+"""
+from __future__ import annotations
+
+import importlib
+from dataclasses import dataclass
+from functools import lru_cache
+
+import drjit as dr
+
+BACKENDS = ("auto", "cuda", "llvm")
+PRECISIONS = ("float32", "float64")
+
+
+@dataclass(frozen=True)
+class Types:
+    backend: str            # "cuda" | "llvm" (resolved, never "auto")
+    precision: str          # "float32" | "float64"
+    Float: type
+    UInt32: type
+    Int32: type
+    Bool: type
+    Array2f: type
+    Array3f: type
+    Array3u: type
+    TensorXf: type
+    PCG32: type
+
+    @property
+    def is_double(self) -> bool:
+        return self.precision == "float64"
+
+
+@lru_cache(maxsize=None)
+def types(backend: str = "auto", precision: str = "float32") -> Types:
+    """The array types for ``backend`` ("auto" | "cuda" | "llvm") and ``precision``."""
+    if backend not in BACKENDS:
+        raise ValueError(f"backend: expected one of {BACKENDS}, got {backend!r}")
+    if precision not in PRECISIONS:
+        raise ValueError(f"precision: expected one of {PRECISIONS}, got {precision!r}")
+    if backend == "auto":
+        import drjit.auto as auto
+        backend = "cuda" if dr.backend_v(auto.Float) == dr.JitBackend.CUDA else "llvm"
+    if backend == "cuda" and not dr.has_backend(dr.JitBackend.CUDA):
+        raise RuntimeError("backend 'cuda' requested but no CUDA device is available")
+    m = importlib.import_module(f"drjit.{backend}")
+    s = "64" if precision == "float64" else ""
+    return Types(
+        backend=backend, precision=precision,
+        Float=getattr(m, "Float" + s), UInt32=m.UInt32, Int32=m.Int32, Bool=m.Bool,
+        Array2f=getattr(m, "Array2f" + s), Array3f=getattr(m, "Array3f" + s),
+        Array3u=m.Array3u, TensorXf=getattr(m, "TensorXf" + s), PCG32=m.PCG32,
+    )

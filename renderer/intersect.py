@@ -1,0 +1,112 @@
+"""Closest-hit and any-hit queries behind one interface.
+
+An *accelerator* is any object with
+
+    intersect(o, d, t_max, active) -> Hit       # closest hit in (t_min, t_max)
+    intersect_p(o, d, t_max, active) -> Bool    # any hit in (t_min, t_max) (shadow rays)
+
+where ``o, d`` are Array3f (``d`` need not be unit length; ``t`` is in units of ``d``),
+``t_max`` a Float and ``active`` a Bool mask. Every accelerator holds the same
+``DeviceTriangles`` (uploaded once) and calls the same triangle routine
+(``renderer.triangle.ROUTINES``), so brute force, per-object boxes and the BVH return the
+same hits. ``ACCELERATORS`` maps the names used on the command line to builders:
+``build_accelerator(name, scene, tris, t)``.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import drjit as dr
+import numpy as np
+
+from .device import Types
+from .scene import Scene
+from .triangle import ROUTINES
+
+
+@dataclass
+class DeviceTriangles:
+    """Triangle data on the device, in the order of ``order`` (an accelerator may permute
+    triangles for locality; ``prim`` ids in ``Hit`` index these arrays).
+
+    v0, e1, e2: Array3f (F,) first vertex and edge vectors (Möller–Trumbore).
+    n0, n1, n2: Array3f (F,) vertex normals (only uploaded when some object is smooth,
+        else width-1 zeros).
+    ng: Array3f (F,) unit geometric normal ``normalize(e1 × e2)``.
+    material: UInt32 (F,) material index; smooth: Bool (F,) interpolate normals.
+    order: UInt32 (F,) original face index of each triangle.
+    """
+
+    v0: object
+    e1: object
+    e2: object
+    n0: object
+    n1: object
+    n2: object
+    ng: object
+    material: object
+    smooth: object
+    order: object
+    DRJIT_STRUCT = {"v0": object, "e1": object, "e2": object, "n0": object, "n1": object,
+                    "n2": object, "ng": object, "material": object, "smooth": object,
+                    "order": object}
+
+    @property
+    def count(self) -> int:
+        return dr.width(self.material)
+
+
+def upload_triangles(scene: Scene, t: Types, order: np.ndarray | None = None,
+                     with_normals: bool | None = None) -> DeviceTriangles:
+    """Upload ``scene``'s triangles (optionally permuted by ``order``, int (F,)) as
+    ``DeviceTriangles`` of types ``t``. Normals are uploaded when ``with_normals`` (default:
+    when any object is smooth)."""
+    F = scene.face_count
+    order = np.arange(F, dtype=np.int64) if order is None else np.asarray(order, np.int64)
+    fdt = np.float64 if t.is_double else np.float32
+    faces = scene.faces[order]
+    V = scene.vertices.astype(np.float64)
+    p0, p1, p2 = V[faces[:, 0]], V[faces[:, 1]], V[faces[:, 2]]
+    e1, e2 = p1 - p0, p2 - p0
+    ng = np.cross(e1, e2)
+    ng /= np.maximum(np.linalg.norm(ng, axis=1, keepdims=True), 1e-300)
+
+    def a3(x):
+        x = np.ascontiguousarray(x, dtype=fdt)
+        return t.Array3f(t.Float(x[:, 0]), t.Float(x[:, 1]), t.Float(x[:, 2]))
+
+    smooth = scene.face_smooth[order]
+    if with_normals is None:
+        with_normals = bool(smooth.any())
+    if with_normals:
+        N = scene.normals.astype(np.float64)
+        n0, n1, n2 = (a3(N[faces[:, k]]) for k in range(3))
+    else:
+        n0 = n1 = n2 = t.Array3f(0, 0, 0)
+    return DeviceTriangles(
+        v0=a3(p0), e1=a3(e1), e2=a3(e2), n0=n0, n1=n1, n2=n2, ng=a3(ng),
+        material=t.UInt32(scene.face_material[order].astype(np.uint32)),
+        smooth=t.Bool(smooth), order=t.UInt32(order.astype(np.uint32)))
+
+
+@dataclass
+class Hit:
+    """Result of a closest-hit query (all arrays of the ray batch's width).
+
+    valid: Bool; t: Float ray parameter; u, v: Float barycentrics of v1, v2;
+    prim: UInt32 index into DeviceTriangles (undefined where not valid).
+    """
+
+    valid: object
+    t: object
+    u: object
+    v: object
+    prim: object
+    DRJIT_STRUCT = {"valid": object, "t": object, "u": object, "v": object, "prim": object}
+
+
+def triangle_routine(name: str):
+    try:
+        return ROUTINES[name]
+    except KeyError:
+        raise ValueError(f"intersection: expected one of {sorted(ROUTINES)}, got {name!r}") from None
