@@ -110,3 +110,25 @@ def triangle_routine(name: str):
         return ROUTINES[name]
     except KeyError:
         raise ValueError(f"intersection: expected one of {sorted(ROUTINES)}, got {name!r}") from None
+
+
+# ---- the accelerator registry -----------------------------------------------------------
+# Each accelerator is a dataclass carrying DRJIT_STRUCT over its device arrays (so symbolic
+# loops and dr.freeze see them), built by ``cls.build(scene, t, intersection=...)``, with
+# ``intersect``/``intersect_p`` as described at the top of this module and a ``stats()`` dict
+# (build time, node count, bytes per triangle, ...).
+ACCELERATORS = {
+    "brute": ("renderer.intersect", "BruteForce"),
+    "boxes": ("renderer.bvh", "ObjectBoxes"),
+    "bvh": ("renderer.bvh", "BVH"),
+}
+
+
+def build_accelerator(name: str, scene: Scene, t: Types, *, intersection: str = "moller_trumbore"):
+    """Build the accelerator ``name`` ("brute" | "boxes" | "bvh") for ``scene``."""
+    import importlib
+    if name not in ACCELERATORS:
+        raise ValueError(f"accel: expected one of {sorted(ACCELERATORS)}, got {name!r}")
+    triangle_routine(intersection)  # validate early
+    module, cls = ACCELERATORS[name]
+    return getattr(importlib.import_module(module), cls).build(scene, t, intersection=intersection)
