@@ -1,0 +1,1 @@
+"""Command-line entry point: wires the Dr.Jit renderer and the Mitsuba reference harness."""
