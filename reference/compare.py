@@ -1,0 +1,254 @@
+"""Image-comparison metrics between our render and Mitsuba's, plus error maps for reports.
+
+Every function takes two linear-light RGB images, float32 arrays of shape (H, W, 3) with the
+same shape: ``ours`` (the image under test) and ``ref`` (the reference, Mitsuba's image).
+Non-finite values (NaN, inf) in either image are counted in ``metrics()["nonfinite_pixels"]``
+and replaced by 0 before any other metric is computed, so a stray NaN shows up as a large
+error at its pixel instead of poisoning every number.
+
+Metrics (``metrics()``):
+
+- ``rmse``: sqrt(mean((a - r)^2)) over all pixels and channels.
+- ``relmse``: mean((a - r)^2 / (r^2 + eps)) over all pixels and channels.
+- ``max_abs``: max |a - r| over all pixels and channels.
+- ``mean_rel`` / ``max_rel``: per-pixel relative error, the max over channels of
+  |a - r| / max(|r|, eps); its mean and max over pixels.
+- ``outliers``: number of pixels where some channel has relative error > ``OUTLIER_REL``
+  *and* absolute error > ``OUTLIER_ABS`` (both must hold, so dark pixels with tiny absolute
+  errors and bright pixels with tiny relative errors are not outliers).
+- ``flip_mean``: mean HDR-FLIP error (NVIDIA's ``flip-evaluator``, HDR mode on the linear
+  images, default viewing conditions of 67 pixels per degree), in [0, 1].
+- ``de2000_mean`` / ``de2000_p99``: CIEDE2000 colour difference per pixel, linear sRGB
+  (D65) -> CIE XYZ -> CIELAB with Y = 1 for white (1, 1, 1); mean and 99th percentile.
+  Values above 1 are not clipped (L* > 100 for over-white pixels).
+
+``z_test`` is the statistical test for converged (noisy) renders, in the style of
+Mitsuba's ``test_renders.py``.
+"""
+from __future__ import annotations
+
+import math
+import warnings
+
+import numpy as np
+
+#: A pixel is an outlier if some channel has relative error above this ...
+OUTLIER_REL = 0.1
+#: ... and absolute error above this (linear radiance units).
+OUTLIER_ABS = 0.01
+
+__all__ = [
+    "OUTLIER_ABS",
+    "OUTLIER_REL",
+    "abs_error",
+    "abs_error_heatmap",
+    "colormap_stops",
+    "delta_e2000",
+    "flip_error",
+    "flip_heatmap",
+    "metrics",
+    "srgb_encode",
+    "z_test",
+]
+
+
+# ───────────────────────────────────────────── inputs ──
+def _pair(ours: np.ndarray, ref: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
+    """Check shapes, convert to float64 and zero non-finite values.
+
+    Returns (ours, ref, number of pixels with a non-finite value in either image)."""
+    a = np.asarray(ours)
+    r = np.asarray(ref)
+    if a.ndim != 3 or a.shape[2] != 3:
+        raise ValueError(f"ours: expected an RGB image of shape (H, W, 3), got {a.shape}")
+    if r.shape != a.shape:
+        raise ValueError(f"ref: shape {r.shape} differs from ours {a.shape}")
+    a = a.astype(np.float64)
+    r = r.astype(np.float64)
+    bad = ~(np.isfinite(a) & np.isfinite(r)).all(axis=2)
+    if bad.any():
+        a = np.where(np.isfinite(a), a, 0.0)
+        r = np.where(np.isfinite(r), r, 0.0)
+    return a, r, int(bad.sum())
+
+
+# ───────────────────────────────────────────── per-pixel errors ──
+def abs_error(ours: np.ndarray, ref: np.ndarray) -> np.ndarray:
+    """Per-pixel absolute error, the max over channels of |a - r|: float32 (H, W)."""
+    a, r, _ = _pair(ours, ref)
+    return np.abs(a - r).max(axis=2).astype(np.float32)
+
+
+def _lab(rgb: np.ndarray) -> np.ndarray:
+    """Linear sRGB (..., 3) -> CIELAB (..., 3), D65 white, Y = 1 for RGB (1, 1, 1)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # colour warns that optional SciPy features are off
+        import colour
+
+        space = colour.RGB_COLOURSPACES["sRGB"]
+        xyz = colour.RGB_to_XYZ(rgb, space, apply_cctf_decoding=False)
+        return colour.XYZ_to_Lab(xyz, space.whitepoint)
+
+
+def delta_e2000(ours: np.ndarray, ref: np.ndarray) -> np.ndarray:
+    """CIEDE2000 difference per pixel of two linear sRGB images: float32 (H, W), >= 0.
+
+    Negative radiance (never produced by either renderer) is clipped to 0 first."""
+    a, r, _ = _pair(ours, ref)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        import colour
+
+        de = colour.delta_E(_lab(np.maximum(a, 0)), _lab(np.maximum(r, 0)), method="CIE 2000")
+    return np.asarray(de, dtype=np.float32)
+
+
+def flip_error(ours: np.ndarray, ref: np.ndarray) -> tuple[np.ndarray, float]:
+    """HDR-FLIP error map and its mean: (float32 (H, W) in [0, 1], float).
+
+    FLIP picks its exposure range from the reference's luminance; it cannot do so for an
+    all-black reference (and ends the process if asked to), so then the range is taken
+    from ``ours`` instead, and two black images give zero error without calling FLIP.
+    Negative values are clipped to 0 (HDR-FLIP needs non-negative input).
+    """
+    import flip_evaluator
+
+    a, r, _ = _pair(ours, ref)
+    a = np.ascontiguousarray(np.maximum(a, 0), dtype=np.float32)
+    r = np.ascontiguousarray(np.maximum(r, 0), dtype=np.float32)
+    h, w, _ = a.shape
+    params: dict = {}
+    if r.max() <= 0:
+        if a.max() <= 0:
+            return np.zeros((h, w), np.float32), 0.0
+        _, _, used = flip_evaluator.evaluate(a, a, "HDR", applyMagma=False, computeMeanError=False)
+        params = {k: used[k] for k in ("startExposure", "stopExposure", "numExposures")}
+    err, mean, _ = flip_evaluator.evaluate(r, a, "HDR", applyMagma=False, parameters=params)
+    return np.asarray(err, np.float32).reshape(h, w), float(mean)
+
+
+# ───────────────────────────────────────────── scalar metrics ──
+def metrics(ours: np.ndarray, ref: np.ndarray, *, eps: float = 1e-2,
+            flip_map: np.ndarray | None = None) -> dict:
+    """All scalar metrics of ``ours`` against ``ref`` (see the module docstring).
+
+    ours, ref: float32 (H, W, 3) linear RGB, same shape.
+    eps: floor of the denominator of the relative errors (``relmse``, ``*_rel``, outliers).
+    flip_map: float32 (H, W) from ``flip_error(ours, ref)`` if already computed (saves
+        running FLIP twice when a report needs the map too).
+
+    Returns a dict of plain Python numbers: rmse, relmse, max_abs, mean_rel, max_rel,
+    outliers (int), outlier_rule (str), pixels (int), nonfinite_pixels (int), flip_mean,
+    de2000_mean, de2000_p99.
+    """
+    a, r, nonfinite = _pair(ours, ref)
+    diff = a - r
+    absd = np.abs(diff)
+    rel = absd / np.maximum(np.abs(r), eps)
+    rel_pixel = rel.max(axis=2)
+    outlier = ((rel > OUTLIER_REL) & (absd > OUTLIER_ABS)).any(axis=2)
+    if flip_map is None:
+        flip_map, _ = flip_error(a, r)
+    de = delta_e2000(a, r)
+    return {
+        "rmse": float(np.sqrt(np.mean(diff**2))),
+        "relmse": float(np.mean(diff**2 / (r**2 + eps))),
+        "max_abs": float(absd.max()),
+        "mean_rel": float(rel_pixel.mean()),
+        "max_rel": float(rel_pixel.max()),
+        "outliers": int(outlier.sum()),
+        "outlier_rule": f"rel > {OUTLIER_REL:g} and abs > {OUTLIER_ABS:g} in some channel",
+        "pixels": int(a.shape[0] * a.shape[1]),
+        "nonfinite_pixels": nonfinite,
+        "flip_mean": float(np.mean(flip_map)),
+        "de2000_mean": float(de.mean()),
+        "de2000_p99": float(np.percentile(de, 99)),
+    }
+
+
+# ───────────────────────────────────────────── maps for reports ──
+def srgb_encode(linear: np.ndarray) -> np.ndarray:
+    """Linear RGB float (H, W, 3) -> sRGB-encoded uint8 (H, W, 3), clipped to [0, 1]."""
+    x = np.clip(np.nan_to_num(np.asarray(linear, np.float64), nan=0.0), 0.0, 1.0)
+    s = np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
+    return np.round(s * 255).astype(np.uint8)
+
+
+def _apply_colormap(values: np.ndarray, cmap: str) -> np.ndarray:
+    """values float (H, W) in [0, 1] -> uint8 (H, W, 3) through a matplotlib colormap."""
+    import matplotlib
+
+    rgba = matplotlib.colormaps[cmap](np.clip(values, 0.0, 1.0))
+    return np.round(rgba[..., :3] * 255).astype(np.uint8)
+
+
+def colormap_stops(cmap: str, n: int = 11) -> list[str]:
+    """``n`` evenly spaced colours of a matplotlib colormap as '#rrggbb' (for legends)."""
+    rgb = _apply_colormap(np.linspace(0, 1, n)[None, :], cmap)[0]
+    return ["#%02x%02x%02x" % tuple(int(c) for c in px) for px in rgb]
+
+
+def abs_error_heatmap(ours: np.ndarray, ref: np.ndarray, *, scale: float | None = None,
+                      cmap: str = "inferno") -> tuple[np.ndarray, float]:
+    """Heatmap of the per-pixel absolute error (max over channels of |a - r|).
+
+    The colormap spans [0, scale]: black = no error, the top colour = ``scale`` or more.
+    scale: defaults to the image's max absolute error (1e-6 if the images are identical,
+        so the map is then uniformly black).
+    Returns (uint8 (H, W, 3), the scale used).
+    """
+    err = abs_error(ours, ref)
+    if scale is None:
+        scale = float(err.max())
+    scale = max(float(scale), 1e-6)
+    return _apply_colormap(err / scale, cmap), scale
+
+
+def flip_heatmap(flip_map: np.ndarray, *, cmap: str = "magma") -> np.ndarray:
+    """FLIP error map float (H, W) in [0, 1] -> uint8 (H, W, 3) (FLIP's own magma scale)."""
+    return _apply_colormap(np.asarray(flip_map, np.float64), cmap)
+
+
+# ───────────────────────────────────────────── statistical test ──
+def _normal_quantile_two_sided(alpha: float) -> float:
+    """z with P(|Z| > z) = alpha for a standard normal Z (bisection on math.erfc)."""
+    lo, hi = 0.0, 40.0
+    for _ in range(200):
+        mid = 0.5 * (lo + hi)
+        if math.erfc(mid / math.sqrt(2.0)) > alpha:
+            lo = mid
+        else:
+            hi = mid
+    return 0.5 * (lo + hi)
+
+
+def z_test(ours_mean: np.ndarray, ours_var: np.ndarray, ref_mean: np.ndarray,
+           ref_var: np.ndarray, *, alpha: float = 0.01,
+           min_var: float = 1e-12) -> tuple[float, np.ndarray]:
+    """Per-value test that two Monte Carlo estimates have the same expectation.
+
+    Welch's statistic ``t = (m_a - m_r) / sqrt(v_a + v_r)`` per pixel and channel, where
+    ``v`` is the variance *of the mean* (sample variance / sample count). With the many
+    samples per pixel of a converged render it is referred to the standard normal
+    distribution (as Mitsuba's ``test_renders.py`` does). The significance level is
+    Šidák-corrected for the number of values tested: ``1 - (1 - alpha)^(1/N)``, so under
+    the null hypothesis *all* values pass with probability 1 - alpha.
+
+    ours_mean, ours_var, ref_mean, ref_var: float arrays of one shape, e.g. (H, W, 3).
+    min_var: floor of ``v_a + v_r`` (a noise-free pixel would otherwise fail on rounding).
+
+    Returns (fraction of values that pass, bool mask of that shape, True = pass).
+    """
+    arrays = [np.asarray(x, np.float64) for x in (ours_mean, ours_var, ref_mean, ref_var)]
+    shape = arrays[0].shape
+    for name, x in zip(("ours_var", "ref_mean", "ref_var"), arrays[1:]):
+        if x.shape != shape:
+            raise ValueError(f"{name}: shape {x.shape} differs from ours_mean {shape}")
+    if not 0 < alpha < 1:
+        raise ValueError(f"alpha: expected a value in (0, 1), got {alpha}")
+    m_a, v_a, m_r, v_r = arrays
+    var = np.maximum(v_a + v_r, min_var)
+    t = np.abs(m_a - m_r) / np.sqrt(var)
+    alpha_sidak = 1.0 - (1.0 - alpha) ** (1.0 / max(m_a.size, 1))
+    mask = np.nan_to_num(t, nan=np.inf) <= _normal_quantile_two_sided(alpha_sidak)
+    return float(mask.mean()) if mask.size else 1.0, mask
