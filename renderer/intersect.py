@@ -37,16 +37,16 @@ class DeviceTriangles:
     order: UInt32 (F,) original face index of each triangle.
     """
 
-    v0: object
-    e1: object
-    e2: object
-    n0: object
-    n1: object
-    n2: object
-    ng: object
-    material: object
-    smooth: object
-    order: object
+    v0: object = None
+    e1: object = None
+    e2: object = None
+    n0: object = None
+    n1: object = None
+    n2: object = None
+    ng: object = None
+    material: object = None
+    smooth: object = None
+    order: object = None
     DRJIT_STRUCT = {"v0": object, "e1": object, "e2": object, "n0": object, "n1": object,
                     "n2": object, "ng": object, "material": object, "smooth": object,
                     "order": object}
@@ -97,11 +97,11 @@ class Hit:
     prim: UInt32 index into DeviceTriangles (undefined where not valid).
     """
 
-    valid: object
-    t: object
-    u: object
-    v: object
-    prim: object
+    valid: object = None
+    t: object = None
+    u: object = None
+    v: object = None
+    prim: object = None
     DRJIT_STRUCT = {"valid": object, "t": object, "u": object, "v": object, "prim": object}
 
 
@@ -132,3 +132,85 @@ def build_accelerator(name: str, scene: Scene, t: Types, *, intersection: str = 
     triangle_routine(intersection)  # validate early
     module, cls = ACCELERATORS[name]
     return getattr(importlib.import_module(module), cls).build(scene, t, intersection=intersection)
+
+
+# ---- brute force ------------------------------------------------------------------------
+@dataclass
+class BruteForce:
+    """Every ray tests every triangle (the reference accelerator).
+
+    tris: DeviceTriangles, in scene order.
+    intersection: name of the triangle routine (``renderer.triangle.ROUTINES``).
+    build_seconds: host time of the upload.
+
+    The candidate loop is a symbolic loop over triangle indices; per candidate it gathers
+    ``v0, e1, e2`` only, and the closest hit keeps ``(t, u, v, prim)``. Rays start at their
+    offset origin, so ``t_min = 0``.
+    """
+
+    tris: DeviceTriangles = None
+    intersection: str = "moller_trumbore"
+    build_seconds: float = 0.0
+    DRJIT_STRUCT = {"tris": DeviceTriangles}
+
+    @classmethod
+    def build(cls, scene: Scene, t: Types, *, intersection: str = "moller_trumbore") -> "BruteForce":
+        import time
+        triangle_routine(intersection)
+        t0 = time.perf_counter()
+        tris = upload_triangles(scene, t)
+        dr.eval(tris)
+        return cls(tris=tris, intersection=intersection,
+                   build_seconds=time.perf_counter() - t0)
+
+    def _candidate(self, i, o, d):
+        """Test triangle ``i`` (UInt32, same type as the ray batch) against the rays."""
+        tr = self.tris
+        A3 = type(o)
+        v0 = dr.gather(A3, tr.v0, i)
+        e1 = dr.gather(A3, tr.e1, i)
+        e2 = dr.gather(A3, tr.e2, i)
+        return triangle_routine(self.intersection)(o, d, v0, e1, e2)
+
+    @dr.syntax
+    def intersect(self, o, d, t_max, active) -> Hit:
+        """Closest hit in ``(0, t_max)``. o, d: Array3f (N,); t_max: Float; active: Bool."""
+        Float = type(t_max)
+        UInt32 = type(self.tris.material)
+        n = self.tris.count
+        best_t = Float(t_max)
+        best_u = Float(0)
+        best_v = Float(0)
+        best_prim = UInt32(0)
+        found = dr.zeros(type(active), dr.width(o))
+        i = UInt32(0)
+        while dr.hint(active & (i < n), max_iterations=-1, label="brute_force_closest",
+                      exclude=[self, o, d, n, Float, UInt32]):
+            tt, u, v, hit = self._candidate(i, o, d)
+            closer = hit & (tt < best_t)
+            best_t = dr.select(closer, tt, best_t)
+            best_u = dr.select(closer, u, best_u)
+            best_v = dr.select(closer, v, best_v)
+            best_prim = dr.select(closer, i, best_prim)
+            found |= closer
+            i += 1
+        return Hit(valid=found & active, t=best_t, u=best_u, v=best_v, prim=best_prim)
+
+    @dr.syntax
+    def intersect_p(self, o, d, t_max, active):
+        """Any hit in ``(0, t_max)`` (shadow rays); stops at the first hit."""
+        UInt32 = type(self.tris.material)
+        n = self.tris.count
+        blocked = dr.zeros(type(active), dr.width(o))
+        i = UInt32(0)
+        while dr.hint(active & ~blocked & (i < n), max_iterations=-1, label="brute_force_any",
+                      exclude=[self, o, d, t_max, n, UInt32]):
+            tt, u, v, hit = self._candidate(i, o, d)
+            blocked |= hit & (tt < t_max)
+            i += 1
+        return blocked & active
+
+    def stats(self) -> dict:
+        return {"accel": "brute", "triangles": self.tris.count, "nodes": 0,
+                "build_seconds": self.build_seconds,
+                "intersection": self.intersection}

@@ -1,0 +1,78 @@
+"""Film: averaging samples into pixels, and image files.
+
+Images are numpy float32 arrays of shape (H, W, 3), linear RGB, row 0 at the top.
+EXR files hold linear float32 R, G, B channels (OpenEXR 3.x Python API); PNGs are 8-bit
+sRGB (clamped), for looking at. Writers never replace an existing file unless the caller
+passes ``overwrite=True``.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import drjit as dr
+import numpy as np
+
+
+def develop(radiance, width: int, height: int, spp: int, t):
+    """Box-filter ``radiance`` (Array3f, width ``W·H·spp``, samples of a pixel contiguous)
+    into a TensorXf of shape (H, W, 3)."""
+    if spp > 1:
+        radiance = dr.block_reduce(dr.ReduceOp.Add, radiance, spp) * (1.0 / spp)
+    return t.TensorXf(dr.ravel(radiance, order="F"), shape=(height, width, 3))
+
+
+def _check_image(image, what: str) -> np.ndarray:
+    img = np.asarray(image)
+    if img.ndim != 3 or img.shape[2] != 3:
+        raise ValueError(f"{what}: expected an image of shape (H, W, 3), got {img.shape}")
+    return img
+
+
+def _target(path, overwrite: bool) -> Path:
+    path = Path(path)
+    if path.exists() and not overwrite:
+        raise FileExistsError(f"{path}: exists (pass overwrite=True to replace it)")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    return path
+
+
+def write_exr(path, image, *, overwrite: bool = False) -> Path:
+    """Write ``image`` (float (H, W, 3) linear RGB) as a float32 RGB OpenEXR file."""
+    import OpenEXR
+    img = np.ascontiguousarray(_check_image(image, str(path)), dtype=np.float32)
+    path = _target(path, overwrite)
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    channels = {c: np.ascontiguousarray(img[:, :, i]) for i, c in enumerate("RGB")}
+    with OpenEXR.File(header, channels) as f:
+        f.write(str(path))
+    return path
+
+
+def read_exr(path) -> np.ndarray:
+    """Read an RGB OpenEXR file as float32 (H, W, 3)."""
+    import OpenEXR
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"{path}: no such EXR file")
+    with OpenEXR.File(str(path), separate_channels=True) as f:
+        ch = f.channels()
+        missing = [c for c in "RGB" if c not in ch]
+        if missing:
+            raise ValueError(f"{path}: missing channels {missing} (has {sorted(ch)})")
+        return np.stack([np.asarray(ch[c].pixels, np.float32) for c in "RGB"], axis=-1)
+
+
+def srgb_encode(image) -> np.ndarray:
+    """Linear RGB -> 8-bit sRGB (clamped to [0, 1]); uint8 (H, W, 3)."""
+    x = np.clip(np.nan_to_num(np.asarray(image, np.float64), nan=0.0), 0.0, 1.0)
+    y = np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
+    return np.round(y * 255.0).astype(np.uint8)
+
+
+def write_png(path, image, *, overwrite: bool = False) -> Path:
+    """Write ``image`` (linear RGB (H, W, 3)) as an 8-bit sRGB PNG."""
+    import imageio.v3 as iio
+    img = _check_image(image, str(path))
+    path = _target(path, overwrite)
+    iio.imwrite(path, srgb_encode(img), extension=".png")
+    return path

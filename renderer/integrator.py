@@ -1,0 +1,171 @@
+"""The Whitted integrator (docs/MODEL.md, "The Whitted tree").
+
+The whole tree of reflected and refracted rays up to ``max_depth`` is walked depth-first
+without recursion. Each lane carries its current ray, the ray's accumulated weight and
+depth, and a small stack of pending branches (origin, direction, weight, depth) in
+``dr.alloc_local`` arrays; at a hit with both children the refracted one is pushed and the
+reflected one followed. A branch is created only if ``depth + 1 <= max_depth`` and its
+accumulated weight (max over RGB) is ``>= min_weight``.
+
+What gets traced is decided by the ``EffectSet`` before tracing: no secondary rays means no
+loop at all (one closest hit and local shading); reflection without refraction is a chain
+(no stack); the stack exists only with refraction.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import drjit as dr
+
+from .device import Types
+from .effects import EffectSet
+from .shade import (DeviceLights, DeviceMaterials, local_light, offset_origin,
+                    specular_weights, surface_point)
+
+#: Deepest supported tree: one stack slot per level, each local array <= 128 bytes
+#: (16 entries of float64) because of the LLVM local-array issue (drjit #532).
+MAX_DEPTH_LIMIT = 16
+
+
+@dataclass
+class SceneArrays:
+    """Everything on the device a frame reads besides the camera.
+
+    accel: the accelerator (holds DeviceTriangles); materials: DeviceMaterials;
+    lights: DeviceLights; ambient, background: Array3f (width 1).
+    """
+
+    accel: object = None
+    materials: DeviceMaterials = None
+    lights: DeviceLights = None
+    ambient: object = None
+    background: object = None
+    DRJIT_STRUCT = {"accel": object, "materials": DeviceMaterials, "lights": DeviceLights,
+                    "ambient": object, "background": object}
+
+
+@dataclass(frozen=True)
+class TraceOptions:
+    """Host-side constants of the kernel: n_lights, max_depth, min_weight, eps (absolute
+    ray offset)."""
+
+    n_lights: int
+    max_depth: int
+    min_weight: float
+    eps: float
+
+
+def _shade_hit(sa: SceneArrays, o, d, hit, t: Types, fx: EffectSet, opt: TraceOptions, active):
+    """Surface point, facing shading normal and I_local at a closest hit."""
+    sp = surface_point(sa.accel.tris, hit, o, d, fx.smooth_normals)
+    V = -d
+    N = dr.select(dr.dot(V, sp.ns) >= 0, sp.ns, -sp.ns)
+    I_local = local_light(sp, N, V, sa.materials, sa.lights, sa.accel, t,
+                          n_lights=opt.n_lights, ambient=sa.ambient, physical=fx.physical,
+                          shadows=fx.shadows, ambient_on=fx.ambient, specular=fx.specular,
+                          eps=opt.eps, active=active)
+    return sp, I_local
+
+
+def _no_secondary(sa, o, d, t, fx, opt):
+    """Depth 0 only: one closest hit, local light or the background."""
+    active = dr.full(t.Bool, True, dr.width(d))
+    hit = sa.accel.intersect(o, d, t.Float(dr.inf), active)
+    sp, I_local = _shade_hit(sa, o, d, hit, t, fx, opt, hit.valid)
+    return dr.select(hit.valid, I_local, t.Array3f(sa.background))
+
+
+@dr.syntax
+def trace(sa: SceneArrays, o, d, t: Types, fx: EffectSet, opt: TraceOptions):
+    """Radiance along the rays ``(o, d)`` (Array3f, ``d`` unit) through the Whitted tree.
+
+    Returns Array3f radiance of the batch width. ``fx`` and ``opt`` are host constants.
+    """
+    if not (0 <= opt.max_depth <= MAX_DEPTH_LIMIT):
+        raise ValueError(f"settings.max_depth: expected 0..{MAX_DEPTH_LIMIT}, got {opt.max_depth}")
+    if dr.hint(not fx.secondary, mode="scalar"):
+        return _no_secondary(sa, o, d, t, fx, opt)
+
+    n = dr.width(d)
+    A3, Float, UInt32 = t.Array3f, t.Float, t.UInt32
+    use_stack = fx.refraction
+    cap = st_o = st_d = st_w = st_depth = None
+    if dr.hint(use_stack, mode="scalar"):
+        cap = opt.max_depth
+        st_o = [dr.alloc_local(Float, cap) for _ in range(3)]   # pending origins
+        st_d = [dr.alloc_local(Float, cap) for _ in range(3)]   # pending directions
+        st_w = [dr.alloc_local(Float, cap) for _ in range(3)]   # pending weights
+        st_depth = dr.alloc_local(UInt32, cap)                  # pending depths
+
+    ray_o = A3(o)                          # origin of the current ray
+    ray_d = A3(d)                          # direction of the current ray (unit)
+    weight = dr.full(A3, 1.0, n)           # accumulated weight of the current ray
+    depth = dr.zeros(UInt32, n)            # depth of the current ray (camera ray = 0)
+    sp_top = dr.zeros(UInt32, n)           # number of pending branches on the stack
+    radiance = dr.zeros(A3, n)             # result
+    active = dr.full(t.Bool, True, n)      # lane still has a ray to trace
+
+    # host objects and local buffers are read inside the loop but are not loop state
+    while dr.hint(active, max_iterations=-1, label="whitted",
+                  exclude=[sa, t, fx, opt, n, A3, Float, UInt32, use_stack, cap,
+                           st_o, st_d, st_w, st_depth]):
+        # ---- closest hit ------------------------------------------------------------------
+        hit = sa.accel.intersect(ray_o, ray_d, Float(dr.inf), active)
+        missed = active & ~hit.valid
+        radiance = dr.select(missed, dr.fma(weight, sa.background, radiance), radiance)
+        on_surface = active & hit.valid
+
+        # ---- local light --------------------------------------------------------------------
+        sp, I_local = _shade_hit(sa, ray_o, ray_d, hit, t, fx, opt, on_surface)
+        radiance = dr.select(on_surface, dr.fma(weight, I_local, radiance), radiance)
+
+        # ---- children: reflected and refracted branches --------------------------------------
+        R, w_refl, T, w_refr = specular_weights(
+            sp, ray_d, sa.materials, t, reflection=fx.reflection, refraction=fx.refraction,
+            fresnel_on=fx.fresnel, physical=fx.physical, active=on_surface)
+        can_branch = on_surface & (depth < opt.max_depth)
+        child_depth = depth + 1
+        w_r = weight * w_refl
+        go_r = can_branch & (dr.max(w_r) >= opt.min_weight)
+        next_o = offset_origin(sp.p, sp.ng, R, opt.eps)
+        next_d = R
+        next_w = w_r
+        go = go_r
+        if dr.hint(use_stack, mode="scalar"):
+            w_t = weight * w_refr
+            go_t = can_branch & (dr.max(w_t) >= opt.min_weight)
+            o_t = offset_origin(sp.p, sp.ng, T, opt.eps)
+            # both children: follow R, push T
+            push = go_r & go_t
+            for k in range(3):
+                st_o[k].write(o_t[k], sp_top, push)
+                st_d[k].write(T[k], sp_top, push)
+                st_w[k].write(w_t[k], sp_top, push)
+            st_depth.write(child_depth, sp_top, push)
+            sp_top = dr.select(push, sp_top + 1, sp_top)
+            # only the refracted child: follow T
+            only_t = go_t & ~go_r
+            next_o = dr.select(only_t, o_t, next_o)
+            next_d = dr.select(only_t, T, next_d)
+            next_w = dr.select(only_t, w_t, next_w)
+            go = go_r | go_t
+
+        # ---- next ray: a child, else a pending branch, else done ------------------------------
+        ray_o = dr.select(go, next_o, ray_o)
+        ray_d = dr.select(go, next_d, ray_d)
+        weight = dr.select(go, next_w, weight)
+        depth = dr.select(go, child_depth, depth)
+        if dr.hint(use_stack, mode="scalar"):
+            pop = active & ~go & (sp_top > 0)
+            sp_top = dr.select(pop, sp_top - 1, sp_top)
+            p_o = A3(*(st_o[k].read(sp_top, pop) for k in range(3)))
+            p_d = A3(*(st_d[k].read(sp_top, pop) for k in range(3)))
+            p_w = A3(*(st_w[k].read(sp_top, pop) for k in range(3)))
+            ray_o = dr.select(pop, p_o, ray_o)
+            ray_d = dr.select(pop, p_d, ray_d)
+            weight = dr.select(pop, p_w, weight)
+            depth = dr.select(pop, st_depth.read(sp_top, pop), depth)
+            active = go | pop
+        else:
+            active = go
+    return radiance

@@ -1,0 +1,133 @@
+"""The public entry point: ``render(scene, ...)`` and the reusable ``Renderer``.
+
+``Renderer`` uploads the scene once (accelerator, materials, lights) and exposes
+``frame(camera_arrays)``: a pure function of device arrays (``SceneArrays`` +
+``CameraArrays``) returning the image tensor, wrapped in ``dr.freeze`` when asked so that a
+benchmark can re-run it with a moved camera without re-tracing.
+"""
+from __future__ import annotations
+
+import time
+import warnings
+from dataclasses import dataclass, field
+
+import drjit as dr
+import numpy as np
+
+from .camera import CameraArrays, camera_arrays, primary_rays
+from .device import Types, types
+from .effects import EffectSet
+from .film import develop
+from .integrator import MAX_DEPTH_LIMIT, SceneArrays, TraceOptions, trace
+from .intersect import build_accelerator
+from .scene import Camera, Scene
+from .shade import upload_lights, upload_materials
+
+
+@dataclass
+class RenderResult:
+    """image: float32 (H, W, 3) linear RGB; effects: the traced EffectSet; seconds: wall
+    time of the frame (rays → image on the host, excluding upload/build); stats: accelerator
+    and run facts (backend, precision, spp, exact, build_seconds, ...)."""
+
+    image: np.ndarray
+    effects: EffectSet
+    seconds: float
+    stats: dict = field(default_factory=dict)
+
+
+class Renderer:
+    """A scene uploaded for repeated frames.
+
+    Parameters (keyword-only after ``scene``):
+      backend: "auto" | "cuda" | "llvm" (default "auto").
+      precision: "float32" | "float64" (default "float32").
+      accel: "brute" | "boxes" | "bvh" (default "brute").
+      intersection: triangle routine (default "moller_trumbore").
+      effects: EffectSet to trace (default: derived from the scene).
+      spp, exact: override ``scene.settings`` (converged mode when ``exact`` is False).
+      freeze: wrap the frame function in ``dr.freeze`` (default False).
+    """
+
+    def __init__(self, scene: Scene, *, backend: str = "auto", precision: str = "float32",
+                 accel: str = "brute", intersection: str = "moller_trumbore",
+                 effects: EffectSet | None = None, spp: int | None = None,
+                 exact: bool | None = None, freeze: bool = False):
+        s = scene.settings
+        if s.shading not in ("classic", "physical"):
+            raise ValueError(f"settings.shading: expected 'classic' or 'physical', got {s.shading!r}")
+        if not (0 <= s.max_depth <= MAX_DEPTH_LIMIT):
+            raise ValueError(f"settings.max_depth: expected 0..{MAX_DEPTH_LIMIT}, got {s.max_depth}")
+        if not scene.cameras:
+            raise ValueError(f"scene {scene.name!r}: cameras: at least one camera is required")
+        self.scene = scene
+        self.t: Types = types(backend, precision)
+        self.exact = s.exact if exact is None else bool(exact)
+        self.spp = (1 if self.exact else s.spp) if spp is None else int(spp)
+        self.effects = EffectSet.from_scene(scene) if effects is None else effects
+        if self.effects.physical != (s.shading == "physical"):
+            raise ValueError("effects.physical: does not match settings.shading "
+                             f"{s.shading!r} of scene {scene.name!r}")
+        t = self.t
+        t0 = time.perf_counter()
+        acc = build_accelerator(accel, scene, t, intersection=intersection)
+        self.arrays = SceneArrays(
+            accel=acc, materials=upload_materials(scene, t), lights=upload_lights(scene, t),
+            ambient=t.Array3f(*(float(x) for x in np.asarray(scene.ambient, np.float64))),
+            background=t.Array3f(*(float(x) for x in np.asarray(s.background, np.float64))))
+        dr.make_opaque(self.arrays.ambient, self.arrays.background)
+        self.upload_seconds = time.perf_counter() - t0
+        self.options = TraceOptions(n_lights=len(scene.lights), max_depth=int(s.max_depth),
+                                    min_weight=float(s.min_weight), eps=float(scene.ray_offset))
+        self.accel_name = accel
+        self._frame = dr.freeze(self._frame_impl) if freeze else self._frame_impl
+
+    # the per-frame work: a function of device arrays only ------------------------------------
+    def _frame_impl(self, cam: CameraArrays, arrays: SceneArrays, width: int, height: int):
+        t = self.t
+        o, d = primary_rays(cam, width, height, t, spp=self.spp, exact=self.exact,
+                            seed=self.scene.settings.seed)
+        radiance = trace(arrays, o, d, t, self.effects, self.options)
+        return develop(radiance, width, height, self.spp, t)
+
+    def camera(self, cam: Camera | int = 0) -> CameraArrays:
+        """Device arrays of ``cam`` (a Camera, or an index into ``scene.cameras``)."""
+        if isinstance(cam, int):
+            cam = self.scene.cameras[cam]
+        return camera_arrays(cam, self.t)
+
+    def frame(self, cam: CameraArrays, width: int, height: int):
+        """Render one frame: TensorXf (H, W, 3), evaluated."""
+        img = self._frame(cam, self.arrays, width, height)
+        dr.eval(img)
+        return img
+
+    def render(self, view: int = 0) -> RenderResult:
+        cam = self.scene.cameras[view]
+        ca = self.camera(cam)
+        dr.sync_thread()
+        t0 = time.perf_counter()
+        img = self.frame(ca, cam.width, cam.height)
+        out = np.asarray(img.numpy(), dtype=np.float32)
+        seconds = time.perf_counter() - t0
+        stats = dict(self.arrays.accel.stats())
+        stats.update(backend=self.t.backend, precision=self.t.precision, spp=self.spp,
+                     exact=self.exact, upload_seconds=self.upload_seconds,
+                     width=cam.width, height=cam.height, view=cam.name,
+                     effects=str(self.effects))
+        return RenderResult(image=out, effects=self.effects, seconds=seconds, stats=stats)
+
+
+def render(scene: Scene, *, view: int = 0, backend: str = "auto", precision: str = "float32",
+           accel: str = "brute", intersection: str = "moller_trumbore",
+           effects: EffectSet | None = None, spp: int | None = None,
+           exact: bool | None = None) -> RenderResult:
+    """Render ``scene`` from ``scene.cameras[view]``.
+
+    Returns a RenderResult whose ``image`` is float32 (H, W, 3) linear RGB (row 0 = top).
+    ``effects`` defaults to ``EffectSet.from_scene(scene)``; ``spp``/``exact`` default to
+    ``scene.settings``.
+    """
+    r = Renderer(scene, backend=backend, precision=precision, accel=accel,
+                 intersection=intersection, effects=effects, spp=spp, exact=exact)
+    return r.render(view)

@@ -1,0 +1,95 @@
+"""Small scene builders for tests: quads, boxes and slabs from numpy arrays."""
+from __future__ import annotations
+
+import numpy as np
+
+from renderer.scene import Camera, Material, ObjectInfo, PointLight, Scene, Settings
+
+
+def material(name="m", *, ka=0.0, kd=0.0, ks=0.0, n=32.0, k_refl=0.0, k_refr=0.0, ior=1.5,
+             combination="constant") -> Material:
+    v = lambda x: np.broadcast_to(np.asarray(x, np.float64), (3,)).copy()
+    return Material(name=name, ka=v(ka), kd=v(kd), ks=v(ks), n=float(n), k_refl=v(k_refl),
+                    k_refr=v(k_refr), ior=float(ior), combination=combination)
+
+
+def quad(p0, p1, p2, p3):
+    """Two triangles (p0 p1 p2), (p0 p2 p3); normal along (p1-p0)×(p2-p0)."""
+    V = np.array([p0, p1, p2, p3], np.float64)
+    F = np.array([[0, 1, 2], [0, 2, 3]])
+    return V, F
+
+
+def box(lo, hi):
+    """Closed axis-aligned box with outward winding."""
+    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+    c = np.array([[x, y, z] for z in (lo[2], hi[2]) for y in (lo[1], hi[1]) for x in (lo[0], hi[0])])
+    # vertex index bits: x=1, y=2, z=4
+    faces = [(0, 2, 3, 1), (4, 5, 7, 6), (0, 1, 5, 4), (2, 6, 7, 3), (0, 4, 6, 2), (1, 3, 7, 5)]
+    F = []
+    for a, b, cc, d in faces:
+        F += [[a, b, cc], [a, cc, d]]
+    F = np.array(F)
+    # check outward winding
+    ctr = (lo + hi) / 2
+    for f in F:
+        n = np.cross(c[f[1]] - c[f[0]], c[f[2]] - c[f[0]])
+        assert np.dot(n, c[f].mean(0) - ctr) > 0
+    return c, F
+
+
+def make_scene(objects, *, materials, lights=(), camera=None, settings=None, ambient=0.0,
+               name="test") -> Scene:
+    """objects: list of (vertices (V,3), faces (F,3), material index[, smooth])."""
+    verts, norms, faces, fmat, fobj, infos = [], [], [], [], [], []
+    nv = nf = 0
+    for k, ob in enumerate(objects):
+        V, F, m = ob[0], ob[1], ob[2]
+        smooth = ob[3] if len(ob) > 3 else False
+        V = np.asarray(V, np.float64)
+        F = np.asarray(F, np.int64)
+        fn = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
+        fn /= np.linalg.norm(fn, axis=1, keepdims=True)
+        vn = np.zeros_like(V)
+        for i in range(3):
+            np.add.at(vn, F[:, i], fn)
+        vn /= np.maximum(np.linalg.norm(vn, axis=1, keepdims=True), 1e-30)
+        verts.append(V); norms.append(vn); faces.append(F + nv)
+        fmat.append(np.full(len(F), m)); fobj.append(np.full(len(F), k))
+        infos.append(ObjectInfo(name=f"obj{k}", kind="test", material=m, first_face=nf,
+                                face_count=len(F), first_vertex=nv, vertex_count=len(V),
+                                smooth=bool(smooth)))
+        nv += len(V); nf += len(F)
+    if camera is None:
+        camera = Camera(position=np.array([0, 0, 5.0]), target=np.zeros(3),
+                        up=np.array([0, 1.0, 0]), fov_y=40.0, width=16, height=16)
+    return Scene(cameras=[camera], settings=settings or Settings(), lights=list(lights),
+                 materials=list(materials), objects=infos,
+                 vertices=np.concatenate(verts).astype(np.float32),
+                 normals=np.concatenate(norms).astype(np.float32),
+                 faces=np.concatenate(faces).astype(np.int32),
+                 face_material=np.concatenate(fmat).astype(np.int32),
+                 face_object=np.concatenate(fobj).astype(np.int32),
+                 ambient=np.broadcast_to(np.asarray(ambient, np.float64), (3,)).copy(), name=name)
+
+
+def light(pos, intensity, falloff="inverse_square", name="l"):
+    return PointLight(position=np.asarray(pos, np.float64),
+                      intensity=np.broadcast_to(np.asarray(intensity, np.float64), (3,)).copy(),
+                      falloff=falloff, name=name)
+
+
+def camera(pos, target, *, fov_y=40.0, width=16, height=16, up=(0, 1, 0)):
+    return Camera(position=np.asarray(pos, np.float64), target=np.asarray(target, np.float64),
+                  up=np.asarray(up, np.float64), fov_y=fov_y, width=width, height=height)
+
+
+def pixel_ray(cam: Camera, px: float, py: float) -> np.ndarray:
+    """The unit camera direction through film position (px, py) (docs/MODEL.md), float64."""
+    f = cam.target - cam.position
+    f = f / np.linalg.norm(f)
+    r = np.cross(f, cam.up); r /= np.linalg.norm(r)
+    u = np.cross(r, f)
+    ty = np.tan(np.radians(cam.fov_y) / 2); tx = ty * cam.width / cam.height
+    d = f + (2 * px / cam.width - 1) * tx * r + (1 - 2 * py / cam.height) * ty * u
+    return d / np.linalg.norm(d)
