@@ -138,7 +138,7 @@ def metrics(ours: np.ndarray, ref: np.ndarray, *, eps: float = 1e-2,
         running FLIP twice when a report needs the map too).
 
     Returns a dict of plain Python numbers: rmse, relmse, max_abs, mean_rel, max_rel,
-    outliers (int), outlier_rule (str), pixels (int), nonfinite_pixels (int), flip_mean,
+    outliers (int), outlier_rule (str), eps, pixels (int), nonfinite_pixels (int), flip_mean,
     de2000_mean, de2000_p99.
     """
     a, r, nonfinite = _pair(ours, ref)
@@ -158,6 +158,7 @@ def metrics(ours: np.ndarray, ref: np.ndarray, *, eps: float = 1e-2,
         "max_rel": float(rel_pixel.max()),
         "outliers": int(outlier.sum()),
         "outlier_rule": f"rel > {OUTLIER_REL:g} and abs > {OUTLIER_ABS:g} in some channel",
+        "eps": float(eps),
         "pixels": int(a.shape[0] * a.shape[1]),
         "nonfinite_pixels": nonfinite,
         "flip_mean": float(np.mean(flip_map)),
