@@ -1,0 +1,324 @@
+"""Translate a ``Scene`` into a Mitsuba 3 scene, render it, export it as Mitsuba XML.
+
+Built-ins wherever they mean the same thing as docs/MODEL.md: ``perspective`` sensor
+(``fov_axis = "y"``, the same look-at), ``point`` emitters (W/sr), one ``mi.Mesh`` per object
+(vertex normals only for smooth objects), ``conductor`` (``material = "none"``) and
+``dielectric`` for the specular parts, an ``hdrfilm`` with a **box** filter. Two-sidedness is
+explicit: the Phong lobe and the mirror are wrapped in ``twosided``, the dielectric is not.
+Only the Phong lobe and the Whitted integrator are ours (``reference.plugins``).
+"""
+from __future__ import annotations
+
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import numpy as np
+
+from renderer.scene import Scene
+
+MODES = ("exact", "converged")
+
+
+def _mi():
+    from . import mitsuba_variant
+    mitsuba_variant()
+    import mitsuba as mi
+    return mi
+
+
+def _rgb(c) -> dict:
+    return {"type": "rgb", "value": [float(x) for x in np.asarray(c, np.float64).reshape(3)]}
+
+
+def _camera(scene: Scene, view: int):
+    if not 0 <= view < len(scene.cameras):
+        raise ValueError(f"{scene.path or scene.name}: view {view} out of range "
+                         f"(scene has {len(scene.cameras)} cameras)")
+    return scene.cameras[view]
+
+
+def material_dict(mat, shading: str) -> dict:
+    """The ``whitted_material`` dict of a ``renderer.scene.Material``."""
+    local = {"type": "twosided",
+             "bsdf": {"type": "whitted_phong", "shading": shading,
+                      "kd": _rgb(mat.kd), "ks": _rgb(mat.ks), "n": float(mat.n)}}
+    d = {"type": "whitted_material", "ka": _rgb(mat.ka), "k_refl": _rgb(mat.k_refl),
+         "k_refr": _rgb(mat.k_refr), "ior": float(mat.ior),
+         "combination": mat.combination, "local": local}
+    if mat.transmissive:
+        d["specular"] = {"type": "dielectric", "int_ior": float(mat.ior), "ext_ior": 1.0,
+                         "specular_reflectance": _rgb(mat.k_refl),
+                         "specular_transmittance": _rgb(mat.k_refr)}
+    elif mat.reflective:
+        d["specular"] = {"type": "twosided",
+                         "bsdf": {"type": "conductor", "material": "none",
+                                  "specular_reflectance": _rgb(mat.k_refl)}}
+    return d
+
+
+def _builtin_material_dict(scene: Scene, mat) -> dict:
+    if mat.reflective or mat.transmissive or np.any(mat.ks > 0):
+        raise ValueError(f"{scene.path or scene.name}: material {mat.name!r} is not "
+                         f"diffuse-only (ks, k_refl, k_refr must be 0 for builtins=True)")
+    return {"type": "twosided", "bsdf": {"type": "diffuse", "reflectance": _rgb(mat.kd)}}
+
+
+def mesh_parts(scene: Scene):
+    """Per object and material: (key, object, material index, vertices float32 (V, 3),
+    normals float32 (V, 3) or None, faces uint32 (F, 3) local indices)."""
+    parts = []
+    for i, obj in enumerate(scene.objects):
+        fs = slice(obj.first_face, obj.first_face + obj.face_count)
+        faces = scene.faces[fs].astype(np.int64)
+        mats = scene.face_material[fs]
+        for m in np.unique(mats):
+            sel = faces[mats == m]
+            used, local = np.unique(sel.reshape(-1), return_inverse=True)
+            verts = scene.vertices[used].astype(np.float32)
+            normals = scene.normals[used].astype(np.float32) if obj.smooth else None
+            key = f"obj{i}" if len(np.unique(mats)) == 1 else f"obj{i}_m{int(m)}"
+            parts.append((key, obj, int(m), verts, normals,
+                          local.reshape(-1, 3).astype(np.uint32)))
+    return parts
+
+
+def sensor_dict(scene: Scene, *, view: int = 0, spp: int = 1, mode: str = "exact",
+                seed: int = 0) -> dict:
+    mi = _mi()
+    cam = _camera(scene, view)
+    diag = max(scene.diagonal, float(np.linalg.norm(cam.position - cam.target)), 1e-6)
+    if mode == "converged":
+        k = int(round(np.sqrt(spp)))
+        if k * k != spp:
+            raise ValueError(f"spp must be a perfect square (k x k strata), got {spp}")
+        sampler = {"type": "stratified", "sample_count": int(spp), "seed": int(seed),
+                   "jitter": True}
+    else:
+        sampler = {"type": "independent", "sample_count": 1, "seed": int(seed)}
+    return {
+        "type": "perspective", "fov": float(cam.fov_y), "fov_axis": "y",
+        "near_clip": 1e-6 * diag, "far_clip": 1e6 * diag,
+        "to_world": mi.ScalarTransform4f().look_at(
+            origin=[float(v) for v in cam.position], target=[float(v) for v in cam.target],
+            up=[float(v) for v in cam.up]),
+        "sampler": sampler,
+        "film": {"type": "hdrfilm", "width": int(cam.width), "height": int(cam.height),
+                 "pixel_format": "rgb", "component_format": "float32",
+                 "rfilter": {"type": "box"}},
+    }
+
+
+def to_mitsuba_dict(scene: Scene, *, view: int = 0, spp: int = 1, mode: str = "exact",
+                    seed: int = 0, builtins: bool = False, meshes: str = "objects") -> dict:
+    """A dict for ``mi.load_dict`` describing ``scene`` seen from ``cameras[view]``.
+
+    mode: "exact" (one ray per pixel centre, driven by ``render_mitsuba``) or "converged"
+    (``spp`` = k² stratified samples, box filter, ``mi.render``).
+    builtins: no plugin of ours at all: twosided ``diffuse`` BSDFs and the ``direct``
+    integrator (diffuse-only physical scenes with zero ambient and background only).
+    meshes: "objects" (``mi.Mesh`` objects) or a folder path string to write .ply files into
+    and reference them by file name (used by ``export_xml``).
+    """
+    mi = _mi()
+    if mode not in MODES:
+        raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
+    st = scene.settings
+    where = scene.path or scene.name
+    d: dict = {"type": "scene"}
+    if builtins:
+        if st.shading != "physical":
+            raise ValueError(f"{where}: settings.shading must be 'physical' for builtins=True")
+        if np.any(scene.ambient > 0) or np.any(st.background > 0):
+            raise ValueError(f"{where}: ambient and background must be 0 for builtins=True")
+        d["integrator"] = {"type": "direct", "emitter_samples": 1, "bsdf_samples": 1}
+    else:
+        d["integrator"] = {
+            "type": "whitted", "max_depth": int(st.max_depth),
+            "min_weight": float(st.min_weight), "shading": st.shading,
+            "ray_offset": float(scene.ray_offset), "background": _rgb(st.background),
+            "ambient": _rgb(scene.ambient),
+            "falloff_none": ",".join(f"light{i}" for i, l in enumerate(scene.lights)
+                                     if l.falloff == "none")}
+    d["sensor"] = sensor_dict(scene, view=view, spp=spp, mode=mode, seed=seed)
+    for i, light in enumerate(scene.lights):
+        if builtins and light.falloff != "inverse_square":
+            raise ValueError(f"{where}: lights[{i}].falloff must be 'inverse_square' for "
+                             f"builtins=True")
+        d[f"light{i}"] = {"type": "point", "position": [float(v) for v in light.position],
+                          "intensity": _rgb(light.intensity)}
+    mats: dict[int, object] = {}
+    for key, obj, m, verts, normals, faces in mesh_parts(scene):
+        if m not in mats:
+            md = (_builtin_material_dict(scene, scene.materials[m]) if builtins
+                  else material_dict(scene.materials[m], st.shading))
+            mats[m] = md if meshes != "objects" else mi.load_dict(md)
+        if meshes == "objects":
+            props = mi.Properties()
+            props["bsdf"] = mats[m]
+            mesh = mi.Mesh(key, verts.shape[0], faces.shape[0], props,
+                           has_vertex_normals=normals is not None)
+            params = mi.traverse(mesh)
+            params["vertex_positions"] = mi.Float(verts.reshape(-1))
+            params["faces"] = mi.UInt32(faces.reshape(-1))
+            if normals is not None:
+                params["vertex_normals"] = mi.Float(normals.reshape(-1))
+            params.update()
+            d[key] = mesh
+        else:
+            fname = f"{key}.ply"
+            write_ply(Path(meshes) / fname, verts, faces, normals)
+            d[key] = {"type": "ply", "filename": fname, "face_normals": normals is None,
+                      "bsdf": {"type": "ref", "id": f"mat{m}"}}
+            d.setdefault("_materials", {})[f"mat{m}"] = mats[m]
+    return d
+
+
+def load(scene: Scene, **kw):
+    """``mi.load_dict(to_mitsuba_dict(scene, **kw))``."""
+    mi = _mi()
+    return mi.load_dict(to_mitsuba_dict(scene, **kw))
+
+
+def film_positions(width: int, height: int) -> np.ndarray:
+    """Pixel centres (x + 0.5, y + 0.5) / (width, height), row-major from the top row:
+    float64 (height·width, 2), the film positions of exact mode (docs/MODEL.md)."""
+    y, x = np.mgrid[0:height, 0:width]
+    return np.stack([(x.reshape(-1) + 0.5) / width, (y.reshape(-1) + 0.5) / height], 1)
+
+
+def render_exact(mi_scene) -> np.ndarray:
+    """One ray through each pixel centre of a loaded Mitsuba scene whose integrator is
+    ``whitted``. Returns float32 (H, W, 3) linear RGB."""
+    sensor = mi_scene.sensors()[0]
+    w, h = (int(v) for v in sensor.film().size())
+    rgb = mi_scene.integrator().render_exact(mi_scene, film_positions(w, h))
+    return rgb.reshape(h, w, 3)
+
+
+def render_mitsuba(scene: Scene, *, view: int = 0, mode: str = "exact", spp: int = 1,
+                   seed: int = 0, builtins: bool = False) -> np.ndarray:
+    """Render ``scene`` with Mitsuba. Returns float32 (H, W, 3) linear RGB."""
+    mi = _mi()
+    sc = load(scene, view=view, mode=mode, spp=spp, seed=seed, builtins=builtins)
+    if mode == "exact" and not builtins:
+        return render_exact(sc)
+    return np.array(mi.render(sc, spp=spp, seed=seed), dtype=np.float32)[..., :3]
+
+
+def render_converged_with_variance(scene: Scene, *, view: int = 0, spp: int = 256,
+                                   batches: int = 16, seed: int = 0,
+                                   builtins: bool = False, progress=None):
+    """Converged render as the mean of ``batches`` independent stratified renders of
+    ``spp // batches`` samples each. Returns (mean float32 (H, W, 3), var float32 (H, W, 3),
+    batch_spp): ``var`` is the per-pixel variance of ONE batch estimate (a ``batch_spp``
+    render), so an independent render at ``batch_spp`` has that variance and the mean has
+    ``var / batches``."""
+    if spp % batches:
+        raise ValueError(f"spp ({spp}) must be a multiple of batches ({batches})")
+    b_spp = spp // batches
+    imgs = []
+    for b in range(batches):
+        imgs.append(render_mitsuba(scene, view=view, mode="converged", spp=b_spp,
+                                   seed=seed * 1000003 + b + 1, builtins=builtins))
+        if progress:
+            progress()
+    stack = np.stack(imgs).astype(np.float64)
+    return (stack.mean(0).astype(np.float32), stack.var(0, ddof=1).astype(np.float32),
+            b_spp)
+
+
+# ---- export -------------------------------------------------------------------------------
+def write_ply(path: Path, verts: np.ndarray, faces: np.ndarray,
+              normals: np.ndarray | None = None) -> None:
+    """Binary little-endian PLY: float x y z (+ nx ny nz), faces as uchar/int lists."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    cols = ["x", "y", "z"] + (["nx", "ny", "nz"] if normals is not None else [])
+    head = ["ply", "format binary_little_endian 1.0", f"element vertex {len(verts)}"]
+    head += [f"property float {c}" for c in cols]
+    head += [f"element face {len(faces)}", "property list uchar int vertex_indices",
+             "end_header"]
+    vdata = verts if normals is None else np.concatenate([verts, normals], 1)
+    fdt = np.dtype([("n", "u1"), ("i", "<i4", (3,))])
+    frec = np.empty(len(faces), fdt)
+    frec["n"] = 3
+    frec["i"] = faces
+    with open(path, "wb") as f:
+        f.write(("\n".join(head) + "\n").encode())
+        f.write(np.ascontiguousarray(vdata, "<f4").tobytes())
+        f.write(frec.tobytes())
+
+
+def _xml_value(parent, name, value):
+    import mitsuba as mi
+    if isinstance(value, dict):
+        t = value["type"]
+        if t == "rgb":
+            ET.SubElement(parent, "rgb", name=name,
+                          value=", ".join(repr(float(v)) for v in value["value"]))
+        elif t == "ref":
+            ET.SubElement(parent, "ref", name=name, id=value["id"])
+        else:
+            tag = {"twosided": "bsdf", "whitted_phong": "bsdf", "whitted_material": "bsdf",
+                   "dielectric": "bsdf", "conductor": "bsdf", "diffuse": "bsdf",
+                   "perspective": "sensor", "stratified": "sampler",
+                   "independent": "sampler", "hdrfilm": "film", "box": "rfilter",
+                   "point": "emitter", "ply": "shape", "whitted": "integrator",
+                   "direct": "integrator"}[t]
+            _xml_object(parent, tag, value, name=name)
+    elif isinstance(value, bool):
+        ET.SubElement(parent, "boolean", name=name, value=str(value).lower())
+    elif isinstance(value, int):
+        ET.SubElement(parent, "integer", name=name, value=str(value))
+    elif isinstance(value, float):
+        ET.SubElement(parent, "float", name=name, value=repr(value))
+    elif isinstance(value, str):
+        ET.SubElement(parent, "string", name=name, value=value)
+    elif isinstance(value, list) and len(value) == 3:
+        ET.SubElement(parent, "point", name=name, x=repr(value[0]), y=repr(value[1]),
+                      z=repr(value[2]))
+    elif isinstance(value, mi.ScalarTransform4f):
+        tr = ET.SubElement(parent, "transform", name=name)
+        m = np.array(value.matrix, dtype=np.float64).reshape(4, 4)
+        ET.SubElement(tr, "matrix", value=" ".join(repr(float(v)) for v in m.reshape(-1)))
+    else:
+        raise TypeError(f"export: cannot write property {name!r} of type {type(value)}")
+
+
+def _xml_object(parent, tag, d, name=None, id=None):
+    attrs = {"type": d["type"]}
+    if name and tag not in ("shape", "emitter", "sensor", "integrator"):
+        attrs["name"] = name
+    if id:
+        attrs["id"] = id
+    el = ET.SubElement(parent, tag, **attrs)
+    for k, v in d.items():
+        if k == "type":
+            continue
+        if isinstance(v, dict) and v.get("type") == "ref":
+            ET.SubElement(el, "ref", id=v["id"])
+            continue
+        _xml_value(el, k, v)
+    return el
+
+
+def export_xml(scene: Scene, path, *, view: int = 0, spp: int = 1,
+               mode: str = "exact") -> Path:
+    """Write ``scene`` as a Mitsuba 3 XML file at ``path`` (meshes as .ply files beside it).
+    It loads with ``mi.load_file`` once ``reference.plugins`` is imported."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    d = to_mitsuba_dict(scene, view=view, spp=spp, mode=mode, meshes=str(path.parent))
+    root = ET.Element("scene", version="3.0.0")
+    for key, md in d.pop("_materials", {}).items():
+        _xml_object(root, "bsdf", md, id=key)
+    for key, v in d.items():
+        if key == "type":
+            continue
+        tag = {"integrator": "integrator", "sensor": "sensor"}.get(key)
+        if tag is None:
+            tag = "emitter" if v["type"] == "point" else "shape"
+        _xml_object(root, tag, v, id=key if tag in ("emitter", "shape") else None)
+    ET.indent(root)
+    path.write_text(ET.tostring(root, encoding="unicode") + "\n")
+    return path
