@@ -442,7 +442,10 @@ def load_scene(path, *, shading: str | None = None) -> Scene:
     object_names = set()
     for i, ot in enumerate(r.array_of_tables(data.get("objects", []), "objects")):
         where = f"objects[{i}]"
-        r.keys(ot, _OBJECT_KEYS, where)
+        shape_name = ot.get("shape")
+        extra = shapes.SHAPE_PARAMETERS.get(shape_name, ()) if isinstance(shape_name, str) \
+            else ()
+        r.keys(ot, _OBJECT_KEYS + tuple(extra), where)
         if "material" not in ot:
             raise r.error(f"{where}.material", "missing (required): the name of a "
                                                "[materials.<name>] table")
@@ -478,8 +481,8 @@ def load_scene(path, *, shading: str | None = None) -> Scene:
                     params[key] = r.integer(ot[key], f"{where}.{key}",
                                             lo=1 if key == "frequency" else 0)
             if len(params) > 1:
-                raise r.error(f"{where}.{kind}", "give either 'frequency' or "
-                                                 "'subdivisions', not both")
+                raise r.error(f"{where}.{'.'.join(params)}", "give either 'frequency' or "
+                                                          "'subdivisions', not both")
             verts, faces = shapes.make_shape(kind, **params)
             default_name = kind
         name = r.string(ot.get("name", f"{default_name}{i}"), f"{where}.name")
