@@ -35,7 +35,7 @@ def _finish(path, vertices: np.ndarray, faces: np.ndarray):
         lo, hi = int(faces.min()), int(faces.max())
         if lo < 0 or hi >= len(vertices):
             f = int(np.argwhere((faces < 0) | (faces >= len(vertices)))[0, 0])
-            raise MeshError(f"{path}: face {f} has vertex indices {faces[f].tolist()}, "
+            raise MeshError(f"{path}: face {f} has vertex indices {faces[f].tolist()} out of range, "
                             f"expected 0 <= index < {len(vertices)} (vertex count)")
     return vertices.astype(np.float64, copy=False), faces.astype(np.int64, copy=False)
 
