@@ -5,6 +5,8 @@
     out_dir/index.html              the page (no external resources; images are files beside it)
     out_dir/<entry>/ours.png        sRGB-encoded, clipped to [0, 1]
     out_dir/<entry>/mitsuba.png
+    out_dir/<entry>/ours.exr        the linear images (float32 OpenEXR, e.g. for tev)
+    out_dir/<entry>/mitsuba.exr
     out_dir/<entry>/absdiff.png     |ours - Mitsuba| (max over RGB), inferno, 0 .. scale
     out_dir/<entry>/flip.png        HDR-FLIP error map, magma, 0 .. 1
     out_dir/<entry>/strip.png       the four panels in a row with labels
@@ -26,6 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from reference import compare
+from renderer.film import write_exr
 
 __all__ = ["ReportEntry", "format_metrics_table", "write_report"]
 
@@ -249,7 +252,9 @@ def _entry_html(e: ReportEntry, slug: str, scale: float) -> str:
     run_rows = "".join(f"<tr><th>{esc(k)}</th><td>{esc(v)}</td></tr>" for k, v in _run_rows(e))
     return (f'<section class="entry" id="{esc(slug)}"><h2>{esc(e.name)} '
             f'<span class="note">{w}×{h} · <a href="{esc(slug)}/strip.png">strip.png</a> · '
-            f'<a href="{esc(slug)}/metrics.json">metrics.json</a></span></h2>'
+            f'<a href="{esc(slug)}/metrics.json">metrics.json</a> · '
+            f'<a href="{esc(slug)}/ours.exr">ours.exr</a> · '
+            f'<a href="{esc(slug)}/mitsuba.exr">mitsuba.exr</a></span></h2>'
             f'<div class="strip">{strip}</div>'
             f'<div class="tables"><table>{metric_rows}</table><table>{run_rows}</table></div>'
             f'</section>')
@@ -308,6 +313,8 @@ def write_report(out_dir: str | Path, entries: list[ReportEntry], *, title: str,
         ]
         for fname, (_, rgb) in zip(("ours", "mitsuba", "absdiff", "flip"), panels):
             _save_png(folder / f"{fname}.png", rgb)
+        write_exr(folder / "ours.exr", e.ours, overwrite=True)
+        write_exr(folder / "mitsuba.exr", e.ref, overwrite=True)
         _save_png(folder / "strip.png", _strip(panels))
         record = {"name": e.name, "metrics": e.metrics, "absdiff_scale": scale,
                   "ours_seconds": e.ours_seconds, "ref_seconds": e.ref_seconds,
