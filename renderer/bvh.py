@@ -1,0 +1,637 @@
+"""Acceleration structures: per-object bounding boxes (the thesis's scheme) and a BVH.
+
+``build_bvh`` builds a bounding volume hierarchy on the host (numpy, binned SAH, built level
+by level: all nodes of one level are split at once with segmented numpy operations, no
+per-triangle Python loop). The result is a flat array of *inner* nodes; each node stores the
+boxes of BOTH children (so one fetch gives everything a traversal step needs) and two child
+references. A reference is either an inner-node index or a packed leaf (``LEAF_BIT`` | count-1
+in bits 27..30 | first triangle in bits 0..26). Triangles are reordered so that each leaf is a
+contiguous range; ``BVHArrays.order`` maps positions back to original face indices.
+
+``BVH`` and ``ObjectBoxes`` are accelerators in the sense of ``renderer.intersect``: they are
+built with ``cls.build(scene, t, intersection=...)`` and answer ``intersect`` (closest hit)
+and ``intersect_p`` (any hit). All accelerators call the same triangle routine on the same
+triangle data and break ties between equal ``t`` by the smallest original face index, so
+they return bitwise identical hits.
+
+Traversal is one symbolic loop per query with a per-ray stack of ``STACK_SIZE`` UInt32
+(``dr.alloc_local``). The stack is kept at 32 entries = 128 bytes because larger local arrays
+crash Dr.Jit 1.5.0's LLVM backend (drjit issue #532); the builder bounds the number of inner
+node levels by the same number (switching to median splits near the limit), so the stack
+cannot overflow.
+"""
+from __future__ import annotations
+
+import importlib
+import math
+import time
+from dataclasses import dataclass, field
+
+import drjit as dr
+import numpy as np
+
+from .device import Types
+from .intersect import DeviceTriangles, Hit, triangle_routine, upload_triangles
+from .scene import Scene
+
+LEAF_BIT = 1 << 31
+COUNT_SHIFT = 27
+FIRST_MASK = (1 << COUNT_SHIFT) - 1
+MAX_LEAF = 16                # leaf size limit of the packed reference (4 count bits)
+STACK_SIZE = 32              # UInt32 entries per ray: 128 bytes (drjit #532 limit)
+MAX_LEVELS = STACK_SIZE      # levels of inner nodes; the stack never holds more entries
+DONE = 0xFFFFFFFF            # "no node left" sentinel of the traversal
+C_TRAV, C_TRI = 1.0, 1.0     # SAH costs of one node visit and one triangle test
+
+
+# =========================================================================================
+# Host-side build
+# =========================================================================================
+@dataclass
+class BVHArrays:
+    """A BVH on the host.
+
+    boxes: float32 (N, 12) per inner node: child A lo xyz, hi xyz, child B lo xyz, hi xyz
+        (padded by a few ulps so the float32 triangle test never hits outside its box).
+    children: uint32 (N, 2) child references (inner index or packed leaf).
+    order: int64 (F,) original face index of each reordered triangle.
+    levels: number of inner-node levels (<= MAX_LEVELS); leaf_count; sah_cost (relative to
+        the root's surface area, C_trav = C_tri = 1); build_seconds.
+    """
+
+    boxes: np.ndarray
+    children: np.ndarray
+    order: np.ndarray
+    levels: int
+    leaf_count: int
+    sah_cost: float
+    build_seconds: float
+    bounds: tuple = (np.zeros(3), np.zeros(3))
+
+    @property
+    def node_count(self) -> int:
+        return int(self.boxes.shape[0])
+
+
+def leaf_ref(first, count):
+    """Packed leaf reference(s): uint32."""
+    first = np.asarray(first, np.uint64)
+    count = np.asarray(count, np.uint64)
+    return (np.uint64(LEAF_BIT) | ((count - np.uint64(1)) << np.uint64(COUNT_SHIFT))
+            | first).astype(np.uint32)
+
+
+def _half_area(lo, hi):
+    d = hi - lo
+    return d[0] * d[1] + d[1] * d[2] + d[2] * d[0]
+
+
+def _levels_needed(n, leaf_size):
+    """Inner-node levels a median-split subtree over n triangles needs (n > leaf_size)."""
+    leaves = np.ceil(n / leaf_size)
+    return np.ceil(np.log2(np.maximum(leaves, 1))).astype(np.int64)
+
+
+def build_bvh(vertices: np.ndarray, faces: np.ndarray, *, leaf_size: int = 4,
+              bins: int = 16) -> BVHArrays:
+    """Build a BVH over the triangles ``faces`` (int (F, 3)) of ``vertices`` (float (V, 3)).
+
+    leaf_size: most triangles per leaf (1..16; default 4); a node with more is split.
+    bins: SAH bins along the longest centroid axis of each node (>= 2; default 16).
+    Splits are binned SAH; a node whose centroids coincide, or one too deep to finish with
+    SAH splits inside MAX_LEVELS levels, is split at the median instead.
+    """
+    if not 1 <= leaf_size <= MAX_LEAF:
+        raise ValueError(f"leaf_size: expected 1..{MAX_LEAF}, got {leaf_size}")
+    if bins < 2:
+        raise ValueError(f"bins: expected >= 2, got {bins}")
+    t_start = time.perf_counter()
+    V = np.asarray(vertices, np.float32)
+    Fi = np.asarray(faces, np.int64)
+    F = int(Fi.shape[0])
+    if F >= 1 << COUNT_SHIFT:
+        raise ValueError(f"faces: at most {1 << COUNT_SHIFT} triangles, got {F}")
+    if F and MAX_LEVELS < int(_levels_needed(np.array([F]), leaf_size)[0]) + 1:
+        raise ValueError(f"faces: {F} triangles need more than {MAX_LEVELS} BVH levels")
+
+    p = [V[Fi[:, k]] for k in range(3)]
+    lo = np.minimum(np.minimum(p[0], p[1]), p[2]).T.copy()        # (3, F) float32
+    hi = np.maximum(np.maximum(p[0], p[1]), p[2]).T.copy()
+    del p
+    cen = (lo + hi) * np.float32(0.5)
+    if F:
+        s_lo, s_hi = lo.min(axis=1), hi.max(axis=1)
+    else:
+        s_lo = s_hi = np.zeros(3, np.float32)
+    extent = float(np.max(s_hi - s_lo)) if F else 0.0
+
+    def pad(blo, bhi):
+        # Grow boxes by a few float32 ulps of their coordinates and of the scene's size, so a
+        # triangle's computed hit (with its rounding error) always lies inside its boxes.
+        e = (np.maximum(np.abs(blo), np.abs(bhi)) + np.float32(extent)) * np.float32(2.0 ** -19)
+        return blo - e, bhi + e
+
+    n_max = max(F, 1)
+    boxes = np.empty((n_max, 12), np.float32)
+    children = np.empty((n_max, 2), np.uint32)
+    order = np.empty(F, np.int64)
+
+    if F <= leaf_size:                        # one inner node over a single leaf
+        boxes[0, 0:3], boxes[0, 3:6] = pad(s_lo, s_hi)
+        boxes[0, 6:12] = np.inf               # a box at infinity: never hit
+        children[0] = [leaf_ref(0, max(F, 1)), leaf_ref(0, 1)] if F else [leaf_ref(0, 1)] * 2
+        if F == 0:
+            boxes[0, 0:6] = np.inf
+        order[:] = np.arange(F)
+        arrays = BVHArrays(boxes[:1].copy(), children[:1].copy(), order, 1, 1,
+                           0.0, 0.0, (s_lo.astype(np.float64), s_hi.astype(np.float64)))
+        arrays.sah_cost = _sah_cost(arrays)
+        arrays.build_seconds = time.perf_counter() - t_start
+        return arrays
+
+    # ---- working set: the triangles of the nodes of the current level, grouped by node ----
+    w_idx = np.arange(F, dtype=np.int64)
+    w_cen, w_lo, w_hi = cen, lo, hi
+    seg_n = np.array([F], np.int64)           # triangles per node of this level
+    seg_g = np.array([0], np.int64)           # first position in the final triangle order
+    seg_node = np.array([0], np.int64)        # inner-node index
+    n_nodes, leaf_count, level = 1, 0, 0
+    ar3 = np.arange(3)[:, None]
+
+    while seg_n.size:
+        nseg = seg_n.size
+        n = w_idx.size
+        seg_start = np.zeros(nseg, np.int64)
+        np.cumsum(seg_n[:-1], out=seg_start[1:])
+        es = np.repeat(np.arange(nseg), seg_n)                    # segment of each element
+        B = int(min(bins, max(2, seg_n.max())))
+
+        # ---- binning along the longest centroid axis ------------------------------------
+        cmin = np.minimum.reduceat(w_cen, seg_start, axis=1)
+        cmax = np.maximum.reduceat(w_cen, seg_start, axis=1)
+        ext = cmax - cmin
+        axis = np.argmax(ext, axis=0)
+        sidx = np.arange(nseg)
+        ext_a, cmin_a = ext[axis, sidx], cmin[axis, sidx]
+        with np.errstate(divide="ignore"):
+            scale = np.where(ext_a > 0, np.float32(B) / ext_a, np.float32(0)).astype(np.float32)
+        cval = w_cen.reshape(-1)[axis[es] * n + np.arange(n)]
+        b = ((cval - cmin_a[es]) * scale[es]).astype(np.int64)
+        np.clip(b, 0, B - 1, out=b)
+        key = es * B + b
+        cnt = np.bincount(key, minlength=nseg * B).reshape(nseg, B)
+        bmin = np.full((3, nseg * B), np.inf, np.float32)
+        bmax = np.full((3, nseg * B), -np.inf, np.float32)
+        for j in range(3):
+            np.minimum.at(bmin[j], key, w_lo[j])
+            np.maximum.at(bmax[j], key, w_hi[j])
+        bmin = bmin.reshape(3, nseg, B)
+        bmax = bmax.reshape(3, nseg, B)
+        Lmin = np.minimum.accumulate(bmin, axis=2)
+        Lmax = np.maximum.accumulate(bmax, axis=2)
+        Rmin = np.minimum.accumulate(bmin[:, :, ::-1], axis=2)[:, :, ::-1]
+        Rmax = np.maximum.accumulate(bmax[:, :, ::-1], axis=2)[:, :, ::-1]
+        nL = np.cumsum(cnt, axis=1)[:, :-1]
+        nR = seg_n[:, None] - nL
+        with np.errstate(invalid="ignore", over="ignore"):
+            cost = (_half_area(Lmin[:, :, :-1], Lmax[:, :, :-1]).astype(np.float64) * nL
+                    + _half_area(Rmin[:, :, 1:], Rmax[:, :, 1:]).astype(np.float64) * nR)
+        cost = np.where((nL > 0) & (nR > 0), cost, np.inf)
+        best = np.argmin(cost, axis=1)
+        best_cost = cost[sidx, best]
+
+        # ---- split decision: SAH, or median where SAH cannot split or depth runs out ------
+        forced = ~np.isfinite(best_cost) | (level + 1 + _levels_needed(seg_n, leaf_size) > MAX_LEVELS)
+        n_left = np.where(forced, seg_n // 2, nL[sidx, best])
+        right = b > best[es]
+        left = ~right
+        cl = np.cumsum(left) - left
+        cr = np.cumsum(right) - right
+        rank = np.where(left, cl - cl[seg_start][es], cr - cr[seg_start][es])
+        if forced.any():
+            m = np.flatnonzero(forced[es])
+            srt = m[np.lexsort((cval[m], es[m]))]                   # by node, then centroid
+            rank_in = np.arange(m.size) - (np.cumsum(np.r_[0, seg_n[forced]])[:-1]
+                                            .repeat(seg_n[forced]))
+            right[srt] = rank_in >= n_left[es[srt]]
+            rank[srt] = np.where(right[srt], rank_in - n_left[es[srt]], rank_in)
+
+        # ---- child boxes: from the bins for SAH splits, reduced directly for median ones ---
+        bl = np.stack([Lmin[:, sidx, best].T, Lmax[:, sidx, best].T], 1)   # (nseg, 2, 3)
+        br = np.stack([Rmin[:, sidx, best + 1].T, Rmax[:, sidx, best + 1].T], 1)
+        if forced.any():
+            fm = forced[es]
+            ck = (es[fm] * 2 + right[fm]).astype(np.int64)
+            fmin = np.full((3, 2 * nseg), np.inf, np.float32)
+            fmax = np.full((3, 2 * nseg), -np.inf, np.float32)
+            for j in range(3):
+                np.minimum.at(fmin[j], ck, w_lo[j][fm])
+                np.maximum.at(fmax[j], ck, w_hi[j][fm])
+            fs = np.flatnonzero(forced)
+            bl[fs, 0], bl[fs, 1] = fmin[:, 2 * fs].T, fmax[:, 2 * fs].T
+            br[fs, 0], br[fs, 1] = fmin[:, 2 * fs + 1].T, fmax[:, 2 * fs + 1].T
+
+        # ---- children: leaves are final, inner children form the next level --------------
+        c_n = np.stack([n_left, seg_n - n_left], 1).reshape(-1)            # (2 nseg,)
+        c_g = np.stack([seg_g, seg_g + n_left], 1).reshape(-1)
+        c_leaf = c_n <= leaf_size
+        c_inner = ~c_leaf
+        c_next = np.cumsum(c_inner) - c_inner                             # next-level index
+        c_node = n_nodes + c_next
+        refs = np.where(c_leaf, leaf_ref(c_g, np.maximum(c_n, 1)), c_node.astype(np.uint32))
+        children[seg_node] = refs.reshape(nseg, 2)
+        a_lo, a_hi = pad(bl[:, 0], bl[:, 1])
+        b_lo, b_hi = pad(br[:, 0], br[:, 1])
+        boxes[seg_node] = np.concatenate([a_lo, a_hi, b_lo, b_hi], axis=1)
+        leaf_count += int(c_leaf.sum())
+
+        ci = 2 * es + right                                                # child of element
+        el_leaf = c_leaf[ci]
+        order[c_g[ci[el_leaf]] + rank[el_leaf]] = w_idx[el_leaf]
+
+        nn_n = c_n[c_inner]
+        nn_start = np.zeros(nn_n.size, np.int64)
+        np.cumsum(nn_n[:-1], out=nn_start[1:])
+        keep = ~el_leaf
+        pos = nn_start[c_next[ci[keep]]] + rank[keep]
+        m = int(nn_n.sum())
+        new_idx = np.empty(m, np.int64)
+        new_idx[pos] = w_idx[keep]
+        new_cen = np.empty((3, m), np.float32)
+        new_lo = np.empty((3, m), np.float32)
+        new_hi = np.empty((3, m), np.float32)
+        new_cen[:, pos] = w_cen[:, keep]
+        new_lo[:, pos] = w_lo[:, keep]
+        new_hi[:, pos] = w_hi[:, keep]
+        w_idx, w_cen, w_lo, w_hi = new_idx, new_cen, new_lo, new_hi
+        seg_n, seg_g, seg_node = nn_n, c_g[c_inner], c_node[c_inner]
+        n_nodes += int(c_inner.sum())
+        level += 1
+
+    arrays = BVHArrays(boxes[:n_nodes].copy(), children[:n_nodes].copy(), order, level,
+                       leaf_count, 0.0, 0.0,
+                       (s_lo.astype(np.float64), s_hi.astype(np.float64)))
+    arrays.build_seconds = time.perf_counter() - t_start
+    arrays.sah_cost = _sah_cost(arrays)
+    return arrays
+
+
+def _sah_cost(a: BVHArrays) -> float:
+    """SAH cost relative to the root box: C_trav per inner node + C_tri per leaf triangle,
+    each weighted by its box's surface area."""
+    lo, hi = a.bounds
+    root = float(_half_area(np.asarray(lo, np.float64), np.asarray(hi, np.float64)))
+    if root <= 0 or a.node_count == 0:
+        return 0.0
+    bx = a.boxes.astype(np.float64)
+    total = C_TRAV * root
+    for k in range(2):
+        box = bx[:, 6 * k:6 * k + 6]
+        area = _half_area(box[:, 0:3].T, box[:, 3:6].T)
+        area = np.where(np.isfinite(area), area, 0.0)
+        ref = a.children[:, k].astype(np.int64)
+        is_leaf = (ref & LEAF_BIT) != 0
+        count = ((ref >> COUNT_SHIFT) & 15) + 1
+        total += float(np.sum(np.where(is_leaf, C_TRI * count * area, C_TRAV * area)))
+    return total / root
+
+
+def check_bvh(a: BVHArrays) -> None:
+    """Validate the structure (tests and debugging): every triangle in exactly one leaf,
+    children inside the tree, levels within MAX_LEVELS. Raises AssertionError."""
+    F = a.order.size
+    seen = np.zeros(F, np.int64)
+    ref = a.children.astype(np.int64).reshape(-1)
+    leaf = (ref & LEAF_BIT) != 0
+    inner = ref[~leaf]
+    assert np.all(inner < a.node_count) and np.all(inner > 0)
+    assert np.unique(inner).size == inner.size == a.node_count - 1
+    first = ref[leaf] & FIRST_MASK
+    count = ((ref[leaf] >> COUNT_SHIFT) & 15) + 1
+    real = np.isfinite(a.boxes.reshape(-1, 2, 6)[:, :, 0].reshape(-1))[leaf]
+    for f, c in zip(first[real], count[real]):
+        seen[f:f + c] += 1
+    assert F == 0 or np.all(seen == 1)
+    assert np.array_equal(np.sort(a.order), np.arange(F))
+    assert a.levels <= MAX_LEVELS
+
+
+# =========================================================================================
+# Device side
+# =========================================================================================
+def _wide_types(t: Types):
+    m = importlib.import_module(f"drjit.{t.backend}")
+    return (getattr(m, "Array4f64" if t.is_double else "Array4f"), m.Array2u)
+
+
+def _upload_packed_triangles(scene: Scene, order: np.ndarray, t: Types):
+    """v0, e1, e2 of each (reordered) triangle packed as 12 floats (3 Array4f), computed
+    exactly as ``upload_triangles`` computes them (so the triangle test sees equal values)."""
+    fdt = np.float64 if t.is_double else np.float32
+    faces = scene.faces[order]
+    V = scene.vertices.astype(np.float64)
+    p0, p1, p2 = V[faces[:, 0]], V[faces[:, 1]], V[faces[:, 2]]
+    packed = np.zeros((faces.shape[0], 12), fdt)
+    packed[:, 0:3] = p0
+    packed[:, 3:6] = p1 - p0
+    packed[:, 6:9] = p2 - p0
+    return t.Float(packed.reshape(-1))
+
+
+def _robust_scale(t: Types) -> float:
+    eps = 2.0 ** -53 if t.is_double else 2.0 ** -24
+    gamma3 = 3 * eps / (1 - 3 * eps)
+    return 1.0 + 2.0 * gamma3
+
+
+def _safe_inv(d, t: Types):
+    """1/d per component, clamped to a huge finite value so that ``(lo - o) * inv`` is never
+    0 * inf = NaN for axis-parallel rays (a zero component then means "the slab never ends")."""
+    big = 2.0 ** 900 if t.is_double else 2.0 ** 100
+    return dr.clip(1.0 / d, -big, big)
+
+
+def _slab(o, inv, lo, hi, t_max, robust):
+    """Williams et al. ray/box slab test; t_far grown by 1 + 2 gamma(3) (pbrt) so that the
+    float test never misses a box the exact ray hits. Returns (hit, t_near)."""
+    t0 = (lo - o) * inv
+    t1 = (hi - o) * inv
+    tn = dr.minimum(t0, t1)
+    tf = dr.maximum(t0, t1)
+    t_near = dr.maximum(dr.maximum(tn.x, tn.y), dr.maximum(tn.z, 0.0))
+    t_far = dr.minimum(dr.minimum(tf.x, tf.y), tf.z) * robust
+    return t_near <= dr.minimum(t_far, t_max), t_near
+
+
+def _triangle_step(routine, A4, t, o, d, tri_data, order, i, active, t_max,
+                   best_t, prim, prim_order, hit_u, hit_v, found, any_hit):
+    """Test triangle ``i`` (packed ``tri_data``) where ``active`` and fold it into the
+    closest-hit state: accept a hit that is nearer, or (once something was found) equally
+    near with a smaller original face index, so ties resolve the same in every accelerator.
+    For ``any_hit`` only ``found`` (a hit in (0, t_max)) matters."""
+    a = dr.gather(A4, tri_data, i * 3, active)
+    b = dr.gather(A4, tri_data, i * 3 + 1, active)
+    c = dr.gather(A4, tri_data, i * 3 + 2, active)
+    v0 = t.Array3f(a.x, a.y, a.z)
+    e1 = t.Array3f(a.w, b.x, b.y)
+    e2 = t.Array3f(b.z, b.w, c.x)
+    th, u, v, h = routine(o, d, v0, e1, e2)
+    if any_hit:
+        return best_t, prim, prim_order, hit_u, hit_v, found | (active & h & (th < t_max))
+    h &= active & (th <= best_t)
+    nearer = h & (th < best_t)
+    tie = h & found & (th == best_t)
+    i_order = dr.gather(t.UInt32, order, i, nearer | tie)
+    accept = nearer | (tie & (i_order < prim_order))
+    return (dr.select(accept, th, best_t), dr.select(accept, i, prim),
+            dr.select(accept, i_order, prim_order), dr.select(accept, u, hit_u),
+            dr.select(accept, v, hit_v), found | accept)
+
+
+@dataclass
+class BVH:
+    """Bounding volume hierarchy accelerator (see module docstring).
+
+    Build with ``BVH.build(scene, t, intersection="moller_trumbore", leaf_size=4, bins=16)``.
+    Device arrays: ``nodes`` Float (12 N) child boxes, ``children`` UInt32 (2 N) child refs,
+    ``tri_data`` Float (12 F) packed v0/e1/e2, ``tris`` DeviceTriangles in BVH order.
+    """
+
+    nodes: object = None
+    children: object = None
+    tri_data: object = None
+    tris: DeviceTriangles = None
+    DRJIT_STRUCT = {"nodes": object, "children": object, "tri_data": object,
+                    "tris": DeviceTriangles}
+    # Static (host) facts, not traced.
+    types: Types = field(default=None, repr=False)
+    intersection: str = "moller_trumbore"
+    info: dict = field(default_factory=dict, repr=False)
+
+    @classmethod
+    def build(cls, scene: Scene, t: Types, *, intersection: str = "moller_trumbore",
+              leaf_size: int = 4, bins: int = 16) -> "BVH":
+        triangle_routine(intersection)
+        a = build_bvh(scene.vertices, scene.faces, leaf_size=leaf_size, bins=bins)
+        t0 = time.perf_counter()
+        tris = upload_triangles(scene, t, order=a.order)
+        fdt = np.float64 if t.is_double else np.float32
+        nodes = t.Float(a.boxes.astype(fdt).reshape(-1))
+        children = t.UInt32(a.children.reshape(-1))
+        tri_data = _upload_packed_triangles(scene, a.order, t)
+        dr.eval(nodes, children, tri_data, tris)
+        fsize = 8 if t.is_double else 4
+        F = max(scene.face_count, 1)
+        info = {
+            "accelerator": "bvh", "build_seconds": a.build_seconds,
+            "upload_seconds": time.perf_counter() - t0, "triangles": scene.face_count,
+            "nodes": a.node_count, "leaves": a.leaf_count, "levels": a.levels,
+            "sah_cost": a.sah_cost, "leaf_size": leaf_size, "bins": bins,
+            "node_bytes_per_triangle": a.node_count * (12 * fsize + 8) / F,
+            "traversal_triangle_bytes_per_triangle": 12 * fsize,
+        }
+        return cls(nodes, children, tri_data, tris, types=t, intersection=intersection,
+                   info=info)
+
+    def stats(self) -> dict:
+        return dict(self.info)
+
+    def intersect(self, o, d, t_max, active=True) -> Hit:
+        return self._traverse(o, d, t_max, active, False)
+
+    def intersect_p(self, o, d, t_max, active=True):
+        return self._traverse(o, d, t_max, active, True)
+
+    @dr.syntax
+    def _traverse(self, o, d, t_max, active, any_hit: bool):
+        t = self.types
+        A4, A2u = _wide_types(t)
+        routine = triangle_routine(self.intersection)
+        robust = _robust_scale(t)
+        nodes, children, tri_data, order = self.nodes, self.children, self.tri_data, self.tris.order
+        n = dr.width(o, d, t_max, active)
+
+        o = t.Array3f(o)
+        d = t.Array3f(d)
+        inv = _safe_inv(d, t)
+        stack = dr.alloc_local(t.UInt32, STACK_SIZE)
+        active = t.Bool(active) & dr.full(t.Bool, True, n)
+        sp = dr.zeros(t.UInt32, n)                  # stack depth
+        cur = dr.zeros(t.UInt32, n)                 # next node to visit (root = 0)
+        first = dr.zeros(t.UInt32, n)               # pending leaf triangles [first, end)
+        end = dr.zeros(t.UInt32, n)
+        best_t = t.Float(t_max) + dr.zeros(t.Float, n)   # shrinks to the nearest hit
+        prim = dr.zeros(t.UInt32, n)                # nearest triangle (BVH order)
+        prim_order = dr.full(t.UInt32, DONE, n)     # its original face index (tie-break)
+        hit_u = dr.zeros(t.Float, n)
+        hit_v = dr.zeros(t.Float, n)
+        found = dr.zeros(t.Bool, n)
+        cur = dr.select(active, cur, DONE)
+
+        while dr.hint(active, max_iterations=-1, label="bvh",
+                      exclude=[self, t, A4, A2u, routine, robust, any_hit]):
+            # ---- node step: only when no leaf triangles are pending ---------------------
+            node_step = first >= end
+            is_leaf = node_step & ((cur & LEAF_BIT) != 0) & (cur != DONE)
+            is_inner = node_step & ((cur & LEAF_BIT) == 0)
+            first = dr.select(is_leaf, cur & FIRST_MASK, first)
+            end = dr.select(is_leaf, (cur & FIRST_MASK) + ((cur >> COUNT_SHIFT) & 15) + 1, end)
+
+            q0 = dr.gather(A4, nodes, cur * 3, is_inner)
+            q1 = dr.gather(A4, nodes, cur * 3 + 1, is_inner)
+            q2 = dr.gather(A4, nodes, cur * 3 + 2, is_inner)
+            refs = dr.gather(A2u, children, cur, is_inner)
+            a_lo = t.Array3f(q0.x, q0.y, q0.z)
+            a_hi = t.Array3f(q0.w, q1.x, q1.y)
+            b_lo = t.Array3f(q1.z, q1.w, q2.x)
+            b_hi = t.Array3f(q2.y, q2.z, q2.w)
+            hit_a, tn_a = _slab(o, inv, a_lo, a_hi, best_t, robust)
+            hit_b, tn_b = _slab(o, inv, b_lo, b_hi, best_t, robust)
+            hit_a &= is_inner
+            hit_b &= is_inner
+            both = hit_a & hit_b
+            b_first = tn_b < tn_a
+            near = dr.select(hit_a & ~(hit_b & b_first), refs.x, refs.y)
+            far = dr.select(b_first, refs.x, refs.y)
+            stack.write(far, sp, both)
+            sp = dr.select(both, sp + 1, sp)
+            cur = dr.select(hit_a | hit_b, near, cur)
+
+            pop = is_leaf | (is_inner & ~(hit_a | hit_b))
+            can_pop = pop & (sp > 0)
+            sp = dr.select(can_pop, sp - 1, sp)
+            popped = stack.read(sp, can_pop)
+            cur = dr.select(pop, dr.select(can_pop, popped, DONE), cur)
+
+            # ---- triangle step: one pending leaf triangle ---------------------------------
+            tri_step = first < end
+            best_t, prim, prim_order, hit_u, hit_v, found = _triangle_step(
+                routine, A4, t, o, d, tri_data, order, first, tri_step, t_max,
+                best_t, prim, prim_order, hit_u, hit_v, found, any_hit)
+            if dr.hint(any_hit, mode="scalar"):
+                active &= ~found
+            first = dr.select(tri_step, first + 1, first)
+
+            active &= (first < end) | (cur != DONE)
+
+        if dr.hint(any_hit, mode="scalar"):
+            return found
+        return Hit(valid=found, t=best_t, u=hit_u, v=hit_v, prim=prim)
+
+
+@dataclass
+class ObjectBoxes:
+    """The thesis's scheme: one axis-aligned box per scene object (``Scene.objects`` face
+    ranges); a ray tests each object's box (Williams et al.) and, if it hits, the object's
+    triangles. Triangles stay in scene order (``tris.order`` is the identity).
+
+    Build with ``ObjectBoxes.build(scene, t, intersection="moller_trumbore")``.
+    Device arrays: ``boxes`` Float (8 n_objects) lo xyz, pad, hi xyz, pad; ``ranges`` UInt32
+    (2 n_objects) first face, face count; ``tri_data`` packed v0/e1/e2; ``tris``.
+    """
+
+    boxes: object = None
+    ranges: object = None
+    tri_data: object = None
+    tris: DeviceTriangles = None
+    DRJIT_STRUCT = {"boxes": object, "ranges": object, "tri_data": object,
+                    "tris": DeviceTriangles}
+    types: Types = field(default=None, repr=False)
+    intersection: str = "moller_trumbore"
+    object_count: int = 0
+    info: dict = field(default_factory=dict, repr=False)
+
+    @classmethod
+    def build(cls, scene: Scene, t: Types, *, intersection: str = "moller_trumbore") -> "ObjectBoxes":
+        triangle_routine(intersection)
+        t0 = time.perf_counter()
+        F = scene.face_count
+        objs = [(o.first_face, o.face_count) for o in scene.objects if o.face_count > 0]
+        if not objs and F:
+            objs = [(0, F)]
+        fdt = np.float64 if t.is_double else np.float32
+        boxes = np.full((max(len(objs), 1), 8), np.inf, fdt)
+        ranges = np.zeros((max(len(objs), 1), 2), np.uint32)
+        V = scene.vertices.astype(np.float32)
+        ext = 0.0
+        if F:
+            lo_s, hi_s = scene.bounds()
+            ext = float(np.max(hi_s - lo_s))
+        for k, (f0, fc) in enumerate(objs):      # a loop over objects, not triangles
+            p = V[scene.faces[f0:f0 + fc].reshape(-1)]
+            lo, hi = p.min(axis=0), p.max(axis=0)
+            e = (np.maximum(np.abs(lo), np.abs(hi)) + np.float32(ext)) * np.float32(2.0 ** -19)
+            boxes[k, 0:3], boxes[k, 4:7] = lo - e, hi + e
+            ranges[k] = (f0, fc)
+        order = np.arange(F, dtype=np.int64)
+        tris = upload_triangles(scene, t, order=order)
+        tri_data = _upload_packed_triangles(scene, order, t)
+        out = cls(t.Float(boxes.reshape(-1)), t.UInt32(ranges.reshape(-1)), tri_data, tris,
+                  types=t, intersection=intersection, object_count=len(objs))
+        dr.eval(out.boxes, out.ranges, out.tri_data, out.tris)
+        out.info = {"accelerator": "boxes", "build_seconds": time.perf_counter() - t0,
+                    "triangles": F, "objects": len(objs),
+                    "box_bytes_per_triangle": len(objs) * 8 * (8 if t.is_double else 4) / max(F, 1)}
+        return out
+
+    def stats(self) -> dict:
+        return dict(self.info)
+
+    def intersect(self, o, d, t_max, active=True) -> Hit:
+        return self._traverse(o, d, t_max, active, False)
+
+    def intersect_p(self, o, d, t_max, active=True):
+        return self._traverse(o, d, t_max, active, True)
+
+    @dr.syntax
+    def _traverse(self, o, d, t_max, active, any_hit: bool):
+        t = self.types
+        A4, A2u = _wide_types(t)
+        routine = triangle_routine(self.intersection)
+        robust = _robust_scale(t)
+        boxes, ranges, tri_data, order = self.boxes, self.ranges, self.tri_data, self.tris.order
+        n_obj = self.object_count
+        n = dr.width(o, d, t_max, active)
+
+        o = t.Array3f(o)
+        d = t.Array3f(d)
+        inv = _safe_inv(d, t)
+        active = t.Bool(active) & dr.full(t.Bool, True, n) & (n_obj > 0)
+        obj = dr.zeros(t.UInt32, n)                 # next object to test
+        first = dr.zeros(t.UInt32, n)               # pending triangles [first, end)
+        end = dr.zeros(t.UInt32, n)
+        best_t = t.Float(t_max) + dr.zeros(t.Float, n)
+        prim = dr.zeros(t.UInt32, n)
+        prim_order = dr.full(t.UInt32, DONE, n)
+        hit_u = dr.zeros(t.Float, n)
+        hit_v = dr.zeros(t.Float, n)
+        found = dr.zeros(t.Bool, n)
+
+        while dr.hint(active, max_iterations=-1, label="boxes",
+                      exclude=[self, t, A4, A2u, routine, robust, any_hit]):
+            # ---- box step: the next object's box, when no triangles are pending ---------
+            box_step = (first >= end) & (obj < n_obj)
+            q0 = dr.gather(A4, boxes, obj * 2, box_step)
+            q1 = dr.gather(A4, boxes, obj * 2 + 1, box_step)
+            rng = dr.gather(A2u, ranges, obj, box_step)
+            hit, _ = _slab(o, inv, t.Array3f(q0.x, q0.y, q0.z), t.Array3f(q1.x, q1.y, q1.z),
+                           best_t, robust)
+            hit &= box_step
+            first = dr.select(hit, rng.x, first)
+            end = dr.select(hit, rng.x + rng.y, end)
+            obj = dr.select(box_step, obj + 1, obj)
+
+            # ---- triangle step -----------------------------------------------------------
+            tri_step = first < end
+            best_t, prim, prim_order, hit_u, hit_v, found = _triangle_step(
+                routine, A4, t, o, d, tri_data, order, first, tri_step, t_max,
+                best_t, prim, prim_order, hit_u, hit_v, found, any_hit)
+            if dr.hint(any_hit, mode="scalar"):
+                active &= ~found
+            first = dr.select(tri_step, first + 1, first)
+
+            active &= (first < end) | (obj < n_obj)
+
+        if dr.hint(any_hit, mode="scalar"):
+            return found
+        return Hit(valid=found, t=best_t, u=hit_u, v=hit_v, prim=prim)
