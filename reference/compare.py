@@ -18,8 +18,9 @@ Metrics (``metrics()``):
   errors and bright pixels with tiny relative errors are not outliers).
 - ``flip_mean``: mean HDR-FLIP error (NVIDIA's ``flip-evaluator``, HDR mode on the linear
   images, default viewing conditions of 67 pixels per degree), in [0, 1].
-- ``de2000_mean`` / ``de2000_p99``: CIEDE2000 colour difference per pixel, linear sRGB
-  (D65) -> CIE XYZ -> CIELAB with Y = 1 for white (1, 1, 1); mean and 99th percentile.
+- ``de2000_mean`` / ``de2000_p99`` / ``de2000_max``: CIEDE2000 colour difference per
+  pixel, linear sRGB (D65) -> CIE XYZ -> CIELAB with Y = 1 for white (1, 1, 1); mean,
+  99th percentile and max over pixels.
   Values above 1 are not clipped (L* > 100 for over-white pixels).
 
 ``z_test`` is the statistical test for converged (noisy) renders, in the style of
@@ -139,7 +140,7 @@ def metrics(ours: np.ndarray, ref: np.ndarray, *, eps: float = 1e-2,
 
     Returns a dict of plain Python numbers: rmse, relmse, max_abs, mean_rel, max_rel,
     outliers (int), outlier_rule (str), eps, pixels (int), nonfinite_pixels (int), flip_mean,
-    de2000_mean, de2000_p99.
+    de2000_mean, de2000_p99, de2000_max.
     """
     a, r, nonfinite = _pair(ours, ref)
     diff = a - r
@@ -164,6 +165,7 @@ def metrics(ours: np.ndarray, ref: np.ndarray, *, eps: float = 1e-2,
         "flip_mean": float(np.mean(flip_map)),
         "de2000_mean": float(de.mean()),
         "de2000_p99": float(np.percentile(de, 99)),
+        "de2000_max": float(de.max()),
     }
 
 

@@ -92,7 +92,8 @@ def _metric_rows(m: dict) -> list[tuple[str, str, str]]:
         ("outlier pixels", f"{m['outliers']:,} of {m['pixels']:,} ({share:.2%})", m["outlier_rule"]),
         ("non-finite pixels", f"{m['nonfinite_pixels']:,}", "NaN or inf in either image"),
         ("mean FLIP", _num(m["flip_mean"]), "HDR-FLIP, 0 = identical"),
-        ("ΔE2000", f"{_num(m['de2000_mean'])} mean, {_num(m['de2000_p99'])} p99",
+        ("ΔE2000", f"{_num(m['de2000_mean'])} mean, {_num(m['de2000_p99'])} p99, "
+                   f"{_num(m['de2000_max'])} max",
          "CIEDE2000, linear sRGB → Lab (D65)"),
     ]
 
@@ -198,7 +199,7 @@ td.note, .note { color:var(--muted); font-size:12.5px; }
 table.summary td, table.summary th { padding-right:18px; }
 table.summary td.v { text-align:right; }
 a { color:var(--accent); text-decoration:none; }
-.hint { color:var(--muted); font-size:12.5px; margin:0 0 10px; }
+.hint { color:var(--muted); font-size:12.5px; margin:14px 0 10px; }
 """
 
 _JS = """

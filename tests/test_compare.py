@@ -14,7 +14,7 @@ def test_identical_images_have_zero_error():
     img = _image()
     m = compare.metrics(img, img.copy())
     for key in ("rmse", "relmse", "max_abs", "mean_rel", "max_rel", "flip_mean",
-                "de2000_mean", "de2000_p99"):
+                "de2000_mean", "de2000_p99", "de2000_max"):
         assert m[key] == pytest.approx(0.0, abs=1e-6), key
     assert m["outliers"] == 0
     assert m["nonfinite_pixels"] == 0

@@ -119,3 +119,32 @@ def test_click_swaps_ours_and_mitsuba_in_place(tmp_path):
     green_before, blue_before = _count(before, GREEN), _count(before, BLUE)
     assert _count(after, GREEN) < 0.05 * green_before
     assert _count(after, BLUE) > 1.8 * blue_before
+
+
+SCENES = Path(__file__).resolve().parents[1] / "scenes"
+
+
+def test_compare_cli_writes_report_and_never_overwrites(tmp_path, capsys):
+    from whitted.cli import main
+
+    out = tmp_path / "cmp"
+    argv = ["compare", str(SCENES / "analytic_quad.toml"), "--view", "all", "--size", "16x16",
+            "--accel", "brute",
+            "--live", "--out", str(out)]
+    assert main(argv) == 0
+    printed = capsys.readouterr().out
+    assert f"report: {out / 'index.html'}" in printed
+    assert "RMSE" in printed and "effects:" in printed
+    folders = sorted(p.name for p in out.iterdir() if p.is_dir())
+    from renderer.scene import load_scene
+    assert len(folders) == len(load_scene(SCENES / "analytic_quad.toml").cameras)  # every view
+    for name in folders:
+        record = json.loads((out / name / "metrics.json").read_text())
+        assert record["metrics"]["pixels"] == 16 * 16
+        assert "IR operations" in record["operations"] and record["effects"]
+        assert record["ref_seconds"] is not None and record["ours_seconds"] > 0
+    stamp = (out / "index.html").stat().st_mtime_ns
+    with pytest.raises(SystemExit, match="--force"):
+        main(argv)
+    assert (out / "index.html").stat().st_mtime_ns == stamp
+    assert main(argv + ["--force"]) == 0
