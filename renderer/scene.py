@@ -216,7 +216,7 @@ _MATERIAL_KEYS = ("ka", "kd", "ks", "n", "k_refl", "k_refr", "ior", "combination
 _OBJECT_KEYS = ("name", "material", "mesh", "shape", "translate", "rotate", "scale",
                 "matrix", "smooth", "flip_normals")
 _PHYSICAL_KEYS = ("light_scale", "ambient", "background")
-_VIEW_DEFAULTS = {"up": (0.0, 1.0, 0.0), "fov_y": 40.0, "resolution": (256, 256)}
+_VIEW_DEFAULTS = {"up": [0.0, 1.0, 0.0], "fov_y": 40.0, "resolution": [256, 256]}
 
 
 class _Reader:
@@ -298,12 +298,11 @@ class _Reader:
         """RGB triple or one number for all three channels; >= 0."""
         if isinstance(value, list):
             c = self.vector(value, field)
+        elif isinstance(value, (int, float)) and not isinstance(value, bool):
+            c = np.full(3, self.number(value, field))
         else:
-            try:
-                c = np.full(3, self.number(value, field))
-            except SceneError:
-                raise self.error(field, "expected a number or an array of 3 numbers (RGB), "
-                                        f"got {_describe(value)}") from None
+            raise self.error(field, "expected a number or an array of 3 numbers (RGB), "
+                                    f"got {_describe(value)}")
         if np.any(c < 0):
             raise self.error(field, f"expected non-negative values, got {value}")
         return c
