@@ -71,7 +71,9 @@ def mitsuba_live(scene, view: int) -> tuple[np.ndarray, float, dict]:
 
 
 def mitsuba_golden(scene, view: int) -> tuple[np.ndarray, float | None, dict]:
-    """Mitsuba's stored golden image of ``scene.cameras[view]`` (exact mode).
+    """Mitsuba's stored golden image of ``scene.cameras[view]`` (exact mode), through
+    ``reference.golden.load_golden(scene, *, view) -> (float32 (H, W, 3), sidecar dict,
+    path)``, which raises FileNotFoundError when no golden matches the scene's settings.
 
     Returns (float32 (H, W, 3) linear RGB, render seconds from the sidecar or None, info
     rows). Raises SystemExit with a clear message if no golden matches the scene."""
@@ -82,6 +84,9 @@ def mitsuba_golden(scene, view: int) -> tuple[np.ndarray, float | None, dict]:
             raise
         raise SystemExit("error: no golden images yet (reference/golden.py is missing); "
                          "use --live to render Mitsuba's image now")
+    if not hasattr(golden, "load_golden"):
+        raise SystemExit("error: reference.golden has no load_golden(scene, *, view) -> "
+                         "(image, sidecar dict, path); use --live")
     try:
         img, sidecar, path = golden.load_golden(scene, view=view)
     except FileNotFoundError as e:
