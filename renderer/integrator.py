@@ -5,7 +5,8 @@ without recursion. Each lane carries its current ray, the ray's accumulated weig
 depth, and a small stack of pending branches (origin, direction, weight, depth) in
 ``dr.alloc_local`` arrays; at a hit with both children the refracted one is pushed and the
 reflected one followed. A branch is created only if ``depth + 1 <= max_depth`` and its
-accumulated weight (max over RGB) is ``>= min_weight``.
+accumulated weight (max over RGB) is ``>= min_weight`` and its own weight is nonzero (a
+zero-weight child adds nothing, so ``min_weight = 0`` does not trace rays off diffuse hits).
 
 What gets traced is decided by the ``EffectSet`` before tracing: no secondary rays means no
 loop at all (one closest hit and local shading); reflection without refraction is a chain
@@ -126,14 +127,14 @@ def trace(sa: SceneArrays, o, d, t: Types, fx: EffectSet, opt: TraceOptions):
         can_branch = on_surface & (depth < opt.max_depth)
         child_depth = depth + 1
         w_r = weight * w_refl
-        go_r = can_branch & (dr.max(w_r) >= opt.min_weight)
+        go_r = can_branch & (dr.max(w_r) >= opt.min_weight) & (dr.max(w_refl) > 0)
         next_o = offset_origin(sp.p, sp.ng, R, opt.eps)
         next_d = R
         next_w = w_r
         go = go_r
         if dr.hint(use_stack, mode="scalar"):
             w_t = weight * w_refr
-            go_t = can_branch & (dr.max(w_t) >= opt.min_weight)
+            go_t = can_branch & (dr.max(w_t) >= opt.min_weight) & (dr.max(w_refr) > 0)
             o_t = offset_origin(sp.p, sp.ng, T, opt.eps)
             # both children: follow R, push T
             push = go_r & go_t
