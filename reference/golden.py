@@ -1,0 +1,206 @@
+"""Golden images: Mitsuba renders of every scene × view × shading mode × mode, with settings.
+
+Layout: ``reference/goldens/<scene>/<view>_<shading>_<mode>.exr`` (linear RGB, float32, ZIP
+compressed) and a JSON sidecar ``.json`` beside each (Mitsuba version, variant, spp, mode,
+shading, view, resolution, sha256 of the scene file and of every mesh in
+``Scene.source_files``, date). Converged goldens also hold ``var.R/var.G/var.B`` (half): the
+per-pixel variance of one ``batch_spp`` estimate (see ``render_converged_with_variance``).
+
+Goldens change only through ``render_goldens(..., force=True)`` / ``whitted reference
+--force``; ``load_golden`` refuses a missing or stale (hash mismatch) golden and says the
+exact command that regenerates it.
+"""
+from __future__ import annotations
+
+import datetime
+import hashlib
+import json
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from renderer.scene import SHADING_MODES, Scene, load_scene
+
+ROOT = Path(__file__).resolve().parent.parent
+GOLDEN_DIR = Path(__file__).resolve().parent / "goldens"
+MODES = ("exact", "converged")
+#: Converged goldens: total spp and the number of independent batches (variance estimate).
+CONVERGED_SPP = 64
+CONVERGED_BATCHES = 16
+DEFAULT_SIZE = 256
+
+
+class GoldenError(RuntimeError):
+    """A golden image is missing or does not match its scene files."""
+
+
+@dataclass
+class Golden:
+    image: np.ndarray            # float32 (H, W, 3) linear RGB
+    var: np.ndarray | None       # float32 (H, W, 3) variance of one batch_spp estimate
+    meta: dict
+    path: Path
+
+
+def _rel(p: Path) -> str:
+    try:
+        return str(Path(p).resolve().relative_to(ROOT))
+    except ValueError:
+        return str(p)
+
+
+def regenerate_command(scene_path) -> str:
+    return f"whitted reference --force {_rel(Path(scene_path))}"
+
+
+def source_hashes(scene: Scene) -> dict[str, str]:
+    """sha256 of the scene file and every mesh it uses, keyed by repo-relative path."""
+    files = list(scene.source_files) or ([scene.path] if scene.path else [])
+    out = {}
+    for f in files:
+        out[_rel(Path(f))] = hashlib.sha256(Path(f).read_bytes()).hexdigest()
+    return out
+
+
+def golden_path(scene_name: str, view_name: str, shading: str, mode: str,
+                root: Path = GOLDEN_DIR) -> Path:
+    return Path(root) / scene_name / f"{view_name}_{shading}_{mode}.exr"
+
+
+# ---- EXR i/o ------------------------------------------------------------------------------
+def write_golden_exr(path: Path, image: np.ndarray, var: np.ndarray | None = None) -> None:
+    import OpenEXR
+    chans = {"R": image[..., 0], "G": image[..., 1], "B": image[..., 2]}
+    chans = {k: np.ascontiguousarray(v, np.float32) for k, v in chans.items()}
+    if var is not None:
+        for i, c in enumerate("RGB"):
+            chans[f"var.{c}"] = np.ascontiguousarray(var[..., i], np.float16)
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with OpenEXR.File(header, chans) as f:
+        f.write(str(path))
+
+
+def read_golden_exr(path: Path) -> tuple[np.ndarray, np.ndarray | None]:
+    import OpenEXR
+    with OpenEXR.File(str(path), separate_channels=True) as f:
+        ch = {k: np.asarray(v.pixels) for k, v in f.channels().items()}
+    img = np.stack([ch["R"], ch["G"], ch["B"]], -1).astype(np.float32)
+    var = None
+    if "var.R" in ch:
+        var = np.stack([ch["var.R"], ch["var.G"], ch["var.B"]], -1).astype(np.float32)
+    return img, var
+
+
+# ---- rendering --------------------------------------------------------------------------------
+def _resize(scene: Scene, size: int | None) -> Scene:
+    from dataclasses import replace
+    if size is None:
+        return scene
+    cams = []
+    for c in scene.cameras:
+        h = int(size)
+        w = max(1, int(round(size * c.width / c.height)))
+        cams.append(replace(c, width=w, height=h))
+    return replace(scene, cameras=cams)
+
+
+def _progress_bar(total: int, enabled: bool):
+    state = {"done": 0}
+
+    def step(label: str = ""):
+        state["done"] += 1
+        if not enabled:
+            return
+        n = state["done"]
+        bar = "#" * int(30 * n / total)
+        sys.stderr.write(f"\r[{bar:<30}] {n}/{total} {label[:50]:<50}")
+        if n == total:
+            sys.stderr.write("\n")
+        sys.stderr.flush()
+    return step
+
+
+def render_goldens(scene_paths, *, force: bool = False, spp: int = CONVERGED_SPP,
+                   batches: int = CONVERGED_BATCHES, size: int = DEFAULT_SIZE,
+                   modes=MODES, shadings=SHADING_MODES, progress: bool = True,
+                   root: Path = GOLDEN_DIR) -> list[Path]:
+    """Render every scene × view × shading × mode with Mitsuba into ``root``.
+
+    spp: converged samples per pixel in total (``batches`` independent renders of
+    ``spp // batches`` each, for the per-pixel variance). size: image height in pixels
+    (width follows the camera's aspect). Existing goldens are kept unless ``force``.
+    Returns the written EXR paths.
+    """
+    import mitsuba as mi
+
+    from . import mitsuba_variant
+    from .mitsuba_scene import render_converged_with_variance, render_mitsuba
+
+    variant = mitsuba_variant()
+    jobs = []
+    for sp in scene_paths:
+        for shading in shadings:
+            scene = _resize(load_scene(sp, shading=shading), size)
+            name = Path(sp).stem
+            for v, cam in enumerate(scene.cameras):
+                for mode in modes:
+                    jobs.append((sp, name, scene, v, cam, shading, mode))
+    units = sum(batches if j[6] == "converged" else 1 for j in jobs)
+    step = _progress_bar(units, progress)
+    written = []
+    for sp, name, scene, v, cam, shading, mode in jobs:
+        out = golden_path(name, cam.name, shading, mode, root)
+        label = f"{name}/{out.name}"
+        if out.exists() and not force:
+            raise GoldenError(f"{_rel(out)} exists; pass force=True "
+                              f"({regenerate_command(sp)}) to overwrite it")
+        var, b_spp = None, 1
+        if mode == "exact":
+            img = render_mitsuba(scene, view=v, mode="exact")
+            step(label)
+            used_spp = 1
+        else:
+            img, var, b_spp = render_converged_with_variance(
+                scene, view=v, spp=spp, batches=batches, progress=lambda: step(label))
+            used_spp = spp
+        write_golden_exr(out, img, var)
+        meta = {
+            "scene": _rel(Path(sp)), "view": v, "view_name": cam.name, "shading": shading,
+            "mode": mode, "spp": used_spp, "batch_spp": b_spp,
+            "batches": batches if mode == "converged" else 1,
+            "resolution": [cam.width, cam.height], "mitsuba_version": mi.__version__,
+            "variant": variant, "max_depth": scene.settings.max_depth,
+            "sources": source_hashes(scene),
+            "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+        }
+        out.with_suffix(".json").write_text(json.dumps(meta, indent=1) + "\n")
+        written.append(out)
+    return written
+
+
+def load_golden(scene: Scene, *, view: int, shading: str, mode: str,
+                root: Path = GOLDEN_DIR) -> Golden:
+    """The golden of ``scene`` (its path names it) for one view/shading/mode. Raises
+    ``GoldenError`` naming the regeneration command when missing or stale."""
+    sp = scene.path
+    if sp is None:
+        raise GoldenError(f"scene {scene.name!r} has no path; goldens exist only for files")
+    cam = scene.cameras[view]
+    out = golden_path(Path(sp).stem, cam.name, shading, mode, root)
+    side = out.with_suffix(".json")
+    if not out.exists() or not side.exists():
+        raise GoldenError(f"golden {_rel(out)} is missing; render it with "
+                          f"`{regenerate_command(sp)}`")
+    meta = json.loads(side.read_text())
+    now = source_hashes(scene)
+    if meta.get("sources") != now:
+        changed = sorted(k for k in set(now) | set(meta.get("sources", {}))
+                         if now.get(k) != meta.get("sources", {}).get(k))
+        raise GoldenError(f"golden {_rel(out)} is stale ({', '.join(changed)} changed since "
+                          f"it was rendered); regenerate it with "
+                          f"`{regenerate_command(sp)}`")
+    img, var = read_golden_exr(out)
+    return Golden(img, var, meta, out)
