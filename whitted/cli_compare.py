@@ -71,28 +71,22 @@ def mitsuba_live(scene, view: int) -> tuple[np.ndarray, float, dict]:
 
 
 def mitsuba_golden(scene, view: int) -> tuple[np.ndarray, float | None, dict]:
-    """Mitsuba's stored golden image of ``scene.cameras[view]`` (exact mode), through
-    ``reference.golden.load_golden(scene, *, view) -> (float32 (H, W, 3), sidecar dict,
-    path)``, which raises FileNotFoundError when no golden matches the scene's settings.
+    """Mitsuba's stored exact-mode golden of ``scene.cameras[view]`` in the scene's shading
+    mode (``reference.golden.load_golden``).
 
-    Returns (float32 (H, W, 3) linear RGB, render seconds from the sidecar or None, info
-    rows). Raises SystemExit with a clear message if no golden matches the scene."""
+    Returns (float32 (H, W, 3) linear RGB, render seconds if the sidecar records them else
+    None, info rows). A missing or stale golden ends the command with the golden module's
+    message, which names the command that regenerates it."""
+    from reference import golden
+
     try:
-        from reference import golden
-    except ModuleNotFoundError as e:
-        if e.name != "reference.golden":
-            raise
-        raise SystemExit("error: no golden images yet (reference/golden.py is missing); "
-                         "use --live to render Mitsuba's image now")
-    if not hasattr(golden, "load_golden"):
-        raise SystemExit("error: reference.golden has no load_golden(scene, *, view) -> "
-                         "(image, sidecar dict, path); use --live")
-    try:
-        img, sidecar, path = golden.load_golden(scene, view=view)
-    except FileNotFoundError as e:
-        raise SystemExit(f"error: {e}; run `whitted reference` to create it, or use --live")
-    seconds = sidecar.get("seconds") if isinstance(sidecar, dict) else None
-    return np.asarray(img, np.float32), seconds, {"Mitsuba image": f"golden {path}"}
+        g = golden.load_golden(scene, view=view, shading=scene.settings.shading, mode="exact")
+    except golden.GoldenError as e:
+        raise SystemExit(f"error: {e} (or use --live)")
+    meta = g.meta
+    made = ", ".join(str(meta[k]) for k in ("mitsuba_version", "variant", "date") if k in meta)
+    return (np.asarray(g.image, np.float32), meta.get("seconds"),
+            {"Mitsuba image": f"golden {g.path}" + (f" ({made})" if made else "")})
 
 
 # ───────────────────────────────────────────── the command ──
