@@ -36,6 +36,23 @@ class RenderResult:
     stats: dict = field(default_factory=dict)
 
 
+def make_frame_fn(t: Types, effects: EffectSet, options: TraceOptions, *, spp: int,
+                  exact: bool, seed: int):
+    """The per-frame work as a function of device arrays only:
+    ``frame(cam: CameraArrays, arrays: SceneArrays, width, height) -> TensorXf (H, W, 3)``.
+
+    It closes over host constants only (types, effect set, options), never over a
+    ``Renderer``, so wrapping it in ``dr.freeze`` creates no reference cycle (a cycle lets
+    Python's collector free device memory in the middle of a later recording, which Dr.Jit
+    cannot record).
+    """
+    def frame(cam: CameraArrays, arrays: SceneArrays, width: int, height: int):
+        o, d = primary_rays(cam, width, height, t, spp=spp, exact=exact, seed=seed)
+        radiance = trace(arrays, o, d, t, effects, options)
+        return develop(radiance, width, height, spp, t)
+    return frame
+
+
 class Renderer:
     """A scene uploaded for repeated frames.
 
@@ -47,6 +64,9 @@ class Renderer:
       effects: EffectSet to trace (default: derived from the scene).
       spp, exact: override ``scene.settings`` (converged mode when ``exact`` is False).
       freeze: wrap the frame function in ``dr.freeze`` (default False).
+
+    ``arrays`` (SceneArrays) holds the uploaded scene, ``frame_fn`` the (frozen) per-frame
+    function of ``make_frame_fn``; ``frame(camera(cam), W, H)`` runs it.
     """
 
     def __init__(self, scene: Scene, *, backend: str = "auto", precision: str = "float32",
@@ -80,15 +100,9 @@ class Renderer:
         self.options = TraceOptions(n_lights=len(scene.lights), max_depth=int(s.max_depth),
                                     min_weight=float(s.min_weight), eps=float(scene.ray_offset))
         self.accel_name = accel
-        self._frame = dr.freeze(self._frame_impl) if freeze else self._frame_impl
-
-    # the per-frame work: a function of device arrays only ------------------------------------
-    def _frame_impl(self, cam: CameraArrays, arrays: SceneArrays, width: int, height: int):
-        t = self.t
-        o, d = primary_rays(cam, width, height, t, spp=self.spp, exact=self.exact,
-                            seed=self.scene.settings.seed)
-        radiance = trace(arrays, o, d, t, self.effects, self.options)
-        return develop(radiance, width, height, self.spp, t)
+        frame_fn = make_frame_fn(t, self.effects, self.options, spp=self.spp, exact=self.exact,
+                                 seed=int(s.seed))
+        self.frame_fn = dr.freeze(frame_fn) if freeze else frame_fn
 
     def camera(self, cam: Camera | int = 0) -> CameraArrays:
         """Device arrays of ``cam`` (a Camera, or an index into ``scene.cameras``)."""
@@ -97,8 +111,9 @@ class Renderer:
         return camera_arrays(cam, self.t)
 
     def frame(self, cam: CameraArrays, width: int, height: int):
-        """Render one frame: TensorXf (H, W, 3), evaluated."""
-        img = self._frame(cam, self.arrays, width, height)
+        """Render one frame: TensorXf (H, W, 3). The kernels are launched (``dr.eval``) but
+        not waited for; ``dr.sync_thread()`` or ``.numpy()`` waits."""
+        img = self.frame_fn(cam, self.arrays, width, height)
         dr.eval(img)
         return img
 

@@ -127,7 +127,7 @@ def test_frozen_frame_matches_traced_frame_with_moved_camera(backend):
         a = traced.frame(traced.camera(cam), 32, 32).numpy()
         b = frozen.frame(frozen.camera(cam), 32, 32).numpy()
         np.testing.assert_array_equal(a, b)
-    assert frozen._frame.n_recordings == 1   # recorded once, replayed for the moved cameras
+    assert frozen.frame_fn.n_recordings == 1   # recorded once, replayed for the moved cameras
     assert np.abs(a - traced.frame(traced.camera(cams[0]), 32, 32).numpy()).max() > 0.05
 
 
@@ -190,3 +190,11 @@ def test_analytic_quad_scene_file_matches_closed_form(backend):
             continue
         cos = 1 / np.sqrt(p[0] ** 2 + 1 + p[2] ** 2)
         np.testing.assert_allclose(img[y, x], [0.5 * cos] * 3, rtol=1e-5)
+
+
+@pytest.mark.parametrize("accel", ["boxes", "bvh"])
+def test_accelerators_give_brute_force_pixels(backend, accel):
+    pytest.importorskip("renderer.bvh")
+    sc = _glass_scene()
+    np.testing.assert_array_equal(render(sc, backend=backend, accel=accel).image,
+                                  render(sc, backend=backend).image)
