@@ -48,7 +48,7 @@ _REGISTERED: set[str] = set()
 
 def _color(props, name, default=0.0) -> np.ndarray:
     """An rgb property as float64 (3,), accepting a float, an rgb or a 3-list."""
-    if not props.has_property(name):
+    if name not in props:
         return np.full(3, float(default))
     v = props[name]
     arr = np.array(v, dtype=np.float64).reshape(-1)

@@ -1,0 +1,113 @@
+"""Our renderer against Mitsuba's golden images, pixel by pixel (cases: reference/cases.py).
+
+Exact mode: the same rays in both renderers, so only rounding and ties at shared edges may
+differ (rule: ``reference.cases.check_exact``). Converged mode: a per-pixel Z-test of our
+k x k stratified render against the golden's mean and variance (``check_converged``).
+The last tests break our renderer on purpose (wrong ior, reflection forced off, the other
+shading mode) and require the same checks to fail.
+"""
+from __future__ import annotations
+
+import warnings
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from reference.cases import CONVERGED_THRESHOLDS, EXACT_THRESHOLDS, cases, check_converged, \
+    check_exact
+from reference.golden import load_golden
+from renderer.effects import EffectSet
+from renderer.render import render
+from renderer.scene import load_scene
+
+OUR_SEED = 20240611   # fixed: ours must be independent of the golden's Mitsuba seeds
+
+
+def _scene_at(path, shading, golden=None, **settings):
+    scene = load_scene(path, shading=shading)
+    if golden is not None:
+        w, h = golden.meta["resolution"]
+        scene = replace(scene, cameras=[replace(c, width=w, height=h) for c in scene.cameras])
+    return scene.with_settings(**settings) if settings else scene
+
+
+def _golden(case):
+    scene = load_scene(case.scene, shading=case.shading)
+    return load_golden(scene, view=case.view, shading=case.shading, mode=case.mode)
+
+
+def _ours_converged(scene, view, golden, **kw):
+    spp = int(golden.meta["batch_spp"])
+    return render(scene.with_settings(seed=OUR_SEED), view=view, backend="llvm",
+                  exact=False, spp=spp, **kw).image
+
+
+def _converged_check(ours, golden, case_th):
+    var = golden.var
+    return check_converged(ours, var, golden.image, var / golden.meta["batches"], case_th)
+
+
+@pytest.mark.parametrize("case", cases(modes=("exact",)), ids=lambda c: c.name)
+def test_exact_matches_golden(case):
+    g = _golden(case)
+    scene = _scene_at(case.scene, case.shading, g)
+    ours = render(scene, view=case.view, backend="llvm").image
+    res = check_exact(ours, g.image, case.thresholds)
+    print(case.name, res)
+    assert res["ok"], f"{case.name}: {res} (thresholds {case.thresholds})"
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("case", cases(modes=("converged",)), ids=lambda c: c.name)
+def test_converged_matches_golden(case):
+    g = _golden(case)
+    scene = _scene_at(case.scene, case.shading, g)
+    ours = _ours_converged(scene, case.view, g)
+    res = _converged_check(ours, g, case.thresholds)
+    print(case.name, res)
+    assert res["ok"], f"{case.name}: {res}"
+
+
+# ---- the checks can fail ----------------------------------------------------------------
+SCENE = "scenes/cornell_sphere.toml"
+VIEW = 1          # the "left" view: glass and mirror spheres both in sight
+
+
+def _broken_renders(shading, golden):
+    """(label, image) of our renderer with one deliberate error each, exact mode."""
+    scene = _scene_at(SCENE, shading, golden)
+    mats = [replace(m, ior=1.3) if m.transmissive else m for m in scene.materials]
+    assert any(m.transmissive for m in scene.materials), f"{SCENE}: no glass to break"
+    yield "ior 1.5 -> 1.3", render(replace(scene, materials=mats), view=VIEW,
+                                   backend="llvm").image
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        fx = EffectSet.from_scene(scene).without("reflection")
+    yield "reflection forced off", render(scene, view=VIEW, backend="llvm", effects=fx).image
+    other = "physical" if shading == "classic" else "classic"
+    yield f"{other} shading", render(_scene_at(SCENE, other, golden), view=VIEW,
+                                     backend="llvm").image
+
+
+@pytest.mark.parametrize("shading", ["classic", "physical"])
+def test_exact_check_fails_on_broken_renderer(shading):
+    g = load_golden(load_scene(SCENE, shading=shading), view=VIEW, shading=shading,
+                    mode="exact")
+    good = render(_scene_at(SCENE, shading, g), view=VIEW, backend="llvm").image
+    assert check_exact(good, g.image, EXACT_THRESHOLDS)["ok"]
+    for label, img in _broken_renders(shading, g):
+        res = check_exact(img, g.image, EXACT_THRESHOLDS)
+        assert not res["ok"], f"{label}: the exact check passed a broken render: {res}"
+
+
+@pytest.mark.slow
+def test_converged_check_fails_on_wrong_ior():
+    shading = "physical"
+    g = load_golden(load_scene(SCENE, shading=shading), view=VIEW, shading=shading,
+                    mode="converged")
+    scene = _scene_at(SCENE, shading, g)
+    mats = [replace(m, ior=1.3) if m.transmissive else m for m in scene.materials]
+    ours = _ours_converged(replace(scene, materials=mats), VIEW, g)
+    res = _converged_check(ours, g, CONVERGED_THRESHOLDS)
+    assert not res["ok"], f"the Z-test passed a render with the wrong ior: {res}"
