@@ -86,6 +86,22 @@ def _half_area(lo, hi):
     return d[0] * d[1] + d[1] * d[2] + d[2] * d[0]
 
 
+def _sweep(x, op, reverse=False):
+    """Running ``op`` (np.minimum / np.maximum) over axis 1 of x (3, B, nseg); a Python loop
+    over the B bins, each step vectorised over all nodes (much faster than ufunc.accumulate
+    along a short axis)."""
+    out = np.empty_like(x)
+    ks = range(x.shape[1] - 1, -1, -1) if reverse else range(x.shape[1])
+    prev = None
+    for k in ks:
+        if prev is None:
+            out[:, k] = x[:, k]
+        else:
+            op(out[:, prev], x[:, k], out=out[:, k])
+        prev = k
+    return out
+
+
 def _levels_needed(n, leaf_size):
     """Inner-node levels a median-split subtree over n triangles needs (n > leaf_size)."""
     leaves = np.ceil(n / leaf_size)
@@ -150,75 +166,77 @@ def build_bvh(vertices: np.ndarray, faces: np.ndarray, *, leaf_size: int = 4,
         return arrays
 
     # ---- working set: the triangles of the nodes of the current level, grouped by node ----
+    # lo/hi rows: 3 float32 arrays each (1-D rows keep numpy's gathers fast).
     w_idx = np.arange(F, dtype=np.int64)
-    w_cen, w_lo, w_hi = cen, lo, hi
+    w_lo, w_hi = list(lo), list(hi)
+    del cen
     seg_n = np.array([F], np.int64)           # triangles per node of this level
     seg_g = np.array([0], np.int64)           # first position in the final triangle order
     seg_node = np.array([0], np.int64)        # inner-node index
     n_nodes, leaf_count, level = 1, 0, 0
-    ar3 = np.arange(3)[:, None]
 
     while seg_n.size:
         nseg = seg_n.size
         n = w_idx.size
         seg_start = np.zeros(nseg, np.int64)
         np.cumsum(seg_n[:-1], out=seg_start[1:])
-        es = np.repeat(np.arange(nseg), seg_n)                    # segment of each element
-        B = int(min(bins, max(2, seg_n.max())))
+        es = np.repeat(np.arange(nseg, dtype=np.int32), seg_n)   # node of each element
+        # Fewer bins once the nodes are small (a bin per triangle is enough).
+        B = int(min(bins, max(4, 1 << int(math.ceil(math.log2(max(n / nseg, 2)))))))
 
         # ---- binning along the longest centroid axis ------------------------------------
-        cmin = np.minimum.reduceat(w_cen, seg_start, axis=1)
-        cmax = np.maximum.reduceat(w_cen, seg_start, axis=1)
+        cen = [w_lo[j] + w_hi[j] for j in range(3)]                # 2 x box centre
+        cmin = np.stack([np.minimum.reduceat(cen[j], seg_start) for j in range(3)])
+        cmax = np.stack([np.maximum.reduceat(cen[j], seg_start) for j in range(3)])
         ext = cmax - cmin
         axis = np.argmax(ext, axis=0)
         sidx = np.arange(nseg)
         ext_a, cmin_a = ext[axis, sidx], cmin[axis, sidx]
         with np.errstate(divide="ignore"):
             scale = np.where(ext_a > 0, np.float32(B) / ext_a, np.float32(0)).astype(np.float32)
-        cval = w_cen.reshape(-1)[axis[es] * n + np.arange(n)]
-        b = ((cval - cmin_a[es]) * scale[es]).astype(np.int64)
+        ax = axis[es]
+        cval = np.where(ax == 0, cen[0], np.where(ax == 1, cen[1], cen[2]))
+        b = ((cval - cmin_a[es]) * scale[es]).astype(np.int32)
         np.clip(b, 0, B - 1, out=b)
-        key = es * B + b
-        cnt = np.bincount(key, minlength=nseg * B).reshape(nseg, B)
-        bmin = np.full((3, nseg * B), np.inf, np.float32)
-        bmax = np.full((3, nseg * B), -np.inf, np.float32)
+        key = b * nseg + es                      # bin-major: the sweeps below run over bins
+        cnt = np.bincount(key, minlength=nseg * B).reshape(B, nseg)
+        bmin = np.full((3, B * nseg), np.inf, np.float32)
+        bmax = np.full((3, B * nseg), -np.inf, np.float32)
         for j in range(3):
             np.minimum.at(bmin[j], key, w_lo[j])
             np.maximum.at(bmax[j], key, w_hi[j])
-        bmin = bmin.reshape(3, nseg, B)
-        bmax = bmax.reshape(3, nseg, B)
-        Lmin = np.minimum.accumulate(bmin, axis=2)
-        Lmax = np.maximum.accumulate(bmax, axis=2)
-        Rmin = np.minimum.accumulate(bmin[:, :, ::-1], axis=2)[:, :, ::-1]
-        Rmax = np.maximum.accumulate(bmax[:, :, ::-1], axis=2)[:, :, ::-1]
-        nL = np.cumsum(cnt, axis=1)[:, :-1]
-        nR = seg_n[:, None] - nL
+        bmin = bmin.reshape(3, B, nseg)
+        bmax = bmax.reshape(3, B, nseg)
+        Lmin, Lmax = _sweep(bmin, np.minimum), _sweep(bmax, np.maximum)   # bins 0..k
+        Rmin, Rmax = (_sweep(bmin, np.minimum, reverse=True),                # bins k..B-1
+                      _sweep(bmax, np.maximum, reverse=True))
+        nL = np.cumsum(cnt, axis=0)[:-1]                       # (B-1, nseg): split after k
+        nR = seg_n[None, :] - nL
         with np.errstate(invalid="ignore", over="ignore"):
-            cost = (_half_area(Lmin[:, :, :-1], Lmax[:, :, :-1]).astype(np.float64) * nL
-                    + _half_area(Rmin[:, :, 1:], Rmax[:, :, 1:]).astype(np.float64) * nR)
-        cost = np.where((nL > 0) & (nR > 0), cost, np.inf)
-        best = np.argmin(cost, axis=1)
-        best_cost = cost[sidx, best]
+            cost = (_half_area(Lmin[:, :-1], Lmax[:, :-1]) * nL.astype(np.float32)
+                    + _half_area(Rmin[:, 1:], Rmax[:, 1:]) * nR.astype(np.float32))
+        cost[(nL == 0) | (nR == 0)] = np.inf
+        best = np.argmin(cost, axis=0)
+        best_cost = cost[best, sidx]
 
         # ---- split decision: SAH, or median where SAH cannot split or depth runs out ------
         forced = ~np.isfinite(best_cost) | (level + 1 + _levels_needed(seg_n, leaf_size) > MAX_LEVELS)
-        n_left = np.where(forced, seg_n // 2, nL[sidx, best])
+        n_left = np.where(forced, seg_n // 2, nL[best, sidx])
         right = b > best[es]
-        left = ~right
-        cl = np.cumsum(left) - left
-        cr = np.cumsum(right) - right
-        rank = np.where(left, cl - cl[seg_start][es], cr - cr[seg_start][es])
+        k_in = np.arange(n, dtype=np.int32) - seg_start.astype(np.int32)[es]  # index in node
+        lx = np.cumsum(~right) - ~right                           # lefts before, globally
+        l_in = lx - lx[seg_start][es]                             # lefts before, in node
+        rank = np.where(right, k_in - l_in, l_in)                 # stable rank in its child
         if forced.any():
             m = np.flatnonzero(forced[es])
             srt = m[np.lexsort((cval[m], es[m]))]                   # by node, then centroid
-            rank_in = np.arange(m.size) - (np.cumsum(np.r_[0, seg_n[forced]])[:-1]
-                                            .repeat(seg_n[forced]))
+            rank_in = k_in[m]
             right[srt] = rank_in >= n_left[es[srt]]
             rank[srt] = np.where(right[srt], rank_in - n_left[es[srt]], rank_in)
 
         # ---- child boxes: from the bins for SAH splits, reduced directly for median ones ---
-        bl = np.stack([Lmin[:, sidx, best].T, Lmax[:, sidx, best].T], 1)   # (nseg, 2, 3)
-        br = np.stack([Rmin[:, sidx, best + 1].T, Rmax[:, sidx, best + 1].T], 1)
+        bl = np.stack([Lmin[:, best, sidx].T, Lmax[:, best, sidx].T], 1)   # (nseg, 2, 3)
+        br = np.stack([Rmin[:, best + 1, sidx].T, Rmax[:, best + 1, sidx].T], 1)
         if forced.any():
             fm = forced[es]
             ck = (es[fm] * 2 + right[fm]).astype(np.int64)
@@ -252,18 +270,12 @@ def build_bvh(vertices: np.ndarray, faces: np.ndarray, *, leaf_size: int = 4,
         nn_n = c_n[c_inner]
         nn_start = np.zeros(nn_n.size, np.int64)
         np.cumsum(nn_n[:-1], out=nn_start[1:])
-        keep = ~el_leaf
-        pos = nn_start[c_next[ci[keep]]] + rank[keep]
-        m = int(nn_n.sum())
-        new_idx = np.empty(m, np.int64)
-        new_idx[pos] = w_idx[keep]
-        new_cen = np.empty((3, m), np.float32)
-        new_lo = np.empty((3, m), np.float32)
-        new_hi = np.empty((3, m), np.float32)
-        new_cen[:, pos] = w_cen[:, keep]
-        new_lo[:, pos] = w_lo[:, keep]
-        new_hi[:, pos] = w_hi[:, keep]
-        w_idx, w_cen, w_lo, w_hi = new_idx, new_cen, new_lo, new_hi
+        keep = np.flatnonzero(~el_leaf)
+        src = np.empty(keep.size, np.int64)                  # gather index of the next level
+        src[nn_start[c_next[ci[keep]]] + rank[keep]] = keep
+        w_idx = w_idx[src]
+        w_lo = [r[src] for r in w_lo]
+        w_hi = [r[src] for r in w_hi]
         seg_n, seg_g, seg_node = nn_n, c_g[c_inner], c_node[c_inner]
         n_nodes += int(c_inner.sum())
         level += 1
