@@ -299,7 +299,8 @@ def _sah_cost(a: BVHArrays) -> float:
     total = C_TRAV * root
     for k in range(2):
         box = bx[:, 6 * k:6 * k + 6]
-        area = _half_area(box[:, 0:3].T, box[:, 3:6].T)
+        with np.errstate(invalid="ignore"):
+            area = _half_area(box[:, 0:3].T, box[:, 3:6].T)
         area = np.where(np.isfinite(area), area, 0.0)
         ref = a.children[:, k].astype(np.int64)
         is_leaf = (ref & LEAF_BIT) != 0
@@ -331,6 +332,16 @@ def check_bvh(a: BVHArrays) -> None:
 # =========================================================================================
 # Device side
 # =========================================================================================
+def _types_of(t: Types | None, arr) -> Types:
+    """The Types bundle (kept on the accelerator; re-derived from its arrays when Dr.Jit
+    rebuilt the object from its DRJIT_STRUCT fields alone)."""
+    if t is not None:
+        return t
+    from .device import types
+    backend = "cuda" if dr.backend_v(arr) == dr.JitBackend.CUDA else "llvm"
+    return types(backend, "float64" if dr.type_v(arr) == dr.VarType.Float64 else "float32")
+
+
 def _wide_types(t: Types):
     m = importlib.import_module(f"drjit.{t.backend}")
     return (getattr(m, "Array4f64" if t.is_double else "Array4f"), m.Array2u)
@@ -456,7 +467,7 @@ class BVH:
 
     @dr.syntax
     def _traverse(self, o, d, t_max, active, any_hit: bool):
-        t = self.types
+        t = _types_of(self.types, self.nodes)
         A4, A2u = _wide_types(t)
         routine = triangle_routine(self.intersection)
         robust = _robust_scale(t)
@@ -550,7 +561,6 @@ class ObjectBoxes:
                     "tris": DeviceTriangles}
     types: Types = field(default=None, repr=False)
     intersection: str = "moller_trumbore"
-    object_count: int = 0
     info: dict = field(default_factory=dict, repr=False)
 
     @classmethod
@@ -579,7 +589,7 @@ class ObjectBoxes:
         tris = upload_triangles(scene, t, order=order)
         tri_data = _upload_packed_triangles(scene, order, t)
         out = cls(t.Float(boxes.reshape(-1)), t.UInt32(ranges.reshape(-1)), tri_data, tris,
-                  types=t, intersection=intersection, object_count=len(objs))
+                  types=t, intersection=intersection)
         dr.eval(out.boxes, out.ranges, out.tri_data, out.tris)
         out.info = {"accelerator": "boxes", "build_seconds": time.perf_counter() - t0,
                     "triangles": F, "objects": len(objs),
@@ -597,12 +607,12 @@ class ObjectBoxes:
 
     @dr.syntax
     def _traverse(self, o, d, t_max, active, any_hit: bool):
-        t = self.types
+        t = _types_of(self.types, self.boxes)
         A4, A2u = _wide_types(t)
         routine = triangle_routine(self.intersection)
         robust = _robust_scale(t)
         boxes, ranges, tri_data, order = self.boxes, self.ranges, self.tri_data, self.tris.order
-        n_obj = self.object_count
+        n_obj = dr.width(self.ranges) // 2
         n = dr.width(o, d, t_max, active)
 
         o = t.Array3f(o)
