@@ -214,7 +214,7 @@ _RENDER_KEYS = ("max_depth", "spp", "exact", "shading", "background", "min_weigh
 _LIGHT_KEYS = ("name", "position", "intensity", "falloff")
 _MATERIAL_KEYS = ("ka", "kd", "ks", "n", "k_refl", "k_refr", "ior", "combination")
 _OBJECT_KEYS = ("name", "material", "mesh", "shape", "translate", "rotate", "scale",
-                "matrix", "smooth", "flip_normals")
+                "matrix", "smooth", "flip_normals", "subdivide")
 _PHYSICAL_KEYS = ("light_scale", "ambient", "background")
 _VIEW_DEFAULTS = {"up": [0.0, 1.0, 0.0], "fov_y": 40.0, "resolution": [256, 256]}
 
@@ -484,6 +484,13 @@ def load_scene(path, *, shading: str | None = None) -> Scene:
                                                           "'subdivisions', not both")
             verts, faces = shapes.make_shape(kind, **params)
             default_name = kind
+        if "subdivide" in ot:           # midpoint subdivision, each level: triangles x 4
+            levels = r.integer(ot["subdivide"], f"{where}.subdivide", lo=0)
+            if levels > 4:
+                raise r.error(f"{where}.subdivide", f"expected 0..4 levels, got {levels}")
+            from .subdivide import subdivide_midpoint
+            verts, faces = subdivide_midpoint(verts, faces, levels)
+            faces = faces.astype(np.int64)
         name = r.string(ot.get("name", f"{default_name}{i}"), f"{where}.name")
         if name in object_names:
             raise r.error(f"{where}.name", f"duplicate object name {name!r}")
