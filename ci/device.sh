@@ -6,10 +6,12 @@
 #   bash ci/device.sh bench [ARGS]  whitted bench --backend cuda ARGS (results to $OUT)
 set -uo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
-python3 -m venv --system-site-packages /tmp/v >/dev/null
-/tmp/v/bin/python -m pip install -q --no-index --find-links .whl \
-  drjit mitsuba pytest openexr imageio flip-evaluator 2>&1 | grep -v -i warning
-export PATH=/tmp/v/bin:$PATH PYTHONPATH=$PWD
+# The machine's own Python is the one with numpy and pillow (PyTorch's venv).
+py=$(ls /opt/torch/.venv/bin/python3 2>/dev/null || command -v python3)
+"$py" -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade \
+  --target /tmp/site .whl/*.whl 2>&1 | grep -v -i warning
+mkdir -p /tmp/bin && ln -sf "$py" /tmp/bin/python
+export PATH=/tmp/bin:$PATH PYTHONPATH=/tmp/site:$PWD
 nvidia-smi --query-gpu=name,driver_version,memory.total --format=csv,noheader
 python -c "import drjit as dr, mitsuba as mi; print('drjit', dr.__version__, 'mitsuba', mi.__version__, 'cuda', dr.has_backend(dr.JitBackend.CUDA))"
 what=${1:-tests}; shift || true
