@@ -3,7 +3,7 @@
 Layout: ``reference/goldens/<scene>/<view>_<shading>_<mode>.exr`` (linear RGB, float32, ZIP
 compressed) and a JSON sidecar ``.json`` beside each (Mitsuba version, variant, spp, mode,
 shading, view, resolution, sha256 of the scene file and of every mesh in
-``Scene.source_files``, date). Converged goldens also hold ``var.R/var.G/var.B`` (half): the
+``Scene.source_files``, date). Converged goldens also hold ``var.R/var.G/var.B`` (float32: smooth pixels have variances far below half's range): the
 per-pixel variance of one ``batch_spp`` estimate (see ``render_converged_with_variance``).
 
 Goldens change only through ``render_goldens(..., force=True)`` / ``whitted reference
@@ -30,6 +30,8 @@ MODES = ("exact", "converged")
 CONVERGED_SPP = 64
 CONVERGED_BATCHES = 16
 DEFAULT_SIZE = 256
+#: Converged goldens are rendered at this height (2 CPU cores: 16 x 4 spp at 256² is slow).
+CONVERGED_SIZE = 128
 
 
 class GoldenError(RuntimeError):
@@ -76,7 +78,7 @@ def write_golden_exr(path: Path, image: np.ndarray, var: np.ndarray | None = Non
     chans = {k: np.ascontiguousarray(v, np.float32) for k, v in chans.items()}
     if var is not None:
         for i, c in enumerate("RGB"):
-            chans[f"var.{c}"] = np.ascontiguousarray(var[..., i], np.float16)
+            chans[f"var.{c}"] = np.ascontiguousarray(var[..., i], np.float32)
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
     path.parent.mkdir(parents=True, exist_ok=True)
     with OpenEXR.File(header, chans) as f:
@@ -125,13 +127,14 @@ def _progress_bar(total: int, enabled: bool):
 
 def render_goldens(scene_paths, *, force: bool = False, spp: int = CONVERGED_SPP,
                    batches: int = CONVERGED_BATCHES, size: int = DEFAULT_SIZE,
-                   modes=MODES, shadings=SHADING_MODES, progress: bool = True,
+                   converged_size: int | None = CONVERGED_SIZE, modes=MODES, shadings=SHADING_MODES, progress: bool = True,
                    root: Path = GOLDEN_DIR) -> list[Path]:
     """Render every scene × view × shading × mode with Mitsuba into ``root``.
 
     spp: converged samples per pixel in total (``batches`` independent renders of
     ``spp // batches`` each, for the per-pixel variance). size: image height in pixels
-    (width follows the camera's aspect). Existing goldens are kept unless ``force``.
+    (width follows the camera's aspect); converged_size: the same for converged goldens
+    (None: ``size``). Existing goldens are kept unless ``force``.
     Returns the written EXR paths.
     """
     import mitsuba as mi
@@ -143,10 +146,11 @@ def render_goldens(scene_paths, *, force: bool = False, spp: int = CONVERGED_SPP
     jobs = []
     for sp in scene_paths:
         for shading in shadings:
-            scene = _resize(load_scene(sp, shading=shading), size)
             name = Path(sp).stem
-            for v, cam in enumerate(scene.cameras):
-                for mode in modes:
+            for mode in modes:
+                h = size if mode == "exact" or converged_size is None else converged_size
+                scene = _resize(load_scene(sp, shading=shading), h)
+                for v, cam in enumerate(scene.cameras):
                     jobs.append((sp, name, scene, v, cam, shading, mode))
     units = sum(batches if j[6] == "converged" else 1 for j in jobs)
     step = _progress_bar(units, progress)

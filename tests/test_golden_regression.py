@@ -74,31 +74,40 @@ SCENE = "scenes/cornell_sphere.toml"
 VIEW = 1          # the "left" view: glass and mirror spheres both in sight
 
 
-def _broken_renders(shading, golden):
-    """(label, image) of our renderer with one deliberate error each, exact mode."""
+def _broken_render(shading, golden, breakage):
+    """Our renderer with one deliberate error, exact mode."""
     scene = _scene_at(SCENE, shading, golden)
-    mats = [replace(m, ior=1.3) if m.transmissive else m for m in scene.materials]
-    assert any(m.transmissive for m in scene.materials), f"{SCENE}: no glass to break"
-    yield "ior 1.5 -> 1.3", render(replace(scene, materials=mats), view=VIEW,
-                                   backend="llvm").image
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        fx = EffectSet.from_scene(scene).without("reflection")
-    yield "reflection forced off", render(scene, view=VIEW, backend="llvm", effects=fx).image
+    if breakage == "wrong_ior":
+        assert any(m.transmissive for m in scene.materials), f"{SCENE}: no glass to break"
+        mats = [replace(m, ior=1.3) if m.transmissive else m for m in scene.materials]
+        return render(replace(scene, materials=mats), view=VIEW, backend="llvm").image
+    if breakage == "reflection_off":
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            fx = EffectSet.from_scene(scene).without("reflection")
+        return render(scene, view=VIEW, backend="llvm", effects=fx).image
     other = "physical" if shading == "classic" else "classic"
-    yield f"{other} shading", render(_scene_at(SCENE, other, golden), view=VIEW,
-                                     backend="llvm").image
+    return render(_scene_at(SCENE, other, golden), view=VIEW, backend="llvm").image
 
 
+BREAKAGES = [
+    "wrong_ior",
+    pytest.param("reflection_off", marks=pytest.mark.xfail(
+        strict=True, reason="renderer/shade.py specular_weights() ignores reflection=False, "
+                            "so EffectSet.without('reflection') renders the unbroken image")),
+    "other_shading",
+]
+
+
+@pytest.mark.parametrize("breakage", BREAKAGES)
 @pytest.mark.parametrize("shading", ["classic", "physical"])
-def test_exact_check_fails_on_broken_renderer(shading):
+def test_exact_check_fails_on_broken_renderer(shading, breakage):
     g = load_golden(load_scene(SCENE, shading=shading), view=VIEW, shading=shading,
                     mode="exact")
     good = render(_scene_at(SCENE, shading, g), view=VIEW, backend="llvm").image
     assert check_exact(good, g.image, EXACT_THRESHOLDS)["ok"]
-    for label, img in _broken_renders(shading, g):
-        res = check_exact(img, g.image, EXACT_THRESHOLDS)
-        assert not res["ok"], f"{label}: the exact check passed a broken render: {res}"
+    res = check_exact(_broken_render(shading, g, breakage), g.image, EXACT_THRESHOLDS)
+    assert not res["ok"], f"{breakage}: the exact check passed a broken render: {res}"
 
 
 @pytest.mark.slow

@@ -7,10 +7,12 @@ from pathlib import Path
 
 
 def cmd_reference(args) -> int:
-    from reference.golden import CONVERGED_BATCHES, CONVERGED_SPP, DEFAULT_SIZE, render_goldens
+    from reference.golden import (CONVERGED_BATCHES, CONVERGED_SIZE, CONVERGED_SPP,
+                                  DEFAULT_SIZE, render_goldens)
     paths = render_goldens(
         args.scenes, force=args.force, spp=args.spp or CONVERGED_SPP,
         batches=args.batches or CONVERGED_BATCHES, size=args.size or DEFAULT_SIZE,
+        converged_size=args.converged_size or CONVERGED_SIZE,
         modes=tuple(args.modes), shadings=tuple(args.shadings), progress=not args.quiet)
     print(f"wrote {len(paths)} golden images")
     return 0
@@ -35,6 +37,8 @@ def register(subparsers) -> None:
     p.add_argument("--batches", type=int, default=None,
                    help="independent batches of the converged render (variance estimate)")
     p.add_argument("--size", type=int, default=None, help="image height in pixels")
+    p.add_argument("--converged-size", type=int, default=None,
+                   help="image height of converged goldens (default 128)")
     p.add_argument("--modes", nargs="+", default=["exact", "converged"],
                    choices=["exact", "converged"])
     p.add_argument("--shadings", nargs="+", default=["classic", "physical"],
