@@ -7,15 +7,20 @@
 set -uo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 # The machine's own Python is the one with numpy and pillow (PyTorch's venv).
-py=$(ls /opt/torch/.venv/bin/python3 2>/dev/null || command -v python3)
+py=""
+for c in /opt/torch/.venv/bin/python3 $(command -v -a python3 python3.12 python); do
+  if "$c" -c 'import numpy' 2>/dev/null; then py=$c; break; fi
+done
+[ -n "$py" ] || { echo "device: no Python with numpy found" >&2; exit 1; }
+echo "device: using $py"
+
 "$py" -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade \
   --target /tmp/site .whl/*.whl 2>&1 | grep -v -i warning
-mkdir -p /tmp/bin && ln -sf "$py" /tmp/bin/python
-export PATH=/tmp/bin:$PATH PYTHONPATH=/tmp/site:$PWD
+export PYTHONPATH=/tmp/site:$PWD
 nvidia-smi --query-gpu=name,driver_version,memory.total --format=csv,noheader
-python -c "import drjit as dr, mitsuba as mi; print('drjit', dr.__version__, 'mitsuba', mi.__version__, 'cuda', dr.has_backend(dr.JitBackend.CUDA))"
+"$py" -c "import drjit as dr, mitsuba as mi; print('drjit', dr.__version__, 'mitsuba', mi.__version__, 'cuda', dr.has_backend(dr.JitBackend.CUDA))"
 what=${1:-tests}; shift || true
 case "$what" in
-  tests) python -m pytest -q -x -k cuda -p no:cacheprovider "$@" tests/ ;;
-  bench) python -m whitted bench --backend cuda --out "${OUT:-results}" "$@" ;;
+  tests) "$py" -m pytest -q -x -k cuda -p no:cacheprovider "$@" tests/ ;;
+  bench) "$py" -m whitted bench --backend cuda --out "${OUT:-results}" "$@" ;;
 esac
