@@ -446,7 +446,7 @@ class BVH:
         fsize = 8 if t.is_double else 4
         F = max(scene.face_count, 1)
         info = {
-            "accelerator": "bvh", "build_seconds": a.build_seconds,
+            "accel": "bvh", "intersection": intersection, "build_seconds": a.build_seconds,
             "upload_seconds": time.perf_counter() - t0, "triangles": scene.face_count,
             "nodes": a.node_count, "leaves": a.leaf_count, "levels": a.levels,
             "sah_cost": a.sah_cost, "leaf_size": leaf_size, "bins": bins,
@@ -591,7 +591,7 @@ class ObjectBoxes:
         out = cls(t.Float(boxes.reshape(-1)), t.UInt32(ranges.reshape(-1)), tri_data, tris,
                   types=t, intersection=intersection)
         dr.eval(out.boxes, out.ranges, out.tri_data, out.tris)
-        out.info = {"accelerator": "boxes", "build_seconds": time.perf_counter() - t0,
+        out.info = {"accel": "boxes", "intersection": intersection, "build_seconds": time.perf_counter() - t0,
                     "triangles": F, "objects": len(objs),
                     "box_bytes_per_triangle": len(objs) * 8 * (8 if t.is_double else 4) / max(F, 1)}
         return out
