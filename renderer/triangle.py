@@ -11,8 +11,18 @@ from __future__ import annotations
 import drjit as dr
 
 
+#: Barycentric slack of Möller–Trumbore's inside test. The test is not watertight: a ray
+#: through a shared edge can miss both triangles by a rounding error (seen on CUDA, where
+#: products are contracted into FMAs, as black pixels along a quad's diagonal). Accepting
+#: ``u, v >= -EDGE_SLACK`` and ``u + v <= 1 + EDGE_SLACK`` closes those cracks; the closest-
+#: hit tie-break (lowest original face index) keeps the choice deterministic, and the
+#: BVH's boxes are padded far more than this.
+EDGE_SLACK = 2.0 ** -20
+
+
 def moller_trumbore(o, d, v0, e1, e2, t_min=0.0):
-    """Möller–Trumbore (thesis eqs. 1-5). Two-sided; parallel rays never hit."""
+    """Möller–Trumbore (thesis eqs. 1-5), with ``EDGE_SLACK`` on the inside test.
+    Two-sided; parallel rays never hit."""
     p = dr.cross(d, e2)
     det = dr.dot(e1, p)
     inv_det = dr.rcp(det)
@@ -21,7 +31,8 @@ def moller_trumbore(o, d, v0, e1, e2, t_min=0.0):
     q = dr.cross(s, e1)
     v = dr.dot(d, q) * inv_det
     t = dr.dot(e2, q) * inv_det
-    hit = (det != 0) & (u >= 0) & (v >= 0) & (u + v <= 1) & (t > t_min)
+    hit = ((det != 0) & (u >= -EDGE_SLACK) & (v >= -EDGE_SLACK) & (u + v <= 1 + EDGE_SLACK)
+           & (t > t_min))
     return t, u, v, hit
 
 
