@@ -313,7 +313,7 @@ def seed_table(scene_paths, *, backend: str, frames: int = 20, size=(512, 512)) 
 
 
 def whitted_frame(scene, *, backend: str, frames: int = 20, accel: str = "bvh",
-                  mitsuba_repeats: int = 5) -> dict:
+                  mitsuba_repeats: int = 5, strip_path=None) -> dict:
     """Our frozen Whitted frame vs Mitsuba rendering the same scene (exact mode, same
     resolution and depth) with the reference harness's integrator; plus the image
     difference between the two."""
@@ -326,6 +326,8 @@ def whitted_frame(scene, *, backend: str, frames: int = 20, accel: str = "bvh",
     mt = kernel_ms(lambda: render_exact(msc), warmup=1, repeats=mitsuba_repeats)
     ref = render_exact(msc)
     m = image_difference(ours["image"], ref)
+    if strip_path is not None:
+        write_strip(strip_path, ours["image"], ref)
     cam = scene.cameras[0]
     return {"scene": scene.name, "size": [cam.width, cam.height], "depth": scene.settings.max_depth,
             "ours_frozen_ms": ours["frozen_ms"], "ours_kernel_ms": ours["frozen_kernel_ms"],
@@ -333,6 +335,17 @@ def whitted_frame(scene, *, backend: str, frames: int = 20, accel: str = "bvh",
             "mitsuba_kernel_ms": mt["kernel_ms"], "mitsuba_wall_ms": mt["wall_ms"],
             "mitsuba_kernels": mt["kernels"],
             "difference": m}
+
+
+def write_strip(path, ours, ref) -> None:
+    """PNG: ours | Mitsuba | outlier pixels (white), sRGB."""
+    import imageio.v3 as iio
+    from renderer.film import srgb_encode
+    a, r = np.asarray(ours, np.float64), np.asarray(ref, np.float64)
+    err = np.abs(a - r)
+    bad = np.any((err / np.maximum(np.abs(r), 1e-2) > 0.1) & (err > 0.01), axis=-1)
+    mask = np.repeat(bad[..., None], 3, -1).astype(np.uint8) * 255
+    iio.imwrite(path, np.concatenate([srgb_encode(a), srgb_encode(r), mask], 1))
 
 
 def image_difference(ours, ref) -> dict:
@@ -400,13 +413,16 @@ def run(out_dir, *, backend: str = "auto", scenes_dir="scenes", quick: bool = Fa
     if "seed" in parts:
         result["seed_table"] = seed_table([sd / f"{n}.toml" for n in SEED_SCENES], backend=backend,
                                           frames=frames, size=(128, 128) if quick else (512, 512))
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
     if "whitted" in parts:
         result["whitted"] = []
         for name in SEED_SCENES:
             sc = load_scene(sd / f"{name}.toml")
             n = 128 if quick else 512
             sc = replace(sc, cameras=[replace(c, width=n, height=n) for c in sc.cameras])
-            r = whitted_frame(sc, backend=backend, frames=frames)
+            r = whitted_frame(sc, backend=backend, frames=frames,
+                              strip_path=out / f"whitted-{name}-{backend}.png")
             result["whitted"].append(r)
             print(f"  whitted {name:16s} ours {r['ours_frozen_ms']:.3f} ms  mitsuba kernels "
                   f"{r['mitsuba_kernel_ms']:.3f} ms  rmse {r['difference']['rmse']:.2e}", flush=True)
@@ -423,8 +439,6 @@ def run(out_dir, *, backend: str = "auto", scenes_dir="scenes", quick: bool = Fa
             result["effects"].append(r)
             print(f"  effects {name:16s} ops {r['ops_specialised']} vs {r['ops_general']}  "
                   f"{r['ms_specialised']:.3f} vs {r['ms_general']:.3f} ms", flush=True)
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
     tag = backend + ("-quick" if quick else "")
     (out / f"bench-{tag}.json").write_text(json.dumps(_jsonable(result), indent=1))
     (out / f"bench-{tag}.md").write_text(markdown(result))
@@ -464,12 +478,12 @@ def markdown(r: dict) -> str:
         lines.append("")
     if r.get("whitted"):
         lines += ["## Whitted frame, ours (frozen) vs Mitsuba (reference integrator), exact mode", "",
-                  "| scene | size | depth | ours frozen ms | ours kernel ms | Mitsuba kernel ms | Mitsuba wall ms | RMSE | outlier px | mean rel |",
-                  "| --- | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |"]
+                  "| scene | size | depth | ours traced ms | ours frozen ms | ours kernel ms | Mitsuba kernel ms | Mitsuba wall ms | RMSE | outlier px | mean rel |",
+                  "| --- | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |"]
         for w in r["whitted"]:
             d = w["difference"]
             lines.append(f"| {w['scene']} | {w['size'][0]}×{w['size'][1]} | {w['depth']} | "
-                         f"{w['ours_frozen_ms']:.3f} | {w['ours_kernel_ms']:.3f} | {w['mitsuba_kernel_ms']:.3f} | "
+                         f"{w['ours_traced_ms']:.2f} | {w['ours_frozen_ms']:.3f} | {w['ours_kernel_ms']:.3f} | {w['mitsuba_kernel_ms']:.3f} | "
                          f"{w['mitsuba_wall_ms']:.1f} | {d['rmse']:.2e} | {d['outliers']} | {d['mean_rel']:.2e} |")
         lines.append("")
     if r.get("effects"):
