@@ -1,8 +1,9 @@
 """Which effects a scene calls for, decided on the host before tracing.
 
 ``EffectSet.from_scene(scene)`` derives the set from the scene's materials, lights, objects
-and settings alone; the integrator traces only the enabled effects (plain Python branches,
-so Dr.Jit records only what runs). ``EffectSet.all()`` traces every effect (the general
+and settings alone (with the reason for each effect and the deepest bounce a ray can reach);
+the integrator traces only the enabled effects (plain Python branches, so Dr.Jit records
+only what runs; ``renderer.stats.kernel_operations`` measures the kernels). ``EffectSet.all()`` traces every effect (the general
 kernel); ``without(name)`` drops one for debugging, with a warning, since the image then
 differs from what the scene describes.
 """
@@ -24,11 +25,12 @@ class EffectSet:
     """Effects traced into the kernel.
 
     shadows: shadow rays (some light exists). ambient: ambient·ka is nonzero somewhere.
-    reflection / refraction: some material has k_refl / k_refr > 0 and max_depth >= 1.
+    reflection / refraction: some material has k_refl / k_refr > 0 and max_depth >= 1
+    (refraction implies reflection: total internal reflection and Fresnel reflect).
     smooth_normals: some object interpolates vertex normals. specular: some ks > 0 and a
     light exists. many_lights: more than one light. fresnel: some material uses Fresnel
     weights. physical: "physical" shading (else "classic").
-    depth: deepest reachable bounce (0 without secondary rays).
+    depth: deepest reachable bounce (0 without secondary rays; see ``reachable_depth``).
     reasons: flag -> why it is on (the material, light or object asking for it).
     forced: True when the set does not follow from the scene (``all()`` / ``without()``).
     """
@@ -70,6 +72,8 @@ class EffectSet:
         r_light = f"light {lights[0].name or '0'!r}" if lights else None
         r_refl = first(lambda m: m.reflective, used_mats, "material") if s.max_depth >= 1 else None
         r_refr = first(lambda m: m.transmissive, used_mats, "material") if s.max_depth >= 1 else None
+        if r_refr and not r_refl:
+            r_refl = f"{r_refr} (total internal reflection)"
         r_smooth = first(lambda o: o.smooth and o.face_count > 0, scene.objects, "object")
         r_spec = first(lambda m: np.any(m.ks > 0), used_mats, "material") if lights else None
         r_many = f"{len(lights)} lights" if len(lights) > 1 else None
@@ -81,11 +85,14 @@ class EffectSet:
             if r:
                 reasons[k] = r
         secondary = bool(r_refl or r_refr)
+        depth, why = reachable_depth(scene) if secondary else (0, "")
+        if secondary:
+            reasons["depth"] = why
         return cls(shadows=bool(r_light), ambient=bool(r_amb), reflection=bool(r_refl),
                    refraction=bool(r_refr), smooth_normals=bool(r_smooth),
                    specular=bool(r_spec), many_lights=bool(r_many), fresnel=bool(r_fres),
                    physical=s.shading == "physical",
-                   depth=int(s.max_depth) if secondary else 0, reasons=reasons)
+                   depth=depth, reasons=reasons)
 
     @classmethod
     def all(cls, scene: Scene) -> "EffectSet":
@@ -105,8 +112,94 @@ class EffectSet:
         reasons.pop(name, None)
         return replace(self, **{name: False}, reasons=reasons, forced=True)
 
+    def lines(self) -> list[str]:
+        """One line per enabled effect, ``"name — reason"``, then the traced depth."""
+        out = [f"{k} — {self.reasons.get(k, 'forced')}" for k in FLAGS if getattr(self, k)]
+        if self.secondary:
+            out.append(f"secondary rays — depth {self.depth}: {self.reasons.get('depth', 'forced')}")
+        else:
+            out.append("secondary rays — off (nothing reflects or transmits, or max_depth 0)")
+        return out
+
     def __str__(self) -> str:
         on = [k for k in FLAGS if getattr(self, k)]
         mode = "physical" if self.physical else "classic"
         tag = " (forced)" if self.forced else ""
         return f"effects[{mode}, depth {self.depth}{tag}]: " + (", ".join(on) or "local only")
+
+
+def _welded_edges_closed(V: np.ndarray, F: np.ndarray) -> bool:
+    """Every edge (vertices welded by exact position) is shared by exactly two faces."""
+    _, idx = np.unique(V, axis=0, return_inverse=True)
+    G = idx.reshape(-1)[F]
+    e = np.sort(np.concatenate([G[:, [0, 1]], G[:, [1, 2]], G[:, [2, 0]]]), axis=1)
+    _, counts = np.unique(e, axis=0, return_counts=True)
+    return bool(np.all(counts == 2))
+
+
+def convex_mirror(scene: Scene, obj: int) -> str | None:
+    """Why object ``obj`` cannot see itself in its own reflection, or None if it might.
+
+    True (a reason string) when the object has flat normals (so a reflected ray leaves on
+    the side of the face plane the ray came from), its vertices lie on one closed side of
+    every face plane (convex, checked in float64 with a tolerance of 1e-6 of the object's
+    bounding-box diagonal), and either all its faces are coplanar, or it is closed (every
+    edge shared by two faces, vertices welded by position) and every camera of the scene is
+    strictly outside it. Then a camera ray hits it from outside and the reflected ray moves
+    away from every face plane, so it can never hit the object again.
+    """
+    o = scene.objects[obj]
+    if o.smooth:
+        return None
+    mask = np.asarray(scene.face_object) == obj
+    F = np.asarray(scene.faces)[mask]
+    if len(F) == 0:
+        return None
+    V = np.asarray(scene.vertices, np.float64)
+    P = V[np.unique(F)]
+    tol = 1e-6 * max(float(np.linalg.norm(P.max(0) - P.min(0))), 1e-30)
+    a, b, c = V[F[:, 0]], V[F[:, 1]], V[F[:, 2]]
+    n = np.cross(b - a, c - a)
+    ln = np.linalg.norm(n, axis=1)
+    keep = ln > 0
+    n, a = n[keep] / ln[keep, None], a[keep]
+    if len(n) == 0 or len(n) * len(P) > 20_000_000:
+        return None                                           # degenerate, or too big to check
+    dist = np.einsum("fk,fvk->fv", n, P[None, :, :] - a[:, None, :])   # (faces, vertices)
+    above, below = dist.max(1) > tol, dist.min(1) < -tol
+    if np.any(above & below):
+        return None                                           # not convex
+    if not np.any(above | below):
+        return f"object {o.name!r} is a flat planar mirror"
+    if not _welded_edges_closed(V, F):
+        return None
+    side = np.where(above, 1.0, -1.0)                        # where the solid lies
+    for cam in scene.cameras:
+        dc = np.einsum("fk,fk->f", n, np.asarray(cam.position, np.float64)[None, :] - a)
+        if not np.any(side * dc < -tol):
+            return None                                       # a camera inside the mirror
+    return f"object {o.name!r} is a closed convex mirror with flat faces, every camera outside"
+
+
+def reachable_depth(scene: Scene) -> tuple[int, str]:
+    """The deepest bounce a ray can reach, and why (for a scene with secondary rays).
+
+    ``max_depth`` in general. Capped at 1 when every face whose material reflects belongs to
+    one object, no used material transmits, and that object cannot see itself
+    (``convex_mirror``): only camera rays can hit a mirror then, and a reflected ray ends at
+    its first (non-reflective) hit. The cap holds for the scene's own cameras.
+    """
+    md = int(scene.settings.max_depth)
+    mats = scene.materials
+    fm = np.asarray(scene.face_material)
+    spec_mat = np.array([m.reflective or m.transmissive for m in mats], bool)
+    if md <= 1 or any(m.transmissive for i, m in enumerate(mats) if np.any(fm == i)):
+        return md, f"max_depth {md}"
+    spec_faces = spec_mat[fm]
+    objs = np.unique(np.asarray(scene.face_object)[spec_faces])
+    if len(objs) != 1:
+        return md, f"max_depth {md}"
+    why = convex_mirror(scene, int(objs[0]))
+    if why is None:
+        return md, f"max_depth {md}"
+    return 1, f"capped at 1 (max_depth {md}): {why} and nothing else reflects or transmits"

@@ -1,7 +1,8 @@
 """The Whitted integrator (docs/MODEL.md, "The Whitted tree").
 
 The whole tree of reflected and refracted rays up to ``max_depth`` is walked depth-first
-without recursion. Each lane carries its current ray, the ray's accumulated weight and
+without recursion (to ``EffectSet.depth``, the deepest bounce the scene can reach, at most
+``max_depth``). Each lane carries its current ray, the ray's accumulated weight and
 depth, and a small stack of pending branches (origin, direction, weight, depth) in
 ``dr.alloc_local`` arrays; at a hit with both children the refracted one is pushed and the
 reflected one followed. A branch is created only if ``depth + 1 <= max_depth`` and its
@@ -64,7 +65,7 @@ def _shade_hit(sa: SceneArrays, o, d, hit, t: Types, fx: EffectSet, opt: TraceOp
     I_local = local_light(sp, N, V, sa.materials, sa.lights, sa.accel, t,
                           n_lights=opt.n_lights, ambient=sa.ambient, physical=fx.physical,
                           shadows=fx.shadows, ambient_on=fx.ambient, specular=fx.specular,
-                          eps=opt.eps, active=active)
+                          eps=opt.eps, active=active, many_lights=fx.many_lights)
     return sp, I_local
 
 
@@ -89,10 +90,11 @@ def trace(sa: SceneArrays, o, d, t: Types, fx: EffectSet, opt: TraceOptions):
 
     n = dr.width(d)
     A3, Float, UInt32 = t.Array3f, t.Float, t.UInt32
+    max_depth = min(fx.depth, opt.max_depth)   # deepest reachable bounce (host constant)
     use_stack = fx.refraction
     cap = st_o = st_d = st_w = st_depth = None
     if dr.hint(use_stack, mode="scalar"):
-        cap = opt.max_depth
+        cap = max_depth
         st_o = [dr.alloc_local(Float, cap) for _ in range(3)]   # pending origins
         st_d = [dr.alloc_local(Float, cap) for _ in range(3)]   # pending directions
         st_w = [dr.alloc_local(Float, cap) for _ in range(3)]   # pending weights
@@ -108,7 +110,7 @@ def trace(sa: SceneArrays, o, d, t: Types, fx: EffectSet, opt: TraceOptions):
 
     # host objects and local buffers are read inside the loop but are not loop state
     while dr.hint(active, max_iterations=-1, label="whitted",
-                  exclude=[sa, t, fx, opt, n, A3, Float, UInt32, use_stack, cap,
+                  exclude=[sa, t, fx, opt, n, A3, Float, UInt32, max_depth, use_stack, cap,
                            st_o, st_d, st_w, st_depth]):
         # ---- closest hit ------------------------------------------------------------------
         hit = sa.accel.intersect(ray_o, ray_d, Float(dr.inf), active)
@@ -124,7 +126,7 @@ def trace(sa: SceneArrays, o, d, t: Types, fx: EffectSet, opt: TraceOptions):
         R, w_refl, T, w_refr = specular_weights(
             sp, ray_d, sa.materials, t, reflection=fx.reflection, refraction=fx.refraction,
             fresnel_on=fx.fresnel, physical=fx.physical, active=on_surface)
-        can_branch = on_surface & (depth < opt.max_depth)
+        can_branch = on_surface & (depth < max_depth)
         child_depth = depth + 1
         w_r = weight * w_refl
         go_r = can_branch & (dr.max(w_r) >= opt.min_weight) & (dr.max(w_refl) > 0)

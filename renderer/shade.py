@@ -2,7 +2,8 @@
 
 Materials and lights are uploaded once as device arrays (``DeviceMaterials``,
 ``DeviceLights``) and gathered per hit, so their values are inputs of the kernel, not
-literals baked into it. The light loop is unrolled in Python (one block per light).
+literals baked into it. Several lights are summed in a device loop; a single light is
+straight-line code.
 """
 from __future__ import annotations
 
@@ -152,12 +153,67 @@ def offset_origin(p, ng, direction, eps):
 
 
 # ---- local light -----------------------------------------------------------------------------
+def _light_term(li, sp: SurfacePoint, N, V, lights: DeviceLights, accel, t: Types, kd, ks,
+                n_exp, result, *, physical: bool, shadows: bool, specular: bool, eps: float,
+                active):
+    """``result`` plus light ``li``'s contribution (``li``: UInt32 index, a literal or an
+    array)."""
+    A3 = t.Array3f
+    lp = dr.gather(A3, lights.position, li)
+    li_int = dr.gather(A3, lights.intensity, li)
+    to_light = lp - sp.p
+    dist2 = dr.squared_norm(to_light)
+    inv_dist = dr.rsqrt(dist2)
+    L = to_light * inv_dist
+    cos_theta = dr.dot(L, N)
+    lit = active & (cos_theta > 0)
+    if dr.hint(physical, mode="scalar"):
+        att = dr.rcp(dist2)
+    else:
+        inv_sq = dr.gather(t.Bool, lights.inverse_square, li)
+        att = dr.select(inv_sq, dr.rcp(dist2), 1.0)
+    if dr.hint(shadows, mode="scalar"):
+        so = offset_origin(sp.p, sp.ng, L, eps)
+        sd = lp - so
+        s_len = dr.norm(sd)
+        blocked = accel.intersect_p(so, sd / s_len, s_len - eps, lit)
+        lit &= ~blocked
+    brdf = kd * cos_theta
+    if dr.hint(specular, mode="scalar"):
+        R_l = dr.fma(N, 2.0 * cos_theta, -L)
+        rv = dr.maximum(dr.dot(R_l, V), 0.0)
+        spec = dr.select(rv > 0, dr.power(rv, n_exp), 0.0)
+        if dr.hint(physical, mode="scalar"):
+            spec = spec * cos_theta
+        brdf = dr.fma(ks, spec, brdf)
+    return dr.select(lit, dr.fma(li_int * att, brdf, result), result)
+
+
+@dr.syntax
+def _light_loop(sp, N, V, lights, accel, t: Types, kd, ks, n_exp, result, *, n_lights: int,
+                physical: bool, shadows: bool, specular: bool, eps: float, active):
+    """The same sum as the unrolled one, as one device loop over the ``n_lights`` lights
+    (in order, so the pixels are the same)."""
+    li = dr.zeros(t.UInt32, dr.width(active))          # index of the current light
+    while dr.hint(li < n_lights, max_iterations=-1, label="lights",
+                  exclude=[sp, N, V, lights, accel, t, kd, ks, n_exp, n_lights, physical,
+                           shadows, specular, eps, active]):
+        result = _light_term(li, sp, N, V, lights, accel, t, kd, ks, n_exp, result,
+                             physical=physical, shadows=shadows, specular=specular, eps=eps,
+                             active=active)
+        li += 1
+    return result
+
+
 def local_light(sp: SurfacePoint, N, V, mats: DeviceMaterials, lights: DeviceLights,
                 accel, t: Types, *, n_lights: int, ambient, physical: bool,
-                shadows: bool, ambient_on: bool, specular: bool, eps: float, active):
+                shadows: bool, ambient_on: bool, specular: bool, eps: float, active,
+                many_lights: bool = True):
     """``I_local`` at ``sp`` (Array3f): ambient·ka + Σ_l light contributions, with shadow
     rays through ``accel.intersect_p``. N: shading normal facing ``V = -d``.
-    ``n_lights`` (Python int) unrolls the light loop; the flags drop untraced terms."""
+    ``n_lights`` (Python int) is the number of lights; with ``many_lights`` they are summed
+    in a device loop, otherwise light 0 alone is straight-line code (only that light when
+    ``many_lights`` is forced off in a scene with several). The flags drop untraced terms."""
     A3 = t.Array3f
     mat = sp.material
     result = dr.zeros(A3)
@@ -167,6 +223,7 @@ def local_light(sp: SurfacePoint, N, V, mats: DeviceMaterials, lights: DeviceLig
     if dr.hint(n_lights == 0, mode="scalar"):
         return result
     kd = dr.gather(A3, mats.kd, mat, active)
+    ks = n_exp = None
     if dr.hint(specular, mode="scalar"):
         ks = dr.gather(A3, mats.ks, mat, active)
         n_exp = dr.gather(t.Float, mats.n, mat, active)
@@ -174,37 +231,12 @@ def local_light(sp: SurfacePoint, N, V, mats: DeviceMaterials, lights: DeviceLig
         kd = kd * INV_PI
         if dr.hint(specular, mode="scalar"):
             ks = ks * ((n_exp + 2.0) * INV_TWO_PI)
-    for li in range(n_lights):
-        idx = t.UInt32(li)
-        lp = dr.gather(A3, lights.position, idx)
-        li_int = dr.gather(A3, lights.intensity, idx)
-        to_light = lp - sp.p
-        dist2 = dr.squared_norm(to_light)
-        inv_dist = dr.rsqrt(dist2)
-        L = to_light * inv_dist
-        cos_theta = dr.dot(L, N)
-        lit = active & (cos_theta > 0)
-        if dr.hint(physical, mode="scalar"):
-            att = dr.rcp(dist2)
-        else:
-            inv_sq = dr.gather(t.Bool, lights.inverse_square, idx)
-            att = dr.select(inv_sq, dr.rcp(dist2), 1.0)
-        if dr.hint(shadows, mode="scalar"):
-            so = offset_origin(sp.p, sp.ng, L, eps)
-            sd = lp - so
-            s_len = dr.norm(sd)
-            blocked = accel.intersect_p(so, sd / s_len, s_len - eps, lit)
-            lit &= ~blocked
-        brdf = kd * cos_theta
-        if dr.hint(specular, mode="scalar"):
-            R_l = dr.fma(N, 2.0 * cos_theta, -L)
-            rv = dr.maximum(dr.dot(R_l, V), 0.0)
-            spec = dr.select(rv > 0, dr.power(rv, n_exp), 0.0)
-            if dr.hint(physical, mode="scalar"):
-                spec = spec * cos_theta
-            brdf = dr.fma(ks, spec, brdf)
-        result = dr.select(lit, dr.fma(li_int * att, brdf, result), result)
-    return result
+    flags = dict(physical=physical, shadows=shadows, specular=specular, eps=eps, active=active)
+    if dr.hint(many_lights, mode="scalar"):
+        result = dr.zeros(A3, dr.width(active)) + result   # loop state of the batch width
+        return _light_loop(sp, N, V, lights, accel, t, kd, ks, n_exp, result,
+                           n_lights=n_lights, **flags)
+    return _light_term(t.UInt32(0), sp, N, V, lights, accel, t, kd, ks, n_exp, result, **flags)
 
 
 # ---- specular branches ------------------------------------------------------------------------
