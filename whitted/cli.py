@@ -92,25 +92,37 @@ def effects_for_cli(scene, args):
 
 def cmd_render(args) -> int:
     from renderer.film import write_exr, write_png
-    from renderer.render import render
+    from renderer.render import Renderer
+    from renderer.stats import format_operations, kernel_operations
     scene, views = load_for_cli(args)
     effects = effects_for_cli(scene, args)
     print(f"{scene.name}: {scene.face_count} triangles, {len(scene.objects)} objects, "
           f"{len(scene.lights)} lights, shading {scene.settings.shading}")
     print(f"effects: {effects}")
+    for line in effects.lines():
+        print(f"  {line}")
+    if args.effect_off:
+        print(f"warning: effect(s) {', '.join(args.effect_off)} forced off: the image differs "
+              "from the scene's truth", file=sys.stderr)
+    elif args.effects == "all":
+        print("note: --effects all traces every effect (the general kernel): same image, "
+              "more work")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     if getattr(args, "orbit", None):
         return render_orbit_views(scene, views, effects, args, out)
     for v in views:
         cam = scene.cameras[v]
-        res = render(scene, view=v, backend=args.backend, precision=args.precision,
-                     accel=args.accel, intersection=args.intersection, effects=effects)
+        renderer = Renderer(scene, backend=args.backend, precision=args.precision,
+                            accel=args.accel, intersection=args.intersection, effects=effects)
+        ks = kernel_operations(lambda: renderer.render(v))
+        res = ks["result"]
         stem = out / f"{scene.name}_{cam.name}"
         write_exr(stem.with_suffix(".exr"), res.image, overwrite=args.overwrite)
         write_png(stem.with_suffix(".png"), res.image, overwrite=args.overwrite)
         print(f"  view {cam.name}: {cam.width}x{cam.height}, {res.seconds * 1e3:.1f} ms "
               f"→ {stem}.exr, {stem}.png")
+        print(f"    kernels: {format_operations(ks)}, {ks['kernel_ms']:.2f} ms kernel time")
     return 0
 
 
