@@ -260,7 +260,9 @@ def specular_weights(sp: SurfacePoint, d, mats: DeviceMaterials, t: Types, *,
     cos_s = dr.dot(V, sp.ns)
     N = dr.select(cos_s >= 0, sp.ns, -sp.ns)
     R = reflect(d, N)
-    k_refl = dr.gather(A3, mats.k_refl, mat, active)
+    # ``reflection`` off happens only when forced for debugging (refraction implies it,
+    # for total internal reflection): the reflected child then gets weight 0 (not traced).
+    k_refl = dr.gather(A3, mats.k_refl, mat, active) if reflection else dr.zeros(A3)
     if dr.hint(not refraction, mode="scalar"):
         return R, k_refl, None, None
     k_refr = dr.gather(A3, mats.k_refr, mat, active)
@@ -285,4 +287,6 @@ def specular_weights(sp: SurfacePoint, d, mats: DeviceMaterials, t: Types, *,
     if dr.hint(physical, mode="scalar"):
         w_refr = w_refr * (eta * eta)
     w_refr = dr.select(transmissive, w_refr, 0.0)
+    if dr.hint(not reflection, mode="scalar"):
+        w_refl = dr.zeros(A3)
     return R, w_refl, T, w_refr

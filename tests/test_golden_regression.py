@@ -92,9 +92,7 @@ def _broken_render(shading, golden, breakage):
 
 BREAKAGES = [
     "wrong_ior",
-    pytest.param("reflection_off", marks=pytest.mark.xfail(
-        strict=True, reason="renderer/shade.py specular_weights() ignores reflection=False, "
-                            "so EffectSet.without('reflection') renders the unbroken image")),
+    "reflection_off",
     "other_shading",
 ]
 
