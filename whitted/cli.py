@@ -111,13 +111,18 @@ def cmd_render(args) -> int:
     out.mkdir(parents=True, exist_ok=True)
     if getattr(args, "orbit", None):
         return render_orbit_views(scene, views, effects, args, out)
-    for v in views:
+    stems = [out / f"{scene.name}_{scene.cameras[v].name}" for v in views]
+    if not args.overwrite:
+        for p in (s.with_suffix(ext) for s in stems for ext in (".exr", ".png")):
+            if p.exists():
+                raise FileExistsError(f"{p}: exists")
+    # one upload / BVH build for every view
+    renderer = Renderer(scene, backend=args.backend, precision=args.precision,
+                        accel=args.accel, intersection=args.intersection, effects=effects)
+    for v, stem in zip(views, stems):
         cam = scene.cameras[v]
-        renderer = Renderer(scene, backend=args.backend, precision=args.precision,
-                            accel=args.accel, intersection=args.intersection, effects=effects)
         ks = kernel_operations(lambda: renderer.render(v))
         res = ks["result"]
-        stem = out / f"{scene.name}_{cam.name}"
         write_exr(stem.with_suffix(".exr"), res.image, overwrite=args.overwrite)
         write_png(stem.with_suffix(".png"), res.image, overwrite=args.overwrite)
         print(f"  view {cam.name}: {cam.width}x{cam.height}, {res.seconds * 1e3:.1f} ms "
@@ -191,7 +196,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: {e}", file=sys.stderr)
         return 2
     except FileExistsError as e:
-        print(f"error: {e} (pass --overwrite / --force to replace it)", file=sys.stderr)
+        print(f"error: {str(e).split(' (pass')[0]} (pass --overwrite, or --force for reports, "
+              "to replace it)", file=sys.stderr)
         return 2
 
 
