@@ -28,7 +28,8 @@ def _check_image(image, what: str) -> np.ndarray:
     return img
 
 
-def _target(path, overwrite: bool) -> Path:
+def output_path(path, overwrite: bool) -> Path:
+    """``path`` as a Path, its folder created; FileExistsError if it exists and not ``overwrite``."""
     path = Path(path)
     if path.exists() and not overwrite:
         raise FileExistsError(f"{path}: exists (pass overwrite=True to replace it)")
@@ -40,7 +41,7 @@ def write_exr(path, image, *, overwrite: bool = False) -> Path:
     """Write ``image`` (float (H, W, 3) linear RGB) as a float32 RGB OpenEXR file."""
     import OpenEXR
     img = np.ascontiguousarray(_check_image(image, str(path)), dtype=np.float32)
-    path = _target(path, overwrite)
+    path = output_path(path, overwrite)
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
     channels = {c: np.ascontiguousarray(img[:, :, i]) for i, c in enumerate("RGB")}
     with OpenEXR.File(header, channels) as f:
@@ -73,6 +74,6 @@ def write_png(path, image, *, overwrite: bool = False) -> Path:
     """Write ``image`` (linear RGB (H, W, 3)) as an 8-bit sRGB PNG."""
     import imageio.v3 as iio
     img = _check_image(image, str(path))
-    path = _target(path, overwrite)
+    path = output_path(path, overwrite)
     iio.imwrite(path, srgb_encode(img), extension=".png")
     return path

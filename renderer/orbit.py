@@ -19,7 +19,7 @@ import drjit as dr
 import numpy as np
 
 from .effects import EffectSet
-from .film import srgb_encode
+from .film import output_path, srgb_encode
 from .render import Renderer
 from .scene import Camera, Scene
 
@@ -137,14 +137,6 @@ def _as_uint8(frames) -> list[np.ndarray]:
     return out
 
 
-def _target(path, overwrite: bool) -> Path:
-    path = Path(path)
-    if path.exists() and not overwrite:
-        raise FileExistsError(f"{path}: exists (pass overwrite=True to replace it)")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    return path
-
-
 def write_gif(path, frames, *, fps: float = PLAYBACK_FPS, overwrite: bool = False) -> Path:
     """Write ``frames`` (uint8 sRGB, or float linear RGB, each (H, W, 3)) as an animated GIF
     that loops forever, shown at ``fps`` frames per second (GIF delays are whole 10 ms
@@ -154,7 +146,7 @@ def write_gif(path, frames, *, fps: float = PLAYBACK_FPS, overwrite: bool = Fals
         raise ValueError(f"write_gif: fps: expected > 0, got {fps!r}")
     import imageio.v3 as iio
     imgs = _as_uint8(frames)
-    path = _target(path, overwrite)
+    path = output_path(path, overwrite)
     iio.imwrite(path, np.stack(imgs), extension=".gif", duration=1000.0 / fps, loop=0)
     return path
 
@@ -172,6 +164,6 @@ def write_mp4(path, frames, *, fps: float = PLAYBACK_FPS, overwrite: bool = Fals
         raise RuntimeError("write_mp4: no ffmpeg plugin for imageio (install imageio-ffmpeg)")
     import imageio.v3 as iio
     imgs = _as_uint8(frames)
-    path = _target(path, overwrite)
+    path = output_path(path, overwrite)
     iio.imwrite(path, np.stack(imgs), extension=".mp4", fps=fps)
     return path
