@@ -411,6 +411,60 @@ def _triangle_step(routine, A4, t, o, d, tri_data, order, i, active, t_max,
             dr.select(accept, v, hit_v), found | accept)
 
 
+# ---- the LLVM (CPU) path ------------------------------------------------------------------
+# Dr.Jit's LLVM backend runs 16 lanes per SIMD packet with masked execution, so it pays for
+# every instruction of the loop body on every iteration, whichever lanes need it. The CPU
+# traversal therefore (a) wraps the node step and the triangle step in symbolic ``if``s,
+# which the LLVM backend compiles to real branches taken only when some lane of the packet
+# needs that step, and (b) gathers one float per lane at a time: a packet gather of four
+# floats (``Array4f``) is emitted only when the source happens to be 64-byte aligned (arrays
+# made from numpy are mapped as they lie), and on the CPU it is slower than four scalar
+# gathers, so the old code's speed depended on where numpy's buffer landed. The CUDA path
+# above is unchanged. Both give the same hits: traversal order and culling never change
+# which triangle wins (nearest t, then smallest original face index).
+def _gather_floats(t: Types, src, base, count: int, active=True):
+    """``count`` consecutive floats ``src[base + k]`` per lane, as scalar gathers."""
+    return [dr.gather(t.Float, src, base + k, active) for k in range(count)]
+
+
+def _node_step_llvm(t, nodes, children, o, inv, best_t, robust, stack, sp, cur):
+    """One inner node (LLVM path): test both child boxes, push the far hit child, go to the
+    near one. Returns (sp, cur, pop): ``pop`` where neither child was hit."""
+    f = _gather_floats(t, nodes, cur * 12, 12)
+    ref_a = dr.gather(t.UInt32, children, cur * 2)
+    ref_b = dr.gather(t.UInt32, children, cur * 2 + 1)
+    hit_a, tn_a = _slab(o, inv, t.Array3f(f[0], f[1], f[2]), t.Array3f(f[3], f[4], f[5]),
+                        best_t, robust)
+    hit_b, tn_b = _slab(o, inv, t.Array3f(f[6], f[7], f[8]), t.Array3f(f[9], f[10], f[11]),
+                        best_t, robust)
+    both = hit_a & hit_b
+    b_first = tn_b < tn_a
+    near = dr.select(hit_a & ~(hit_b & b_first), ref_a, ref_b)
+    far = dr.select(b_first, ref_a, ref_b)
+    stack.write(far, sp, both)
+    sp = dr.select(both, sp + 1, sp)
+    pop = ~(hit_a | hit_b)
+    return sp, dr.select(pop, cur, near), pop
+
+
+def _triangle_step_llvm(routine, t, o, d, tri_data, order, i, t_max,
+                        best_t, prim, prim_order, hit_u, hit_v, found, any_hit):
+    """``_triangle_step`` with scalar gathers (LLVM path; the caller's ``if`` masks lanes)."""
+    f = _gather_floats(t, tri_data, i * 12, 9)
+    th, u, v, h = routine(o, d, t.Array3f(f[0], f[1], f[2]), t.Array3f(f[3], f[4], f[5]),
+                          t.Array3f(f[6], f[7], f[8]))
+    if any_hit:
+        return best_t, prim, prim_order, hit_u, hit_v, found | (h & (th < t_max))
+    h &= th <= best_t
+    nearer = h & (th < best_t)
+    tie = h & found & (th == best_t)
+    i_order = dr.gather(t.UInt32, order, i, nearer | tie)
+    accept = nearer | (tie & (i_order < prim_order))
+    return (dr.select(accept, th, best_t), dr.select(accept, i, prim),
+            dr.select(accept, i_order, prim_order), dr.select(accept, u, hit_u),
+            dr.select(accept, v, hit_v), found | accept)
+
+
 @dataclass
 class BVH:
     """Bounding volume hierarchy accelerator (see module docstring).
@@ -460,10 +514,17 @@ class BVH:
         return dict(self.info)
 
     def intersect(self, o, d, t_max, active=True) -> Hit:
-        return self._traverse(o, d, t_max, active, False)
+        return self._trace(o, d, t_max, active, False)
 
     def intersect_p(self, o, d, t_max, active=True):
-        return self._traverse(o, d, t_max, active, True)
+        return self._trace(o, d, t_max, active, True)
+
+    def _trace(self, o, d, t_max, active, any_hit: bool):
+        # A plain Python branch at trace time: the CPU gets its own loop (see
+        # ``_traverse_llvm``), CUDA keeps ``_traverse``.
+        if _types_of(self.types, self.nodes).backend == "llvm":
+            return self._traverse_llvm(o, d, t_max, active, any_hit)
+        return self._traverse(o, d, t_max, active, any_hit)
 
     @dr.syntax
     def _traverse(self, o, d, t_max, active, any_hit: bool):
@@ -534,6 +595,73 @@ class BVH:
             if dr.hint(any_hit, mode="scalar"):
                 active &= ~found
             first = dr.select(tri_step, first + 1, first)
+
+            active &= (first < end) | (cur != DONE)
+
+        if dr.hint(any_hit, mode="scalar"):
+            return found
+        return Hit(valid=found, t=best_t, u=hit_u, v=hit_v, prim=prim)
+
+
+    @dr.syntax
+    def _traverse_llvm(self, o, d, t_max, active, any_hit: bool):
+        """``_traverse`` for the LLVM backend: the same loop, with the node step and the
+        triangle step each behind a symbolic ``if`` (a branch skipped when no lane of the
+        SIMD packet needs it) and scalar gathers (see the note above ``_gather_floats``)."""
+        t = _types_of(self.types, self.nodes)
+        routine = triangle_routine(self.intersection)
+        robust = _robust_scale(t)
+        nodes, children, tri_data, order = self.nodes, self.children, self.tri_data, self.tris.order
+        n = dr.width(o, d, t_max, active)
+
+        o = t.Array3f(o)
+        d = t.Array3f(d)
+        inv = _safe_inv(d, t)
+        stack = dr.alloc_local(t.UInt32, STACK_SIZE)
+        active = t.Bool(active) & dr.full(t.Bool, True, n)
+        sp = dr.zeros(t.UInt32, n)                  # stack depth
+        cur = dr.zeros(t.UInt32, n)                 # next node to visit (root = 0)
+        first = dr.zeros(t.UInt32, n)               # pending leaf triangles [first, end)
+        end = dr.zeros(t.UInt32, n)
+        best_t = t.Float(t_max) + dr.zeros(t.Float, n)   # shrinks to the nearest hit
+        prim = dr.zeros(t.UInt32, n)                # nearest triangle (BVH order)
+        prim_order = dr.full(t.UInt32, DONE, n)     # its original face index (tie-break)
+        hit_u = dr.zeros(t.Float, n)
+        hit_v = dr.zeros(t.Float, n)
+        found = dr.zeros(t.Bool, n)
+        cur = dr.select(active, cur, DONE)
+
+        while dr.hint(active, max_iterations=-1, label="bvh_llvm",
+                      exclude=[self, t, routine, robust, any_hit]):
+            # ---- node step: only when no leaf triangles are pending ---------------------
+            node_step_ = first >= end
+            is_leaf = node_step_ & ((cur & LEAF_BIT) != 0) & (cur != DONE)
+            is_inner = node_step_ & ((cur & LEAF_BIT) == 0)
+            first = dr.select(is_leaf, cur & FIRST_MASK, first)
+            end = dr.select(is_leaf, (cur & FIRST_MASK) + ((cur >> COUNT_SHIFT) & 15) + 1, end)
+            pop = is_leaf | False
+            # (explicit dr.if_stmt with lambdas made here, so they see this iteration's
+            # best_t and stack)
+            sp, cur, pop = dr.if_stmt(
+                (sp, cur, pop), is_inner,
+                lambda sp, cur, pop: _node_step_llvm(t, nodes, children, o, inv, best_t, robust,
+                                                     stack, sp, cur),
+                lambda sp, cur, pop: (sp, cur, pop))
+
+            can_pop = pop & (sp > 0)
+            sp = dr.select(can_pop, sp - 1, sp)
+            popped = stack.read(sp, can_pop)
+            cur = dr.select(pop, dr.select(can_pop, popped, DONE), cur)
+
+            # ---- triangle step: one pending leaf triangle ---------------------------------
+            best_t, prim, prim_order, hit_u, hit_v, found, first = dr.if_stmt(
+                (best_t, prim, prim_order, hit_u, hit_v, found, first), first < end,
+                lambda best_t, prim, prim_order, hit_u, hit_v, found, first: _triangle_step_llvm(
+                    routine, t, o, d, tri_data, order, first, t_max, best_t, prim, prim_order,
+                    hit_u, hit_v, found, any_hit) + (first + 1,),
+                lambda *state: state)
+            if dr.hint(any_hit, mode="scalar"):
+                active &= ~found
 
             active &= (first < end) | (cur != DONE)
 
