@@ -427,16 +427,36 @@ def _gather_floats(t: Types, src, base, count: int, active=True):
     return [dr.gather(t.Float, src, base + k, active) for k in range(count)]
 
 
+def _slab_select(o, inv, lo, hi, t_max, robust):
+    """``_slab`` with min/max written as compare + select (LLVM path). Dr.Jit emits
+    ``dr.minimum``/``dr.maximum`` as LLVM's NaN-propagating ``llvm.minimum``/``maximum``,
+    which x86 has no instruction for; compare + select is two instructions. The values
+    differ only where a slab value is NaN, which needs a NaN ray (origin or direction, as
+    ``_safe_inv`` never returns 0 or inf): the triangle test never hits such a ray, so the
+    hits stay the same."""
+    t0 = (lo - o) * inv
+    t1 = (hi - o) * inv
+    c = t0 < t1
+    tn = dr.select(c, t0, t1)
+    tf = dr.select(c, t1, t0)
+    a = dr.select(tn.x > tn.y, tn.x, tn.y)
+    b = dr.select(tn.z > 0.0, tn.z, 0.0)
+    t_near = dr.select(a > b, a, b)
+    a = dr.select(tf.x < tf.y, tf.x, tf.y)
+    t_far = dr.select(a < tf.z, a, tf.z) * robust
+    return (t_near <= t_far) & (t_near <= t_max), t_near
+
+
 def _node_step_llvm(t, nodes, children, o, inv, best_t, robust, stack, sp, cur):
     """One inner node (LLVM path): test both child boxes, push the far hit child, go to the
     near one. Returns (sp, cur, pop): ``pop`` where neither child was hit."""
     f = _gather_floats(t, nodes, cur * 12, 12)
     ref_a = dr.gather(t.UInt32, children, cur * 2)
     ref_b = dr.gather(t.UInt32, children, cur * 2 + 1)
-    hit_a, tn_a = _slab(o, inv, t.Array3f(f[0], f[1], f[2]), t.Array3f(f[3], f[4], f[5]),
-                        best_t, robust)
-    hit_b, tn_b = _slab(o, inv, t.Array3f(f[6], f[7], f[8]), t.Array3f(f[9], f[10], f[11]),
-                        best_t, robust)
+    hit_a, tn_a = _slab_select(o, inv, t.Array3f(f[0], f[1], f[2]),
+                               t.Array3f(f[3], f[4], f[5]), best_t, robust)
+    hit_b, tn_b = _slab_select(o, inv, t.Array3f(f[6], f[7], f[8]),
+                               t.Array3f(f[9], f[10], f[11]), best_t, robust)
     both = hit_a & hit_b
     b_first = tn_b < tn_a
     near = dr.select(hit_a & ~(hit_b & b_first), ref_a, ref_b)
