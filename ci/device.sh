@@ -8,7 +8,7 @@ set -uo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 # The machine's own Python is the one with numpy and pillow (PyTorch's venv).
 py=""
-for c in /opt/torch/.venv/bin/python3 $(command -v -a python3 python3.12 python); do
+for c in /opt/torch/.venv/bin/python3 $(type -ap python3 python3.12 python); do
   if "$c" -c 'import numpy' 2>/dev/null; then py=$c; break; fi
 done
 [ -n "$py" ] || { echo "device: no Python with numpy found" >&2; exit 1; }
