@@ -192,7 +192,7 @@ figcaption b { color:var(--fg); font-weight:600; }
 .tables { display:grid; grid-template-columns:minmax(0, 3fr) minmax(0, 2fr); gap:24px; margin-top:16px;
           align-items:start; }
 table { border-collapse:collapse; width:100%; }
-th, td { text-align:left; padding:5px 10px 5px 0; border-bottom:1px solid var(--line); vertical-align:top; }
+th, td { text-align:left; padding:5px 10px 5px 0; border-bottom:1px solid var(--line); vertical-align:top; overflow-wrap:anywhere; }
 th { font-weight:600; white-space:nowrap; }
 td.v { font-variant-numeric:tabular-nums; white-space:nowrap; }
 td.note, .note { color:var(--muted); font-size:12.5px; }
