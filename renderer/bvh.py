@@ -632,9 +632,11 @@ class BVH:
 
     @classmethod
     def build(cls, scene: Scene, t: Types, *, intersection: str = "moller_trumbore",
-              leaf_size: int = LEAF_SIZE, bins: int = 32) -> "BVH":
+              leaf_size: int = LEAF_SIZE, bins: int = 32, **build_options) -> "BVH":
+        """``build_options`` go to ``build_bvh`` (root_bins, all_axes, sah_leaves,
+        depth_first, sample)."""
         triangle_routine(intersection)
-        a = build_bvh(scene.vertices, scene.faces, leaf_size=leaf_size, bins=bins)
+        a = build_bvh(scene.vertices, scene.faces, leaf_size=leaf_size, bins=bins, **build_options)
         t0 = time.perf_counter()
         tris = upload_triangles(scene, t, order=a.order)
         fdt = np.float64 if t.is_double else np.float32

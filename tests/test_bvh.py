@@ -148,6 +148,36 @@ def test_bvh_matches_brute_force(backend, seed):
     assert_same_hits(hits(BVH.build(sc, t), *rays, t), ref)
 
 
+BUILD_OPTIONS = [
+    dict(),                                                         # the defaults
+    dict(sah_leaves=True, leaf_size=8),                             # SAH leaf termination
+    dict(all_axes=False, bins=16, root_bins=16, depth_first=False),  # longest axis, BFS order
+    dict(sample=64),                                                # sampled three-axis SAH
+]
+
+
+@pytest.mark.parametrize("options", BUILD_OPTIONS, ids=lambda o: ",".join(o) or "defaults")
+def test_build_options_keep_hits_identical(options):
+    """Every build variant is a valid tree and gives brute force's hits bitwise."""
+    t = types("llvm")
+    V, faces = soup(2000, seed=3)   # fixed seed: a reproducible soup
+    check_bvh(build_bvh(V, faces, **options))
+    sc = scene_from_arrays(V, faces, n_objects=2)
+    rays = random_rays(t, 4096, seed=13)
+    ref = hits(BruteForce.build(sc, t), *rays, t)
+    assert ref[0].sum() > 500
+    assert_same_hits(hits(BVH.build(sc, t, **options), *rays, t), ref)
+
+
+def test_sah_options_lower_the_cost():
+    """Three-axis binning and SAH leaves give a cheaper tree than longest-axis splits
+    (the point of having them; on this soup 107.4 and 99.7 vs 108.2)."""
+    V, faces = soup(4000, seed=4)   # fixed seed
+    plain = build_bvh(V, faces, all_axes=False, bins=16, root_bins=16)
+    assert build_bvh(V, faces).sah_cost < plain.sah_cost
+    assert build_bvh(V, faces, sah_leaves=True, leaf_size=8).sah_cost < plain.sah_cost
+
+
 def test_object_boxes_match_brute_force(backend):
     t = types(backend)
     V, faces = soup(1500, seed=7)
