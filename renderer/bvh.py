@@ -492,6 +492,43 @@ def _robust_scale(t: Types) -> float:
     return 1.0 + 2.0 * gamma3
 
 
+def _ray_setup(t: Types, o, d, t_max, active):
+    """The ray as a traversal loop reads it: ``(o, d, 1/d, active, n)``, every array of the
+    batch width ``n``."""
+    n = dr.width(o, d, t_max, active)
+    o, d = t.Array3f(o), t.Array3f(d)
+    return o, d, _safe_inv(d, t), t.Bool(active) & dr.full(t.Bool, True, n), n
+
+
+def _closest_record(t: Types, t_max, n: int):
+    """The empty closest-hit record: ``(best_t, prim, prim_order, hit_u, hit_v, found)``;
+    ``best_t`` starts at ``t_max`` and shrinks to the nearest hit, ``prim`` is the triangle
+    in traversal order and ``prim_order`` its original face index (the tie-break)."""
+    return (t.Float(t_max) + dr.zeros(t.Float, n), dr.zeros(t.UInt32, n),
+            dr.full(t.UInt32, DONE, n), dr.zeros(t.Float, n), dr.zeros(t.Float, n),
+            dr.zeros(t.Bool, n))
+
+
+def _enter_leaf(cur, first, end):
+    """When no leaf triangles are pending, classify node reference ``cur``; a leaf's
+    triangle range becomes ``[first, end)``. Returns ``(is_leaf, is_inner, first, end)``."""
+    node_step = first >= end
+    is_leaf = node_step & ((cur & LEAF_BIT) != 0) & (cur != DONE)
+    is_inner = node_step & ((cur & LEAF_BIT) == 0)
+    first = dr.select(is_leaf, cur & FIRST_MASK, first)
+    end = dr.select(is_leaf, (cur & FIRST_MASK) + ((cur >> COUNT_SHIFT) & 15) + 1, end)
+    return is_leaf, is_inner, first, end
+
+
+def _pop(stack, sp, cur, pop):
+    """Where ``pop``: the next node is the top of the stack, or DONE when it is empty.
+    Returns ``(sp, cur)``."""
+    can_pop = pop & (sp > 0)
+    sp = dr.select(can_pop, sp - 1, sp)
+    popped = stack.read(sp, can_pop)
+    return sp, dr.select(pop, dr.select(can_pop, popped, DONE), cur)
+
+
 def _safe_inv(d, t: Types):
     """1/d per component, clamped to a huge finite value so that ``(lo - o) * inv`` is never
     0 * inf = NaN for axis-parallel rays (a zero component then means "the slab never ends")."""
@@ -680,33 +717,18 @@ class BVH:
         routine = triangle_routine(self.intersection)
         robust = _robust_scale(t)
         nodes, children, tri_data, order = self.nodes, self.children, self.tri_data, self.tris.order
-        n = dr.width(o, d, t_max, active)
-
-        o = t.Array3f(o)
-        d = t.Array3f(d)
-        inv = _safe_inv(d, t)
+        o, d, inv, active, n = _ray_setup(t, o, d, t_max, active)
         stack = dr.alloc_local(t.UInt32, STACK_SIZE)
-        active = t.Bool(active) & dr.full(t.Bool, True, n)
         sp = dr.zeros(t.UInt32, n)                  # stack depth
-        cur = dr.zeros(t.UInt32, n)                 # next node to visit (root = 0)
+        cur = dr.select(active, dr.zeros(t.UInt32, n), DONE)   # next node (root = 0)
         first = dr.zeros(t.UInt32, n)               # pending leaf triangles [first, end)
         end = dr.zeros(t.UInt32, n)
-        best_t = t.Float(t_max) + dr.zeros(t.Float, n)   # shrinks to the nearest hit
-        prim = dr.zeros(t.UInt32, n)                # nearest triangle (BVH order)
-        prim_order = dr.full(t.UInt32, DONE, n)     # its original face index (tie-break)
-        hit_u = dr.zeros(t.Float, n)
-        hit_v = dr.zeros(t.Float, n)
-        found = dr.zeros(t.Bool, n)
-        cur = dr.select(active, cur, DONE)
+        best_t, prim, prim_order, hit_u, hit_v, found = _closest_record(t, t_max, n)
 
         while dr.hint(active, max_iterations=-1, label="bvh",
                       exclude=[self, t, A4, A2u, routine, robust, any_hit]):
             # ---- node step: only when no leaf triangles are pending ---------------------
-            node_step = first >= end
-            is_leaf = node_step & ((cur & LEAF_BIT) != 0) & (cur != DONE)
-            is_inner = node_step & ((cur & LEAF_BIT) == 0)
-            first = dr.select(is_leaf, cur & FIRST_MASK, first)
-            end = dr.select(is_leaf, (cur & FIRST_MASK) + ((cur >> COUNT_SHIFT) & 15) + 1, end)
+            is_leaf, is_inner, first, end = _enter_leaf(cur, first, end)
 
             q0 = dr.gather(A4, nodes, cur * 3, is_inner)
             q1 = dr.gather(A4, nodes, cur * 3 + 1, is_inner)
@@ -729,10 +751,7 @@ class BVH:
             cur = dr.select(hit_a | hit_b, near, cur)
 
             pop = is_leaf | (is_inner & ~(hit_a | hit_b))
-            can_pop = pop & (sp > 0)
-            sp = dr.select(can_pop, sp - 1, sp)
-            popped = stack.read(sp, can_pop)
-            cur = dr.select(pop, dr.select(can_pop, popped, DONE), cur)
+            sp, cur = _pop(stack, sp, cur, pop)
 
             # ---- triangle step: one pending leaf triangle ---------------------------------
             tri_step = first < end
@@ -759,33 +778,18 @@ class BVH:
         routine = triangle_routine(self.intersection)
         robust = _robust_scale(t)
         nodes, children, tri_data, order = self.nodes, self.children, self.tri_data, self.tris.order
-        n = dr.width(o, d, t_max, active)
-
-        o = t.Array3f(o)
-        d = t.Array3f(d)
-        inv = _safe_inv(d, t)
+        o, d, inv, active, n = _ray_setup(t, o, d, t_max, active)
         stack = dr.alloc_local(t.UInt32, STACK_SIZE)
-        active = t.Bool(active) & dr.full(t.Bool, True, n)
         sp = dr.zeros(t.UInt32, n)                  # stack depth
-        cur = dr.zeros(t.UInt32, n)                 # next node to visit (root = 0)
+        cur = dr.select(active, dr.zeros(t.UInt32, n), DONE)   # next node (root = 0)
         first = dr.zeros(t.UInt32, n)               # pending leaf triangles [first, end)
         end = dr.zeros(t.UInt32, n)
-        best_t = t.Float(t_max) + dr.zeros(t.Float, n)   # shrinks to the nearest hit
-        prim = dr.zeros(t.UInt32, n)                # nearest triangle (BVH order)
-        prim_order = dr.full(t.UInt32, DONE, n)     # its original face index (tie-break)
-        hit_u = dr.zeros(t.Float, n)
-        hit_v = dr.zeros(t.Float, n)
-        found = dr.zeros(t.Bool, n)
-        cur = dr.select(active, cur, DONE)
+        best_t, prim, prim_order, hit_u, hit_v, found = _closest_record(t, t_max, n)
 
         while dr.hint(active, max_iterations=-1, label="bvh_llvm",
                       exclude=[self, t, routine, robust, any_hit]):
             # ---- node step: only when no leaf triangles are pending ---------------------
-            node_step_ = first >= end
-            is_leaf = node_step_ & ((cur & LEAF_BIT) != 0) & (cur != DONE)
-            is_inner = node_step_ & ((cur & LEAF_BIT) == 0)
-            first = dr.select(is_leaf, cur & FIRST_MASK, first)
-            end = dr.select(is_leaf, (cur & FIRST_MASK) + ((cur >> COUNT_SHIFT) & 15) + 1, end)
+            is_leaf, is_inner, first, end = _enter_leaf(cur, first, end)
             pop = is_leaf | False
             # (explicit dr.if_stmt with lambdas made here, so they see this iteration's
             # best_t and stack)
@@ -795,10 +799,7 @@ class BVH:
                                                      stack, sp, cur),
                 lambda sp, cur, pop: (sp, cur, pop))
 
-            can_pop = pop & (sp > 0)
-            sp = dr.select(can_pop, sp - 1, sp)
-            popped = stack.read(sp, can_pop)
-            cur = dr.select(pop, dr.select(can_pop, popped, DONE), cur)
+            sp, cur = _pop(stack, sp, cur, pop)
 
             # ---- triangle step: one pending leaf triangle ---------------------------------
             best_t, prim, prim_order, hit_u, hit_v, found, first = dr.if_stmt(
@@ -888,21 +889,12 @@ class ObjectBoxes:
         robust = _robust_scale(t)
         boxes, ranges, tri_data, order = self.boxes, self.ranges, self.tri_data, self.tris.order
         n_obj = dr.width(self.ranges) // 2
-        n = dr.width(o, d, t_max, active)
-
-        o = t.Array3f(o)
-        d = t.Array3f(d)
-        inv = _safe_inv(d, t)
-        active = t.Bool(active) & dr.full(t.Bool, True, n) & (n_obj > 0)
+        o, d, inv, active, n = _ray_setup(t, o, d, t_max, active)
+        active &= n_obj > 0
         obj = dr.zeros(t.UInt32, n)                 # next object to test
         first = dr.zeros(t.UInt32, n)               # pending triangles [first, end)
         end = dr.zeros(t.UInt32, n)
-        best_t = t.Float(t_max) + dr.zeros(t.Float, n)
-        prim = dr.zeros(t.UInt32, n)
-        prim_order = dr.full(t.UInt32, DONE, n)
-        hit_u = dr.zeros(t.Float, n)
-        hit_v = dr.zeros(t.Float, n)
-        found = dr.zeros(t.Bool, n)
+        best_t, prim, prim_order, hit_u, hit_v, found = _closest_record(t, t_max, n)
 
         while dr.hint(active, max_iterations=-1, label="boxes",
                       exclude=[self, t, A4, A2u, routine, robust, any_hit]):
