@@ -13,6 +13,7 @@ from dataclasses import dataclass
 from functools import lru_cache
 
 import drjit as dr
+import numpy as np
 
 BACKENDS = ("auto", "cuda", "llvm")
 PRECISIONS = ("float32", "float64")
@@ -57,3 +58,10 @@ def types(backend: str = "auto", precision: str = "float32") -> Types:
         Array2f=getattr(m, "Array2f" + s), Array3f=getattr(m, "Array3f" + s),
         Array3u=m.Array3u, TensorXf=getattr(m, "TensorXf" + s), PCG32=m.PCG32,
     )
+
+
+def array3(t: Types, rows) -> object:
+    """``t.Array3f`` of width N from host rows (anything numpy reads as (N, 3) or (3,))."""
+    x = np.ascontiguousarray(np.asarray(rows, np.float64).reshape(-1, 3),
+                             dtype=np.float64 if t.is_double else np.float32)
+    return t.Array3f(t.Float(x[:, 0]), t.Float(x[:, 1]), t.Float(x[:, 2]))

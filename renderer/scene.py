@@ -201,6 +201,13 @@ class Scene:
     def with_settings(self, **changes) -> "Scene":
         return replace(self, settings=replace(self.settings, **changes))
 
+    def with_size(self, width: int, height: int | None = None) -> "Scene":
+        """The same scene with every view resized to ``width`` x ``height`` pixels
+        (``height`` defaults to ``width``); the field of view is kept."""
+        height = width if height is None else height
+        return replace(self, cameras=[replace(c, width=int(width), height=int(height))
+                                      for c in self.cameras])
+
 
 # =========================================================================================
 # Loading scene files (docs/scene-format.md)
