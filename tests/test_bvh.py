@@ -16,7 +16,7 @@ from renderer.bvh import (BVH, MAX_LEVELS, LEAF_BIT, COUNT_SHIFT, FIRST_MASK, Ob
 from renderer.device import types
 from renderer.intersect import BruteForce
 from renderer.scene import Camera, ObjectInfo, Scene, Settings
-from renderer.subdivide import subdivide_midpoint
+from renderer.scene.subdivide import subdivide_midpoint
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -6,7 +6,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from renderer.meshio import MeshError, load_mesh, load_obj, load_ply
+from renderer.scene.meshio import MeshError, load_mesh, load_obj, load_ply
 
 MESHES = Path("/work/shared/data/meshes")
 SQUARE = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], float)

@@ -4,7 +4,7 @@ import itertools
 import numpy as np
 import pytest
 
-from renderer.shapes import SHAPES, sphere
+from renderer.scene.shapes import SHAPES, sphere
 
 PHI = (1 + 5 ** 0.5) / 2
 # name: (triangles, vertices, edge length for circumradius 1)

@@ -1,12 +1,10 @@
-"""The scene: one host-side (numpy) description that both renderers consume.
+"""Reading scene files (TOML; format in docs/scene-format.md) into a ``Scene``.
 
-``Scene`` is the single source of truth: ``renderer`` uploads it to Dr.Jit arrays, and
-``reference`` translates it into a Mitsuba scene. The meaning of every field (camera model,
-shading modes, specular weights) is fixed in ``docs/MODEL.md``.
-
-Geometry is flattened: all objects' triangles in one array, each object owning a contiguous
-range of faces and of vertices (vertices are never shared between objects, so per-object
-vertex normals are well defined).
+``load_scene`` reads the file, then one reader per table: ``[render]`` and ``[physical]``
+(settings, ambient, background), ``[camera]`` / ``[[views]]``, ``[[lights]]``,
+``[materials.<name>]`` and ``[[objects]]`` (meshes and shapes, transformed and assembled
+into the flat triangle arrays). Every error is a ``SceneError`` that names the file and the
+dotted field and says what was expected; unknown keys get the closest valid one suggested.
 """
 from __future__ import annotations
 
@@ -14,204 +12,15 @@ import difflib
 import math
 import tomllib
 import warnings
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
 from . import meshio, shapes
-
-SHADING_MODES = ("classic", "physical")
-FALLOFFS = ("none", "inverse_square")
-COMBINATIONS = ("constant", "fresnel")
-
-
-class SceneError(ValueError):
-    """A scene file or scene description is malformed.
-
-    The message always names the file and the field, and says what was expected.
-    """
-
-
-@dataclass(frozen=True)
-class Camera:
-    """Pinhole camera (docs/MODEL.md, "Camera and pixels").
-
-    position, target, up: float64 arrays of shape (3,).
-    fov_y: vertical field of view in degrees, in (0, 180).
-    width, height: image size in pixels, > 0.
-    name: label of the view (e.g. "front").
-    """
-
-    position: np.ndarray
-    target: np.ndarray
-    up: np.ndarray
-    fov_y: float
-    width: int
-    height: int
-    name: str = "view0"
-
-
-@dataclass(frozen=True)
-class PointLight:
-    """position: float64 (3,); intensity: float64 (3,) RGB, >= 0;
-    falloff: "none" | "inverse_square"."""
-
-    position: np.ndarray
-    intensity: np.ndarray
-    falloff: str = "inverse_square"
-    name: str = ""
-
-
-@dataclass(frozen=True)
-class Material:
-    """Phong-like material with optional mirror reflection and transmission.
-
-    ka, kd, ks: float64 (3,) ambient, diffuse, specular coefficients (>= 0).
-    n: Phong exponent (> 0).
-    k_refl, k_refr: float64 (3,) reflection and transmission coefficients (>= 0).
-    ior: index of refraction of the inside (> 0; used only when k_refr > 0).
-    combination: "constant" (thesis eq. 14) or "fresnel" (dielectric Fresnel weights).
-    """
-
-    name: str
-    ka: np.ndarray
-    kd: np.ndarray
-    ks: np.ndarray
-    n: float = 32.0
-    k_refl: np.ndarray = field(default_factory=lambda: np.zeros(3))
-    k_refr: np.ndarray = field(default_factory=lambda: np.zeros(3))
-    ior: float = 1.5
-    combination: str = "constant"
-
-    @property
-    def reflective(self) -> bool:
-        return bool(np.any(self.k_refl > 0))
-
-    @property
-    def transmissive(self) -> bool:
-        return bool(np.any(self.k_refr > 0))
-
-
-@dataclass(frozen=True)
-class Settings:
-    """Render settings.
-
-    max_depth: deepest specular bounce (camera ray = depth 0); default 5.
-    spp: samples per pixel, a perfect square (k x k strata); 1 in exact mode.
-    exact: one ray through each pixel centre (pixel-wise comparable with Mitsuba).
-    shading: "classic" (thesis eq. 6) or "physical" (see docs/MODEL.md).
-    background: float64 (3,) radiance of rays that escape.
-    min_weight: prune a branch whose accumulated weight falls under this (thesis: 0.01).
-    ray_epsilon: ray-origin offset as a fraction of the scene's bounding-box diagonal.
-    seed: seed of the stratified jitter in converged mode.
-    """
-
-    max_depth: int = 5
-    spp: int = 1
-    exact: bool = True
-    shading: str = "classic"
-    background: np.ndarray = field(default_factory=lambda: np.zeros(3))
-    min_weight: float = 0.01
-    ray_epsilon: float = 1e-4
-    seed: int = 0
-
-
-@dataclass(frozen=True)
-class ObjectInfo:
-    """One object of the scene: a contiguous range of faces and of vertices.
-
-    kind: where it came from ("obj", "ply", "quad", "box", "sphere", "tetrahedron", ...).
-    smooth: interpolate vertex normals (else the flat geometric normal).
-    """
-
-    name: str
-    kind: str
-    material: int
-    first_face: int
-    face_count: int
-    first_vertex: int
-    vertex_count: int
-    smooth: bool
-
-
-@dataclass
-class Scene:
-    """Everything needed to render, on the host.
-
-    vertices: float32 (V, 3) world-space positions.
-    normals: float32 (V, 3) unit vertex normals (average of adjacent face normals within
-        the object); present for every vertex, used only for smooth objects.
-    faces: int32 (F, 3) global vertex indices; no zero-area triangles (dropped at load).
-    face_material: int32 (F,) index into ``materials``.
-    face_object: int32 (F,) index into ``objects``.
-    cameras: the views; ``cameras[0]`` is the default.
-    """
-
-    cameras: list[Camera]
-    settings: Settings
-    lights: list[PointLight]
-    materials: list[Material]
-    objects: list[ObjectInfo]
-    vertices: np.ndarray
-    normals: np.ndarray
-    faces: np.ndarray
-    face_material: np.ndarray
-    face_object: np.ndarray
-    ambient: np.ndarray = field(default_factory=lambda: np.zeros(3))
-    name: str = "scene"
-    path: Path | None = None
-    # Files the scene was built from (scene file + meshes), for golden-image hashes.
-    source_files: list[Path] = field(default_factory=list)
-
-    # ---- derived facts -------------------------------------------------------------------
-    @property
-    def face_count(self) -> int:
-        return int(self.faces.shape[0])
-
-    @property
-    def face_smooth(self) -> np.ndarray:
-        """bool (F,): whether each face interpolates vertex normals."""
-        smooth = np.array([o.smooth for o in self.objects], dtype=bool)
-        return smooth[self.face_object] if len(smooth) else np.zeros(0, bool)
-
-    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
-        """(lo, hi) float64 (3,) of all vertices used by faces."""
-        if self.face_count == 0:
-            return np.zeros(3), np.zeros(3)
-        used = self.vertices[self.faces.reshape(-1)].astype(np.float64)
-        return used.min(axis=0), used.max(axis=0)
-
-    @property
-    def diagonal(self) -> float:
-        lo, hi = self.bounds()
-        return float(np.linalg.norm(hi - lo))
-
-    @property
-    def ray_offset(self) -> float:
-        """Absolute ray-origin offset ε (docs/MODEL.md, "Ray offsets")."""
-        return self.settings.ray_epsilon * max(self.diagonal, 1e-30)
-
-    def with_camera(self, index: int) -> "Scene":
-        """The same scene with ``cameras[index]`` moved to the front."""
-        cams = list(self.cameras)
-        cams.insert(0, cams.pop(index))
-        return replace(self, cameras=cams)
-
-    def with_settings(self, **changes) -> "Scene":
-        return replace(self, settings=replace(self.settings, **changes))
-
-    def with_size(self, width: int, height: int | None = None) -> "Scene":
-        """The same scene with every view resized to ``width`` x ``height`` pixels
-        (``height`` defaults to ``width``); the field of view is kept."""
-        height = width if height is None else height
-        return replace(self, cameras=[replace(c, width=int(width), height=int(height))
-                                      for c in self.cameras])
-
-
-# =========================================================================================
-# Loading scene files (docs/scene-format.md)
-# =========================================================================================
+from .model import (COMBINATIONS, FALLOFFS, SHADING_MODES, Camera, Material, ObjectInfo,
+                    PointLight, Scene, SceneError, Settings, validate_settings)
+from .subdivide import subdivide_midpoint
 
 _TOP_KEYS = ("description", "camera", "views", "render", "ambient", "lights", "materials",
              "objects", "physical")
@@ -336,71 +145,114 @@ def load_scene(path, *, shading: str | None = None) -> Scene:
     """
     path = Path(path)
     r = _Reader(path)
+    data = _read_toml(path)
+    r.keys(data, _TOP_KEYS, "")
+    if "description" in data:
+        r.string(data["description"], "description")
+    settings = _read_render(r, data, shading)
+    look = _read_physical(r, data, settings)
+    settings = replace(settings, background=look.background)
+    cameras = _read_views(r, data)
+    lights = _read_lights(r, data, settings.shading, look.light_scale)
+    materials = _read_materials(r, data)
+    objects, sources = _read_objects(r, data, {m.name: i for i, m in enumerate(materials)})
+    return _assemble(r, objects, cameras, settings, lights, materials, look.ambient,
+                     [path.resolve(), *sources])
+
+
+def _read_toml(path: Path) -> dict:
     try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
+        return tomllib.loads(path.read_text(encoding="utf-8"))
     except FileNotFoundError:
         raise SceneError(f"{path}: file not found") from None
     except tomllib.TOMLDecodeError as e:
         raise SceneError(f"{path}: TOML syntax error: {e}") from None
     except (OSError, UnicodeDecodeError) as e:
         raise SceneError(f"{path}: cannot read: {e}") from None
-    r.keys(data, _TOP_KEYS, "")
-    if "description" in data:
-        r.string(data["description"], "description")
 
-    # ---- render settings ------------------------------------------------------------------
+
+# ---- [render] ---------------------------------------------------------------------------
+def _read_render(r: _Reader, data: dict, shading: str | None) -> Settings:
+    """``[render]`` with the caller's shading override; background as the table gives it
+    (``[physical]`` may replace it)."""
     rt = r.table(data.get("render", {}), "render")
     r.keys(rt, _RENDER_KEYS, "render")
     default_shading = r.string(rt.get("shading", "classic"), "render.shading", SHADING_MODES)
     if shading is not None and shading not in SHADING_MODES:
-        raise SceneError(f"{path}: shading override: expected one of {SHADING_MODES}, "
+        raise SceneError(f"{r.path}: shading override: expected one of {SHADING_MODES}, "
                          f"got {shading!r}")
-    mode = shading or default_shading
     spp = r.integer(rt.get("spp", 1), "render.spp", lo=1)
-    if math.isqrt(spp) ** 2 != spp:
-        raise r.error("render.spp", f"expected a perfect square (k*k strata), got {spp}")
     exact = r.boolean(rt["exact"], "render.exact") if "exact" in rt else spp == 1
-    if exact and spp > 1:
-        raise r.error("render.exact", f"exact = true renders one ray per pixel centre; "
-                                      f"it cannot be combined with spp = {spp}")
-    physical_t = r.table(data.get("physical", {}), "physical")
-    r.keys(physical_t, _PHYSICAL_KEYS, "physical")
-    background = r.color(rt.get("background", 0.0), "render.background")
-    ambient = r.color(data.get("ambient", 0.0), "ambient")
-    light_scale = r.color(physical_t.get("light_scale", 1.0), "physical.light_scale")
-    p_ambient = r.color(physical_t.get("ambient", 0.0), "physical.ambient")
-    p_background = r.color(physical_t.get("background", 0.0), "physical.background")
-    if mode == "physical":
-        if "ambient" in physical_t:
-            ambient = p_ambient
-        if "background" in physical_t:
-            background = p_background
-    settings = Settings(
-        max_depth=r.integer(rt.get("max_depth", 5), "render.max_depth", lo=0),
-        spp=spp, exact=exact, shading=mode, background=background,
+    max_depth = r.integer(rt.get("max_depth", 5), "render.max_depth", lo=0)
+    try:
+        validate_settings(spp=spp, exact=exact, max_depth=max_depth, where="render")
+    except SceneError as e:
+        raise SceneError(f"{r.path}: {e}", field=e.field) from None
+    return Settings(
+        max_depth=max_depth, spp=spp, exact=exact, shading=shading or default_shading,
+        background=r.color(rt.get("background", 0.0), "render.background"),
         min_weight=r.number(rt.get("min_weight", 0.01), "render.min_weight", lo=0.0),
         ray_epsilon=r.number(rt.get("ray_epsilon", 1e-4), "render.ray_epsilon", lo=0.0,
                              lo_open=True),
         seed=r.integer(rt.get("seed", 0), "render.seed", lo=0),
     )
 
-    # ---- cameras --------------------------------------------------------------------------
+
+# ---- ambient and [physical] ---------------------------------------------------------------
+@dataclass
+class _Look:
+    """Ambient and background radiance (float64 (3,)) and the factor on every light's
+    intensity, for the shading mode in use."""
+
+    ambient: np.ndarray
+    background: np.ndarray
+    light_scale: np.ndarray
+
+
+def _read_physical(r: _Reader, data: dict, settings: Settings) -> _Look:
+    """Top-level ``ambient`` and the ``[physical]`` table, which applies in physical mode."""
+    pt = r.table(data.get("physical", {}), "physical")
+    r.keys(pt, _PHYSICAL_KEYS, "physical")
+    ambient = r.color(data.get("ambient", 0.0), "ambient")
+    light_scale = r.color(pt.get("light_scale", 1.0), "physical.light_scale")
+    p_ambient = r.color(pt.get("ambient", 0.0), "physical.ambient")
+    p_background = r.color(pt.get("background", 0.0), "physical.background")
+    look = _Look(ambient=ambient, background=settings.background, light_scale=light_scale)
+    if settings.shading == "physical":
+        if "ambient" in pt:
+            look.ambient = p_ambient
+        if "background" in pt:
+            look.background = p_background
+    return look
+
+
+# ---- [camera] and [[views]] ----------------------------------------------------------------
+def _read_views(r: _Reader, data: dict) -> list[Camera]:
+    """One camera per ``[[views]]`` entry (``[camera]`` holds their defaults), or the
+    ``[camera]`` table alone."""
     cam_defaults = r.table(data.get("camera", {}), "camera")
     r.keys(cam_defaults, _VIEW_KEYS, "camera")
-    views = r.array_of_tables(data.get("views", []), "views") if "views" in data else []
+    in_views = "views" in data
+    views = r.array_of_tables(data["views"], "views") if in_views else []
     if not views:
         views = [{}]
-    cameras, view_names = [], set()
+    cameras, names = [], set()
     for i, view in enumerate(views):
-        where = f"views[{i}]" if "views" in data else "camera"
+        where = f"views[{i}]" if in_views else "camera"
         r.keys(view, _VIEW_KEYS, where)
-        cameras.append(_camera(r, {**_VIEW_DEFAULTS, **cam_defaults}, view, where, i,
-                               "views" in data))
-        if cameras[-1].name in view_names:
-            raise r.error(f"{where}.name", f"duplicate view name {cameras[-1].name!r}")
-        view_names.add(cameras[-1].name)
+        cam = _camera(r, {**_VIEW_DEFAULTS, **cam_defaults}, view, where, i, in_views)
+        if cam.name in names:
+            raise r.error(f"{where}.name", f"duplicate view name {cam.name!r}")
+        names.add(cam.name)
+        cameras.append(cam)
+    return cameras
 
-    # ---- lights ---------------------------------------------------------------------------
+
+# ---- [[lights]] ---------------------------------------------------------------------------
+def _read_lights(r: _Reader, data: dict, mode: str, light_scale: np.ndarray
+                 ) -> list[PointLight]:
+    """Point lights; in physical mode inverse-square only, intensities times
+    ``light_scale``."""
     lights = []
     for i, lt in enumerate(r.array_of_tables(data.get("lights", []), "lights")):
         where = f"lights[{i}]"
@@ -420,15 +272,18 @@ def load_scene(path, *, shading: str | None = None) -> Scene:
         lights.append(PointLight(position=r.vector(lt["position"], f"{where}.position"),
                                  intensity=intensity, falloff=falloff,
                                  name=r.string(lt.get("name", f"light{i}"), f"{where}.name")))
+    return lights
 
-    # ---- materials ------------------------------------------------------------------------
-    materials, material_index = [], {}
+
+# ---- [materials.<name>] --------------------------------------------------------------------
+def _read_materials(r: _Reader, data: dict) -> list[Material]:
+    """Materials in file order (``ka`` defaults to ``kd``)."""
+    materials = []
     for name, mt in r.table(data.get("materials", {}), "materials").items():
         where = f"materials.{name}"
         r.table(mt, where)
         r.keys(mt, _MATERIAL_KEYS, where)
         kd = r.color(mt.get("kd", 0.0), f"{where}.kd")
-        material_index[name] = len(materials)
         materials.append(Material(
             name=name,
             ka=r.color(mt["ka"], f"{where}.ka") if "ka" in mt else kd.copy(),
@@ -441,67 +296,51 @@ def load_scene(path, *, shading: str | None = None) -> Scene:
             combination=r.string(mt.get("combination", "constant"), f"{where}.combination",
                                  COMBINATIONS),
         ))
+    return materials
 
-    # ---- objects --------------------------------------------------------------------------
-    sources = [path.resolve()]
-    parts = []          # (ObjectInfo fields, world vertices float64, faces int64)
-    object_names = set()
+
+# ---- [[objects]] ----------------------------------------------------------------------------
+@dataclass
+class _Part:
+    """One object before assembly: world-space vertices float64 (V, 3), faces int (F, 3)."""
+
+    name: str
+    kind: str
+    material: int
+    smooth: bool
+    world: np.ndarray
+    faces: np.ndarray
+
+
+def _read_objects(r: _Reader, data: dict, material_index: dict[str, int]
+                  ) -> tuple[list[_Part], list[Path]]:
+    """Every object, transformed to world space, and the mesh files read."""
+    parts, names, sources = [], set(), []
     for i, ot in enumerate(r.array_of_tables(data.get("objects", []), "objects")):
         where = f"objects[{i}]"
         shape_name = ot.get("shape")
         extra = shapes.SHAPE_PARAMETERS.get(shape_name, ()) if isinstance(shape_name, str) \
             else ()
         r.keys(ot, _OBJECT_KEYS + tuple(extra), where)
-        if "material" not in ot:
-            raise r.error(f"{where}.material", "missing (required): the name of a "
-                                               "[materials.<name>] table")
-        mname = r.string(ot["material"], f"{where}.material")
-        if mname not in material_index:
-            known = ", ".join(material_index) or "none defined"
-            close = difflib.get_close_matches(mname, list(material_index), n=1, cutoff=0.5)
-            hint = f"; did you mean {close[0]!r}?" if close else ""
-            raise r.error(f"{where}.material", f"unknown material {mname!r} "
-                                               f"(defined: {known}){hint}")
+        material = _object_material(r, ot, where, material_index)
         if ("mesh" in ot) == ("shape" in ot):
             raise r.error(where, "expected exactly one of 'mesh' (a file) or 'shape'")
         if "mesh" in ot:
-            rel = r.string(ot["mesh"], f"{where}.mesh")
-            mesh_path = (path.parent / rel)
-            if mesh_path.suffix.lower() not in meshio.MESH_FORMATS:
-                raise r.error(f"{where}.mesh", f"unsupported mesh format "
-                              f"{mesh_path.suffix!r}, expected one of "
-                              f"{sorted(meshio.MESH_FORMATS)}")
-            if not mesh_path.is_file():
-                raise r.error(f"{where}.mesh", f"mesh file not found: {mesh_path}")
-            try:
-                verts, faces = meshio.load_mesh(mesh_path)
-            except meshio.MeshError as e:
-                raise r.error(f"{where}.mesh", str(e)) from None
+            verts, faces, kind, default_name, mesh_path = _object_mesh(r, ot, where)
             sources.append(mesh_path.resolve())
-            kind, default_name = mesh_path.suffix.lower()[1:], mesh_path.stem
         else:
-            kind = r.string(ot["shape"], f"{where}.shape", tuple(shapes.SHAPES))
-            params = {}
-            for key in shapes.SHAPE_PARAMETERS[kind]:
-                if key in ot:
-                    params[key] = r.integer(ot[key], f"{where}.{key}",
-                                            lo=1 if key == "frequency" else 0)
-            if len(params) > 1:
-                raise r.error(f"{where}.{'.'.join(params)}", "give either 'frequency' or "
-                                                          "'subdivisions', not both")
-            verts, faces = shapes.make_shape(kind, **params)
+            verts, faces, kind = _object_shape(r, ot, where)
             default_name = kind
         if "subdivide" in ot:           # midpoint subdivision, each level: triangles x 4
             levels = r.integer(ot["subdivide"], f"{where}.subdivide", lo=0)
             if levels > 4:
                 raise r.error(f"{where}.subdivide", f"expected 0..4 levels, got {levels}")
-            from .subdivide import subdivide_midpoint
             verts, faces = subdivide_midpoint(verts, faces, levels)
             faces = faces.astype(np.int64)
         name = r.string(ot.get("name", f"{default_name}{i}"), f"{where}.name")
-        if name in object_names:
+        if name in names:
             raise r.error(f"{where}.name", f"duplicate object name {name!r}")
-        object_names.add(name)
+        names.add(name)
         m = _transform(r, ot, where)
         world = verts @ m[:3, :3].T + m[:3, 3]
         if not np.all(np.isfinite(world)):
@@ -511,8 +350,55 @@ def load_scene(path, *, shading: str | None = None) -> Scene:
         if flip:                        # mirroring transforms keep the winding outward
             faces = faces[:, [0, 2, 1]]
         smooth = r.boolean(ot.get("smooth", kind == "sphere"), f"{where}.smooth")
-        parts.append((name, kind, material_index[mname], smooth, world, faces))
-    return _assemble(r, data, parts, cameras, settings, lights, materials, ambient, sources)
+        parts.append(_Part(name, kind, material, smooth, world, faces))
+    return parts, sources
+
+
+def _object_material(r: _Reader, ot: dict, where: str, material_index: dict[str, int]
+                     ) -> int:
+    if "material" not in ot:
+        raise r.error(f"{where}.material", "missing (required): the name of a "
+                                           "[materials.<name>] table")
+    mname = r.string(ot["material"], f"{where}.material")
+    if mname not in material_index:
+        known = ", ".join(material_index) or "none defined"
+        close = difflib.get_close_matches(mname, list(material_index), n=1, cutoff=0.5)
+        hint = f"; did you mean {close[0]!r}?" if close else ""
+        raise r.error(f"{where}.material", f"unknown material {mname!r} "
+                                           f"(defined: {known}){hint}")
+    return material_index[mname]
+
+
+def _object_mesh(r: _Reader, ot: dict, where: str):
+    """(vertices, faces, kind, default name, path) of ``mesh = "<file>"``."""
+    rel = r.string(ot["mesh"], f"{where}.mesh")
+    mesh_path = r.path.parent / rel
+    if mesh_path.suffix.lower() not in meshio.MESH_FORMATS:
+        raise r.error(f"{where}.mesh", f"unsupported mesh format "
+                      f"{mesh_path.suffix!r}, expected one of "
+                      f"{sorted(meshio.MESH_FORMATS)}")
+    if not mesh_path.is_file():
+        raise r.error(f"{where}.mesh", f"mesh file not found: {mesh_path}")
+    try:
+        verts, faces = meshio.load_mesh(mesh_path)
+    except meshio.MeshError as e:
+        raise r.error(f"{where}.mesh", str(e)) from None
+    return verts, faces, mesh_path.suffix.lower()[1:], mesh_path.stem, mesh_path
+
+
+def _object_shape(r: _Reader, ot: dict, where: str):
+    """(vertices, faces, kind) of ``shape = "<name>"`` with its parameters."""
+    kind = r.string(ot["shape"], f"{where}.shape", tuple(shapes.SHAPES))
+    params = {}
+    for key in shapes.SHAPE_PARAMETERS[kind]:
+        if key in ot:
+            params[key] = r.integer(ot[key], f"{where}.{key}",
+                                    lo=1 if key == "frequency" else 0)
+    if len(params) > 1:
+        raise r.error(f"{where}.{'.'.join(params)}", "give either 'frequency' or "
+                                                  "'subdivisions', not both")
+    verts, faces = shapes.make_shape(kind, **params)
+    return verts, faces, kind
 
 
 def _camera(r: _Reader, defaults: dict, view: dict, where: str, i: int, in_views: bool
@@ -590,10 +476,15 @@ def _transform(r: _Reader, ot: dict, where: str) -> np.ndarray:
     return m
 
 
-def _assemble(r, data, parts, cameras, settings, lights, materials, ambient, sources) -> Scene:
+def _assemble(r: _Reader, parts: list[_Part], cameras, settings, lights, materials, ambient,
+              sources) -> Scene:
+    """The flat scene arrays: zero-area triangles dropped, vertices compacted per object,
+    vertex normals averaged."""
     objects, all_v, all_n, all_f, f_mat, f_obj = [], [], [], [], [], []
     v_base = f_base = 0
-    for k, (name, kind, mat, smooth, world, faces) in enumerate(parts):
+    for k, part in enumerate(parts):
+        name, kind, mat, smooth, world, faces = (part.name, part.kind, part.material,
+                                                 part.smooth, part.world, part.faces)
         where = f"objects[{k}]"
         # Zero-area test on the float32 positions the renderer will see (float64 arithmetic).
         p = world.astype(np.float32).astype(np.float64)
