@@ -17,8 +17,8 @@ from dataclasses import dataclass
 import drjit as dr
 import numpy as np
 
-from .device import Types
-from .scene import Camera, SceneError
+from .device import Types, array3
+from .scene import Camera, SceneError, validate_settings
 
 
 @dataclass
@@ -36,8 +36,6 @@ class CameraArrays:
     forward: object = None
     tan_x: object = None
     tan_y: object = None
-    DRJIT_STRUCT = {"position": object, "right": object, "up": object, "forward": object,
-                    "tan_x": object, "tan_y": object}
 
 
 def camera_frame(cam: Camera) -> dict:
@@ -60,10 +58,9 @@ def camera_frame(cam: Camera) -> dict:
 def camera_arrays(cam: Camera, t: Types) -> CameraArrays:
     """Upload ``cam``'s frame as opaque width-1 arrays of types ``t``."""
     fr = camera_frame(cam)
-    a3 = lambda v: t.Array3f(*(float(x) for x in v))
-    ca = CameraArrays(position=a3(fr["position"]), right=a3(fr["right"]), up=a3(fr["up"]),
-                      forward=a3(fr["forward"]), tan_x=t.Float(fr["tan_x"]),
-                      tan_y=t.Float(fr["tan_y"]))
+    ca = CameraArrays(position=array3(t, fr["position"]), right=array3(t, fr["right"]),
+                      up=array3(t, fr["up"]), forward=array3(t, fr["forward"]),
+                      tan_x=t.Float(fr["tan_x"]), tan_y=t.Float(fr["tan_y"]))
     dr.make_opaque(ca)
     return ca
 
@@ -74,20 +71,18 @@ def primary_rays(cam: CameraArrays, width: int, height: int, t: Types, *,
 
     Returns ``(o, d)``: Array3f of width ``width·height·spp`` (``d`` unit length), ray ``k``
     in pixel ``k // spp``. Exact mode (``spp`` must be 1): pixel centres. Converged mode:
-    ``spp = k²`` stratified jittered samples per pixel.
+    ``spp = k²`` stratified jittered samples per pixel. Raises SceneError
+    (``validate_settings``) for any other ``spp``.
     """
+    validate_settings(spp=spp, exact=exact)
     n = width * height * spp
     idx = dr.arange(t.UInt32, n)
     if exact:
-        if spp != 1:
-            raise ValueError(f"settings.spp: exact mode takes one ray per pixel, got {spp}")
         pix = idx
         px = t.Float(pix % width) + 0.5
         py = t.Float(pix // width) + 0.5
     else:
         k = int(round(np.sqrt(spp)))
-        if k * k != spp or spp < 1:
-            raise ValueError(f"settings.spp: expected a perfect square >= 1, got {spp}")
         pix = idx // spp
         s = idx - pix * spp
         rng = t.PCG32(n, initstate=seed)

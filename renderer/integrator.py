@@ -15,83 +15,48 @@ loop at all (one closest hit and local shading); reflection without refraction i
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import drjit as dr
 
+from .accel import Ray
 from .device import Types
 from .effects import EffectSet
-from .shade import (DeviceLights, DeviceMaterials, local_light, offset_origin,
-                    specular_weights, surface_point)
-
-#: Deepest supported tree: one stack slot per level, each local array <= 128 bytes
-#: (16 entries of float64) because of the LLVM local-array issue (drjit #532).
-MAX_DEPTH_LIMIT = 16
+from .shade import (SceneArrays, TraceOptions, local_light, offset_origin, shading_context,
+                    specular_branches, surface_point)
 
 
-@dataclass
-class SceneArrays:
-    """Everything on the device a frame reads besides the camera.
-
-    accel: the accelerator (holds DeviceTriangles); materials: DeviceMaterials;
-    lights: DeviceLights; ambient, background: Array3f (width 1).
-    """
-
-    accel: object = None
-    materials: DeviceMaterials = None
-    lights: DeviceLights = None
-    ambient: object = None
-    background: object = None
-    DRJIT_STRUCT = {"accel": object, "materials": DeviceMaterials, "lights": DeviceLights,
-                    "ambient": object, "background": object}
-
-
-@dataclass(frozen=True)
-class TraceOptions:
-    """Host-side constants of the kernel: n_lights, max_depth, min_weight, eps (absolute
-    ray offset)."""
-
-    n_lights: int
-    max_depth: int
-    min_weight: float
-    eps: float
-
-
-def _shade_hit(sa: SceneArrays, o, d, hit, t: Types, fx: EffectSet, opt: TraceOptions, active):
-    """Surface point, facing shading normal and I_local at a closest hit."""
-    sp = surface_point(sa.accel.tris, hit, o, d, fx.smooth_normals)
-    V = -d
-    N = dr.select(dr.dot(V, sp.ns) >= 0, sp.ns, -sp.ns)
-    I_local = local_light(sp, N, V, sa.materials, sa.lights, sa.accel, t,
-                          n_lights=opt.n_lights, ambient=sa.ambient, physical=fx.physical,
-                          shadows=fx.shadows, ambient_on=fx.ambient, specular=fx.specular,
-                          eps=opt.eps, active=active, many_lights=fx.many_lights)
+def _shade_hit(sa: SceneArrays, ray: Ray, hit, t: Types, fx: EffectSet, opt: TraceOptions,
+               active):
+    """Surface point and I_local (Array3f) at the closest hits ``hit`` of ``ray``."""
+    sp = surface_point(sa.accel.tris, ray, hit, fx)
+    I_local = local_light(shading_context(sp, ray.d, active), sa, t, fx, opt)
     return sp, I_local
 
 
-def _no_secondary(sa, o, d, t, fx, opt):
+def _no_secondary(sa: SceneArrays, o, d, t: Types, fx: EffectSet, opt: TraceOptions):
     """Depth 0 only: one closest hit, local light or the background."""
     active = dr.full(t.Bool, True, dr.width(d))
-    hit = sa.accel.intersect(o, d, t.Float(dr.inf), active)
-    sp, I_local = _shade_hit(sa, o, d, hit, t, fx, opt, hit.valid)
-    return dr.select(hit.valid, I_local, t.Array3f(sa.background))
+    ray = Ray(o=o, d=d, t_max=t.Float(dr.inf))
+    hit = sa.accel.intersect(ray, active)
+    sp, I_local = _shade_hit(sa, ray, hit, t, fx, opt, hit.found)
+    return dr.select(hit.found, I_local, t.Array3f(sa.background))
 
 
 @dr.syntax
 def trace(sa: SceneArrays, o, d, t: Types, fx: EffectSet, opt: TraceOptions):
     """Radiance along the rays ``(o, d)`` (Array3f, ``d`` unit) through the Whitted tree.
 
-    Returns Array3f radiance of the batch width. ``fx`` and ``opt`` are host constants.
+    Returns Array3f radiance of the batch width. ``fx`` (which effects are traced) and
+    ``opt`` (``max_depth`` checked when it was made) are host constants.
     """
-    if not (0 <= opt.max_depth <= MAX_DEPTH_LIMIT):
-        raise ValueError(f"settings.max_depth: expected 0..{MAX_DEPTH_LIMIT}, got {opt.max_depth}")
     if dr.hint(not fx.secondary, mode="scalar"):
         return _no_secondary(sa, o, d, t, fx, opt)
 
     n = dr.width(d)
     A3, Float, UInt32 = t.Array3f, t.Float, t.UInt32
     max_depth = min(fx.depth, opt.max_depth)   # deepest reachable bounce (host constant)
-    use_stack = fx.refraction
+    use_stack = fx.refraction                  # pending branches exist only with refraction
+
+    # ---- stack of pending branches (one slot per level) ------------------------------------
     cap = st_o = st_d = st_w = st_depth = None
     if dr.hint(use_stack, mode="scalar"):
         cap = max_depth
@@ -100,6 +65,7 @@ def trace(sa: SceneArrays, o, d, t: Types, fx: EffectSet, opt: TraceOptions):
         st_w = [dr.alloc_local(Float, cap) for _ in range(3)]   # pending weights
         st_depth = dr.alloc_local(UInt32, cap)                  # pending depths
 
+    # ---- loop state -------------------------------------------------------------------------
     ray_o = A3(o)                          # origin of the current ray
     ray_d = A3(d)                          # direction of the current ray (unit)
     weight = dr.full(A3, 1.0, n)           # accumulated weight of the current ray
@@ -112,48 +78,47 @@ def trace(sa: SceneArrays, o, d, t: Types, fx: EffectSet, opt: TraceOptions):
     while dr.hint(active, max_iterations=-1, label="whitted",
                   exclude=[sa, t, fx, opt, n, A3, Float, UInt32, max_depth, use_stack, cap,
                            st_o, st_d, st_w, st_depth]):
-        # ---- closest hit ------------------------------------------------------------------
-        hit = sa.accel.intersect(ray_o, ray_d, Float(dr.inf), active)
-        missed = active & ~hit.valid
+        # ---- closest hit, or the background -------------------------------------------------
+        ray = Ray(o=ray_o, d=ray_d, t_max=Float(dr.inf))
+        hit = sa.accel.intersect(ray, active)
+        missed = active & ~hit.found
         radiance = dr.select(missed, dr.fma(weight, sa.background, radiance), radiance)
-        on_surface = active & hit.valid
+        on_surface = active & hit.found
 
         # ---- local light --------------------------------------------------------------------
-        sp, I_local = _shade_hit(sa, ray_o, ray_d, hit, t, fx, opt, on_surface)
+        sp, I_local = _shade_hit(sa, ray, hit, t, fx, opt, on_surface)
         radiance = dr.select(on_surface, dr.fma(weight, I_local, radiance), radiance)
 
-        # ---- children: reflected and refracted branches --------------------------------------
-        R, w_refl, T, w_refr = specular_weights(
-            sp, ray_d, sa.materials, t, reflection=fx.reflection, refraction=fx.refraction,
-            fresnel_on=fx.fresnel, physical=fx.physical, active=on_surface)
+        # ---- children: follow the reflected one ---------------------------------------------
+        br = specular_branches(sp, ray_d, sa.materials, t, fx, on_surface)
         can_branch = on_surface & (depth < max_depth)
         child_depth = depth + 1
-        w_r = weight * w_refl
-        go_r = can_branch & (dr.max(w_r) >= opt.min_weight) & (dr.max(w_refl) > 0)
-        next_o = offset_origin(sp.p, sp.ng, R, opt.eps)
-        next_d = R
+        w_r = weight * br.w_refl
+        go_r = can_branch & (dr.max(w_r) >= opt.min_weight) & (dr.max(br.w_refl) > 0)
+        next_o = offset_origin(sp.p, sp.ng, br.R, opt.eps)
+        next_d = br.R
         next_w = w_r
         go = go_r
+
+        # ---- children: push the refracted one, or follow it alone ---------------------------
         if dr.hint(use_stack, mode="scalar"):
-            w_t = weight * w_refr
-            go_t = can_branch & (dr.max(w_t) >= opt.min_weight) & (dr.max(w_refr) > 0)
-            o_t = offset_origin(sp.p, sp.ng, T, opt.eps)
-            # both children: follow R, push T
-            push = go_r & go_t
+            w_t = weight * br.w_refr
+            go_t = can_branch & (dr.max(w_t) >= opt.min_weight) & (dr.max(br.w_refr) > 0)
+            o_t = offset_origin(sp.p, sp.ng, br.T, opt.eps)
+            push = go_r & go_t             # both children: follow R, push T
             for k in range(3):
                 st_o[k].write(o_t[k], sp_top, push)
-                st_d[k].write(T[k], sp_top, push)
+                st_d[k].write(br.T[k], sp_top, push)
                 st_w[k].write(w_t[k], sp_top, push)
             st_depth.write(child_depth, sp_top, push)
             sp_top = dr.select(push, sp_top + 1, sp_top)
-            # only the refracted child: follow T
-            only_t = go_t & ~go_r
+            only_t = go_t & ~go_r          # only the refracted child: follow T
             next_o = dr.select(only_t, o_t, next_o)
-            next_d = dr.select(only_t, T, next_d)
+            next_d = dr.select(only_t, br.T, next_d)
             next_w = dr.select(only_t, w_t, next_w)
             go = go_r | go_t
 
-        # ---- next ray: a child, else a pending branch, else done ------------------------------
+        # ---- next ray: a child, else a pending branch, else done ----------------------------
         ray_o = dr.select(go, next_o, ray_o)
         ray_d = dr.select(go, next_d, ray_d)
         weight = dr.select(go, next_w, weight)

@@ -14,14 +14,15 @@ from dataclasses import dataclass, field
 import drjit as dr
 import numpy as np
 
+from .accel import DEFAULT_ACCEL, build_accelerator
 from .camera import CameraArrays, camera_arrays, primary_rays
-from .device import Types, types
+from .device import Types, array3, types
 from .effects import EffectSet
 from .film import develop
-from .integrator import MAX_DEPTH_LIMIT, SceneArrays, TraceOptions, trace
-from .intersect import build_accelerator
+from .integrator import trace
+from .lights import upload_lights
 from .scene import Camera, Scene
-from .shade import upload_lights, upload_materials
+from .shade import SceneArrays, TraceOptions, upload_materials
 
 
 @dataclass
@@ -59,31 +60,29 @@ class Renderer:
     Parameters (keyword-only after ``scene``):
       backend: "auto" | "cuda" | "llvm" (default "auto").
       precision: "float32" | "float64" (default "float32").
-      accel: "brute" | "boxes" | "bvh" (default "brute").
+      accel: "brute" | "boxes" | "bvh" (default ``renderer.accel.DEFAULT_ACCEL``, the BVH).
       intersection: triangle routine (default "moller_trumbore").
       effects: EffectSet to trace (default: derived from the scene).
-      spp, exact: override ``scene.settings`` (converged mode when ``exact`` is False).
+      spp, exact: override ``scene.settings`` as ``Scene.with_overrides`` does (``spp``
+          alone sets ``exact = spp == 1``; ``exact`` alone takes spp 1 or the scene's).
       freeze: wrap the frame function in ``dr.freeze`` (default False).
 
-    ``arrays`` (SceneArrays) holds the uploaded scene, ``frame_fn`` the (frozen) per-frame
-    function of ``make_frame_fn``; ``frame(camera(cam), W, H)`` runs it.
+    The settings are checked by ``validate_settings`` (SceneError, a ValueError, names the
+    field). ``arrays`` (SceneArrays) holds the uploaded scene, ``frame_fn`` the (frozen)
+    per-frame function of ``make_frame_fn``; ``frame(camera(cam), W, H)`` runs it.
     """
 
     def __init__(self, scene: Scene, *, backend: str = "auto", precision: str = "float32",
-                 accel: str = "brute", intersection: str = "moller_trumbore",
+                 accel: str = DEFAULT_ACCEL, intersection: str = "moller_trumbore",
                  effects: EffectSet | None = None, spp: int | None = None,
                  exact: bool | None = None, freeze: bool = False):
-        s = scene.settings
-        if s.shading not in ("classic", "physical"):
-            raise ValueError(f"settings.shading: expected 'classic' or 'physical', got {s.shading!r}")
-        if not (0 <= s.max_depth <= MAX_DEPTH_LIMIT):
-            raise ValueError(f"settings.max_depth: expected 0..{MAX_DEPTH_LIMIT}, got {s.max_depth}")
         if not scene.cameras:
             raise ValueError(f"scene {scene.name!r}: cameras: at least one camera is required")
+        s = scene.with_overrides(spp=spp, exact=exact).settings
         self.scene = scene
         self.t: Types = types(backend, precision)
-        self.exact = s.exact if exact is None else bool(exact)
-        self.spp = (1 if self.exact else s.spp) if spp is None else int(spp)
+        self.exact = s.exact
+        self.spp = s.spp
         self.effects = EffectSet.from_scene(scene) if effects is None else effects
         if self.effects.physical != (s.shading == "physical"):
             raise ValueError("effects.physical: does not match settings.shading "
@@ -93,8 +92,7 @@ class Renderer:
         acc = build_accelerator(accel, scene, t, intersection=intersection)
         self.arrays = SceneArrays(
             accel=acc, materials=upload_materials(scene, t), lights=upload_lights(scene, t),
-            ambient=t.Array3f(*(float(x) for x in np.asarray(scene.ambient, np.float64))),
-            background=t.Array3f(*(float(x) for x in np.asarray(s.background, np.float64))))
+            ambient=array3(t, scene.ambient), background=array3(t, s.background))
         dr.make_opaque(self.arrays.ambient, self.arrays.background)
         self.upload_seconds = time.perf_counter() - t0
         self.options = TraceOptions(n_lights=len(scene.lights), max_depth=int(s.max_depth),
@@ -134,14 +132,15 @@ class Renderer:
 
 
 def render(scene: Scene, *, view: int = 0, backend: str = "auto", precision: str = "float32",
-           accel: str = "brute", intersection: str = "moller_trumbore",
+           accel: str = DEFAULT_ACCEL, intersection: str = "moller_trumbore",
            effects: EffectSet | None = None, spp: int | None = None,
            exact: bool | None = None) -> RenderResult:
     """Render ``scene`` from ``scene.cameras[view]``.
 
     Returns a RenderResult whose ``image`` is float32 (H, W, 3) linear RGB (row 0 = top).
-    ``effects`` defaults to ``EffectSet.from_scene(scene)``; ``spp``/``exact`` default to
-    ``scene.settings``.
+    Options are those of ``Renderer`` (accelerator ``DEFAULT_ACCEL``, the BVH, unless
+    given); ``effects`` defaults to ``EffectSet.from_scene(scene)``; ``spp``/``exact``
+    default to ``scene.settings``.
     """
     r = Renderer(scene, backend=backend, precision=precision, accel=accel,
                  intersection=intersection, effects=effects, spp=spp, exact=exact)

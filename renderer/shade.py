@@ -1,9 +1,12 @@
-"""Local light, shadows and the specular weights (docs/MODEL.md).
+"""Local light, shadows and the specular weights at a hit (docs/MODEL.md).
 
 Materials and lights are uploaded once as device arrays (``DeviceMaterials``,
-``DeviceLights``) and gathered per hit, so their values are inputs of the kernel, not
-literals baked into it. Several lights are summed in a device loop; a single light is
-straight-line code.
+``renderer.lights.DeviceLights``) and gathered per hit, so their values are inputs of the
+kernel, not literals baked into it. The scene on the device travels as one ``SceneArrays``
+record and the host constants as ``TraceOptions``; the ``EffectSet`` is passed itself and
+decides with ``dr.hint(..., mode="scalar")`` which terms are traced. Several lights are
+summed in a device loop; a single light is straight-line code. Lights are read only through
+``renderer.lights.sample_light``.
 """
 from __future__ import annotations
 
@@ -12,16 +15,21 @@ from dataclasses import dataclass
 import drjit as dr
 import numpy as np
 
-from .device import Types
-from .scene import Scene
+from .accel import ClosestHit, Ray
+from .device import Types, array3
+from .effects import EffectSet
+from .lights import DeviceLights, sample_light
+from .scene import Scene, validate_settings
 
 INV_PI = 1.0 / np.pi
 INV_TWO_PI = 0.5 / np.pi
 
 
+# ---- the scene on the device ------------------------------------------------------------------
 @dataclass
 class DeviceMaterials:
-    """Material table on the device, width M (materials), indexed by ``DeviceTriangles.material``.
+    """Material table on the device, width M (materials), indexed by the triangles'
+    ``material``.
 
     ka, kd, ks, k_refl, k_refr: Array3f; n, ior: Float; fresnel: Bool (combination).
     """
@@ -34,54 +42,56 @@ class DeviceMaterials:
     k_refr: object = None
     ior: object = None
     fresnel: object = None
-    DRJIT_STRUCT = {"ka": object, "kd": object, "ks": object, "n": object, "k_refl": object,
-                    "k_refr": object, "ior": object, "fresnel": object}
-
-
-@dataclass
-class DeviceLights:
-    """Point lights on the device, width max(L, 1).
-
-    position, intensity: Array3f; inverse_square: Bool (falloff ``1/dist²``).
-    """
-
-    position: object = None
-    intensity: object = None
-    inverse_square: object = None
-    DRJIT_STRUCT = {"position": object, "intensity": object, "inverse_square": object}
-
-
-def _a3(t: Types, rows) -> object:
-    x = np.asarray(rows, np.float64).reshape(-1, 3)
-    return t.Array3f(t.Float(x[:, 0]), t.Float(x[:, 1]), t.Float(x[:, 2]))
 
 
 def upload_materials(scene: Scene, t: Types) -> DeviceMaterials:
+    """``scene.materials`` as DeviceMaterials of types ``t`` (evaluated); at least one
+    material is required."""
     ms = scene.materials
     if not ms:
         raise ValueError(f"scene {scene.name!r}: materials: at least one material is required")
     m = DeviceMaterials(
-        ka=_a3(t, [x.ka for x in ms]), kd=_a3(t, [x.kd for x in ms]),
-        ks=_a3(t, [x.ks for x in ms]), n=t.Float([float(x.n) for x in ms]),
-        k_refl=_a3(t, [x.k_refl for x in ms]), k_refr=_a3(t, [x.k_refr for x in ms]),
+        ka=array3(t, [x.ka for x in ms]), kd=array3(t, [x.kd for x in ms]),
+        ks=array3(t, [x.ks for x in ms]), n=t.Float([float(x.n) for x in ms]),
+        k_refl=array3(t, [x.k_refl for x in ms]), k_refr=array3(t, [x.k_refr for x in ms]),
         ior=t.Float([float(x.ior) for x in ms]),
         fresnel=t.Bool([x.combination == "fresnel" for x in ms]))
     dr.eval(m)
     return m
 
 
-def upload_lights(scene: Scene, t: Types) -> DeviceLights:
-    ls = scene.lights
-    if not ls:  # a dummy entry keeps the struct well formed; never read
-        return DeviceLights(_a3(t, [0, 0, 0]), _a3(t, [0, 0, 0]), t.Bool([False]))
-    lt = DeviceLights(position=_a3(t, [l.position for l in ls]),
-                      intensity=_a3(t, [l.intensity for l in ls]),
-                      inverse_square=t.Bool([l.falloff == "inverse_square" for l in ls]))
-    dr.eval(lt)
-    return lt
+@dataclass
+class SceneArrays:
+    """Everything on the device a frame reads besides the camera.
+
+    accel: the accelerator (``accel.tris`` holds the triangles' shading attributes);
+    materials: DeviceMaterials; lights: DeviceLights; ambient, background: Array3f
+    (width 1).
+    """
+
+    accel: object = None
+    materials: DeviceMaterials = None
+    lights: DeviceLights = None
+    ambient: object = None
+    background: object = None
 
 
-# ---- Fresnel --------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class TraceOptions:
+    """Host-side constants of the kernel: n_lights (number of lights), max_depth
+    (0..MAX_DEPTH_LIMIT, checked by ``validate_settings``), min_weight (branch pruning),
+    eps (absolute ray offset)."""
+
+    n_lights: int
+    max_depth: int
+    min_weight: float
+    eps: float
+
+    def __post_init__(self):
+        validate_settings(max_depth=self.max_depth)
+
+
+# ---- Fresnel ---------------------------------------------------------------------------------
 def fresnel(cos_theta_i, eta):
     """Unpolarised Fresnel reflectance of a dielectric interface (same conventions as
     Mitsuba 3's ``fresnel()``).
@@ -110,7 +120,7 @@ def fresnel(cos_theta_i, eta):
     return r, cos_theta_t, eta_it, eta_ti
 
 
-# ---- geometry at a hit ----------------------------------------------------------------------
+# ---- geometry at a hit -------------------------------------------------------------------------
 @dataclass
 class SurfacePoint:
     """What shading needs at a hit (arrays of the batch width).
@@ -126,16 +136,16 @@ class SurfacePoint:
     material: object = None
 
 
-def surface_point(tris, hit, o, d, smooth_normals: bool) -> SurfacePoint:
-    """Gather the hit triangle's data once. ``smooth_normals`` (Python bool) traces the
-    normal interpolation only when some object is smooth."""
-    A3 = type(o)
+def surface_point(tris, ray: Ray, hit: ClosestHit, fx: EffectSet) -> SurfacePoint:
+    """Gather the hit triangle's data once (``tris``: the accelerator's triangles). The
+    normal interpolation is traced only with ``fx.smooth_normals``."""
+    A3 = type(ray.o)
     UInt32 = type(hit.prim)
-    m = hit.valid
-    p = dr.fma(d, hit.t, o)
+    m = hit.found
+    p = dr.fma(ray.d, hit.t, ray.o)
     ng = dr.gather(A3, tris.ng, hit.prim, m)
     ns = ng
-    if dr.hint(smooth_normals, mode="scalar"):
+    if dr.hint(fx.smooth_normals, mode="scalar"):
         sm = dr.gather(type(m), tris.smooth, hit.prim, m)
         w0 = 1.0 - hit.u - hit.v
         n_i = (dr.gather(A3, tris.n0, hit.prim, m & sm) * w0
@@ -152,108 +162,142 @@ def offset_origin(p, ng, direction, eps):
     return dr.fma(ng, side, p)
 
 
-# ---- local light -----------------------------------------------------------------------------
-def _light_term(li, sp: SurfacePoint, N, V, lights: DeviceLights, accel, t: Types, kd, ks,
-                n_exp, result, *, physical: bool, shadows: bool, specular: bool, eps: float,
-                active):
-    """``result`` plus light ``li``'s contribution (``li``: UInt32 index, a literal or an
-    array)."""
+@dataclass
+class ShadingContext:
+    """A batch of hits as local shading sees them.
+
+    sp: SurfacePoint; N: Array3f shading normal turned to face ``V``; V: Array3f unit
+    direction to the viewer (``-d``); active: Bool lanes that hit a surface.
+    """
+
+    sp: SurfacePoint = None
+    N: object = None
+    V: object = None
+    active: object = None
+
+
+def shading_context(sp: SurfacePoint, d, active) -> ShadingContext:
+    """The context of the hits ``sp`` of rays with unit directions ``d``."""
+    V = -d
+    N = dr.select(dr.dot(V, sp.ns) >= 0, sp.ns, -sp.ns)
+    return ShadingContext(sp=sp, N=N, V=V, active=active)
+
+
+# ---- local light --------------------------------------------------------------------------------
+@dataclass
+class PhongLobe:
+    """The material's local-light coefficients at the hits: kd (Array3f), and with
+    specular highlights ks (Array3f) and n (Float exponent), else None. In physical
+    shading kd and ks already carry their normalisation (1/π, (n+2)/2π)."""
+
+    kd: object = None
+    ks: object = None
+    n: object = None
+
+
+def phong_lobe(mats: DeviceMaterials, ctx: ShadingContext, t: Types, fx: EffectSet
+               ) -> PhongLobe:
+    """Gather kd (and ks, n with ``fx.specular``) of the hit materials."""
     A3 = t.Array3f
-    lp = dr.gather(A3, lights.position, li)
-    li_int = dr.gather(A3, lights.intensity, li)
-    to_light = lp - sp.p
-    dist2 = dr.squared_norm(to_light)
-    inv_dist = dr.rsqrt(dist2)
-    L = to_light * inv_dist
+    mat, active = ctx.sp.material, ctx.active
+    kd = dr.gather(A3, mats.kd, mat, active)
+    ks = n_exp = None
+    if dr.hint(fx.specular, mode="scalar"):
+        ks = dr.gather(A3, mats.ks, mat, active)
+        n_exp = dr.gather(t.Float, mats.n, mat, active)
+    if dr.hint(fx.physical, mode="scalar"):
+        kd = kd * INV_PI
+        if dr.hint(fx.specular, mode="scalar"):
+            ks = ks * ((n_exp + 2.0) * INV_TWO_PI)
+    return PhongLobe(kd=kd, ks=ks, n=n_exp)
+
+
+def _light_term(li, ctx: ShadingContext, lobe: PhongLobe, sa: SceneArrays, t: Types,
+                fx: EffectSet, opt: TraceOptions, result):
+    """``result`` plus light ``li``'s contribution (``li``: UInt32 index, a literal or an
+    array), with a shadow ray through ``sa.accel.intersect_p`` when ``fx.shadows``."""
+    sp, N = ctx.sp, ctx.N
+    ls = sample_light(sa.lights, li, sp.p, t, all_inverse_square=fx.physical)
+    L = ls.wi
     cos_theta = dr.dot(L, N)
-    lit = active & (cos_theta > 0)
-    if dr.hint(physical, mode="scalar"):
-        att = dr.rcp(dist2)
-    else:
-        inv_sq = dr.gather(t.Bool, lights.inverse_square, li)
-        att = dr.select(inv_sq, dr.rcp(dist2), 1.0)
-    if dr.hint(shadows, mode="scalar"):
-        so = offset_origin(sp.p, sp.ng, L, eps)
-        sd = lp - so
+    lit = ctx.active & (cos_theta > 0)
+    if dr.hint(fx.shadows, mode="scalar"):
+        so = offset_origin(sp.p, sp.ng, L, opt.eps)
+        sd = ls.p - so
         s_len = dr.norm(sd)
-        blocked = accel.intersect_p(so, sd / s_len, s_len - eps, lit)
+        blocked = sa.accel.intersect_p(Ray(o=so, d=sd / s_len, t_max=s_len - opt.eps), lit)
         lit &= ~blocked
-    brdf = kd * cos_theta
-    if dr.hint(specular, mode="scalar"):
+    brdf = lobe.kd * cos_theta
+    if dr.hint(fx.specular, mode="scalar"):
         R_l = dr.fma(N, 2.0 * cos_theta, -L)
-        rv = dr.maximum(dr.dot(R_l, V), 0.0)
-        spec = dr.select(rv > 0, dr.power(rv, n_exp), 0.0)
-        if dr.hint(physical, mode="scalar"):
+        rv = dr.maximum(dr.dot(R_l, ctx.V), 0.0)
+        spec = dr.select(rv > 0, dr.power(rv, lobe.n), 0.0)
+        if dr.hint(fx.physical, mode="scalar"):
             spec = spec * cos_theta
-        brdf = dr.fma(ks, spec, brdf)
-    return dr.select(lit, dr.fma(li_int * att, brdf, result), result)
+        brdf = dr.fma(lobe.ks, spec, brdf)
+    return dr.select(lit, dr.fma(ls.Li, brdf, result), result)
 
 
 @dr.syntax
-def _light_loop(sp, N, V, lights, accel, t: Types, kd, ks, n_exp, result, *, n_lights: int,
-                physical: bool, shadows: bool, specular: bool, eps: float, active):
-    """The same sum as the unrolled one, as one device loop over the ``n_lights`` lights
-    (in order, so the pixels are the same)."""
-    li = dr.zeros(t.UInt32, dr.width(active))          # index of the current light
-    while dr.hint(li < n_lights, max_iterations=-1, label="lights",
-                  exclude=[sp, N, V, lights, accel, t, kd, ks, n_exp, n_lights, physical,
-                           shadows, specular, eps, active]):
-        result = _light_term(li, sp, N, V, lights, accel, t, kd, ks, n_exp, result,
-                             physical=physical, shadows=shadows, specular=specular, eps=eps,
-                             active=active)
+def _light_loop(ctx: ShadingContext, lobe: PhongLobe, sa: SceneArrays, t: Types,
+                fx: EffectSet, opt: TraceOptions, result):
+    """The same sum as the unrolled one, as one device loop over the ``opt.n_lights``
+    lights (in order, so the pixels are the same)."""
+    li = dr.zeros(t.UInt32, dr.width(ctx.active))     # index of the current light
+    while dr.hint(li < opt.n_lights, max_iterations=-1, label="lights",
+                  exclude=[ctx, lobe, sa, t, fx, opt]):
+        result = _light_term(li, ctx, lobe, sa, t, fx, opt, result)
         li += 1
     return result
 
 
-def local_light(sp: SurfacePoint, N, V, mats: DeviceMaterials, lights: DeviceLights,
-                accel, t: Types, *, n_lights: int, ambient, physical: bool,
-                shadows: bool, ambient_on: bool, specular: bool, eps: float, active,
-                many_lights: bool = True):
-    """``I_local`` at ``sp`` (Array3f): ambient·ka + Σ_l light contributions, with shadow
-    rays through ``accel.intersect_p``. N: shading normal facing ``V = -d``.
-    ``n_lights`` (Python int) is the number of lights; with ``many_lights`` they are summed
-    in a device loop, otherwise light 0 alone is straight-line code (only that light when
-    ``many_lights`` is forced off in a scene with several). The flags drop untraced terms."""
+def local_light(ctx: ShadingContext, sa: SceneArrays, t: Types, fx: EffectSet,
+                opt: TraceOptions):
+    """``I_local`` at the hits (Array3f): ambient·ka + Σ_l light contributions.
+
+    With ``fx.many_lights`` the ``opt.n_lights`` lights are summed in a device loop,
+    otherwise light 0 alone is straight-line code (only that light when ``many_lights`` is
+    forced off in a scene with several). The other flags of ``fx`` drop untraced terms.
+    """
     A3 = t.Array3f
-    mat = sp.material
     result = dr.zeros(A3)
-    if dr.hint(ambient_on, mode="scalar"):
-        ka = dr.gather(A3, mats.ka, mat, active)
-        result = ambient * ka
-    if dr.hint(n_lights == 0, mode="scalar"):
+    if dr.hint(fx.ambient, mode="scalar"):
+        ka = dr.gather(A3, sa.materials.ka, ctx.sp.material, ctx.active)
+        result = sa.ambient * ka
+    if dr.hint(opt.n_lights == 0, mode="scalar"):
         return result
-    kd = dr.gather(A3, mats.kd, mat, active)
-    ks = n_exp = None
-    if dr.hint(specular, mode="scalar"):
-        ks = dr.gather(A3, mats.ks, mat, active)
-        n_exp = dr.gather(t.Float, mats.n, mat, active)
-    if dr.hint(physical, mode="scalar"):
-        kd = kd * INV_PI
-        if dr.hint(specular, mode="scalar"):
-            ks = ks * ((n_exp + 2.0) * INV_TWO_PI)
-    flags = dict(physical=physical, shadows=shadows, specular=specular, eps=eps, active=active)
-    if dr.hint(many_lights, mode="scalar"):
-        result = dr.zeros(A3, dr.width(active)) + result   # loop state of the batch width
-        return _light_loop(sp, N, V, lights, accel, t, kd, ks, n_exp, result,
-                           n_lights=n_lights, **flags)
-    return _light_term(t.UInt32(0), sp, N, V, lights, accel, t, kd, ks, n_exp, result, **flags)
+    lobe = phong_lobe(sa.materials, ctx, t, fx)
+    if dr.hint(fx.many_lights, mode="scalar"):
+        result = dr.zeros(A3, dr.width(ctx.active)) + result   # loop state of the batch width
+        return _light_loop(ctx, lobe, sa, t, fx, opt, result)
+    return _light_term(t.UInt32(0), ctx, lobe, sa, t, fx, opt, result)
 
 
-# ---- specular branches ------------------------------------------------------------------------
+# ---- specular branches ----------------------------------------------------------------------
+@dataclass
+class Branches:
+    """The two children of a hit (MODEL.md "Specular branches").
+
+    R, T: Array3f unit reflected and refracted directions; w_refl, w_refr: Array3f their
+    weights (``w_refr`` includes the physical-mode ``η²``; zero under total internal
+    reflection). Without ``fx.refraction``, ``T`` and ``w_refr`` are None.
+    """
+
+    R: object = None
+    w_refl: object = None
+    T: object = None
+    w_refr: object = None
+
+
 def reflect(d, N):
     """``R = d - 2 (d·N) N``."""
     return dr.fma(N, -2.0 * dr.dot(d, N), d)
 
 
-def specular_weights(sp: SurfacePoint, d, mats: DeviceMaterials, t: Types, *,
-                     reflection: bool, refraction: bool, fresnel_on: bool, physical: bool,
-                     active):
-    """Directions and weights of the two children (MODEL.md "Specular branches").
-
-    Returns ``(R, w_refl, T, w_refr)``: Array3f unit directions and Array3f weights
-    (``w_refr`` includes the physical-mode ``η²``; zero under TIR). With ``refraction``
-    off, ``T``/``w_refr`` are None.
-    """
+def specular_branches(sp: SurfacePoint, d, mats: DeviceMaterials, t: Types, fx: EffectSet,
+                      active) -> Branches:
+    """Directions and weights of the reflected and refracted children of the hits ``sp``
+    of rays with unit directions ``d``."""
     A3 = t.Array3f
     mat = sp.material
     V = -d
@@ -262,9 +306,9 @@ def specular_weights(sp: SurfacePoint, d, mats: DeviceMaterials, t: Types, *,
     R = reflect(d, N)
     # ``reflection`` off happens only when forced for debugging (refraction implies it,
     # for total internal reflection): the reflected child then gets weight 0 (not traced).
-    k_refl = dr.gather(A3, mats.k_refl, mat, active) if reflection else dr.zeros(A3)
-    if dr.hint(not refraction, mode="scalar"):
-        return R, k_refl, None, None
+    k_refl = dr.gather(A3, mats.k_refl, mat, active) if fx.reflection else dr.zeros(A3)
+    if dr.hint(not fx.refraction, mode="scalar"):
+        return Branches(R=R, w_refl=k_refl)
     k_refr = dr.gather(A3, mats.k_refr, mat, active)
     ior = dr.gather(t.Float, mats.ior, mat, active)
     entering = cos_s > 0
@@ -278,15 +322,15 @@ def specular_weights(sp: SurfacePoint, d, mats: DeviceMaterials, t: Types, *,
     # constant weights (thesis eq. 14); TIR sends the refracted share along R
     w_refl = dr.select(tir, k_refl + k_refr, k_refl)
     w_refr = dr.select(tir, 0.0, k_refr)
-    if dr.hint(fresnel_on, mode="scalar"):
+    if dr.hint(fx.fresnel, mode="scalar"):
         use_f = dr.gather(t.Bool, mats.fresnel, mat, active) & transmissive
         F = fresnel(cos_s, ior)[0]
         F = dr.select(tir, 1.0, F)
         w_refl = dr.select(use_f, k_refl * F, w_refl)
         w_refr = dr.select(use_f, k_refr * (1.0 - F), w_refr)
-    if dr.hint(physical, mode="scalar"):
+    if dr.hint(fx.physical, mode="scalar"):
         w_refr = w_refr * (eta * eta)
     w_refr = dr.select(transmissive, w_refr, 0.0)
-    if dr.hint(not reflection, mode="scalar"):
+    if dr.hint(not fx.reflection, mode="scalar"):
         w_refl = dr.zeros(A3)
-    return R, w_refl, T, w_refr
+    return Branches(R=R, w_refl=w_refl, T=T, w_refr=w_refr)

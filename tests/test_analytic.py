@@ -1,13 +1,16 @@
 """Scenes with closed-form answers, checked pixel by pixel against numpy."""
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
 from renderer.render import render
-from renderer.scene import Settings
+from renderer.scene import Settings, load_scene
 from util import box, camera, light, make_scene, material, pixel_ray, quad
 
+ROOT = Path(__file__).resolve().parents[1]
 BIG = 20.0
 
 
@@ -246,3 +249,17 @@ def test_no_nan_at_grazing_angles(backend):
         img = render(sc.with_settings(shading=mode), backend=backend).image
         assert np.isfinite(img).all(), mode
         assert (img >= 0).all(), mode
+
+
+def test_analytic_quad_scene_file_matches_closed_form(backend):
+    sc = load_scene(ROOT / "scenes" / "analytic_quad.toml")
+    cam = sc.cameras[0]
+    img = render(sc, backend=backend).image
+    for x, y in [(32, 32), (20, 40), (10, 12)]:
+        d = pixel_ray(cam, x + 0.5, y + 0.5)
+        p = cam.position + (-cam.position[1] / d[1]) * d
+        if max(abs(p[0]), abs(p[2])) > 1:
+            np.testing.assert_allclose(img[y, x], 0.0)
+            continue
+        cos = 1 / np.sqrt(p[0] ** 2 + 1 + p[2] ** 2)
+        np.testing.assert_allclose(img[y, x], [0.5 * cos] * 3, rtol=1e-5)

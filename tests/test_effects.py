@@ -165,6 +165,10 @@ def test_adding_ingredients_switches_effects_on():
     assert EffectSet.from_scene(scene_with("refraction", max_depth=3)).depth == 3
     assert EffectSet.from_scene(mirror.with_settings(max_depth=0)).secondary is False
     assert EffectSet.from_scene(scene_with("no_light")).shadows is False
+    fx = EffectSet.from_scene(scene_with("fresnel", max_depth=5))
+    assert "refraction" in str(fx) and "depth 5" in str(fx)
+    with pytest.raises(ValueError, match="effects.without"):
+        fx.without("caustics")
 
 
 # ---- the reachable depth ---------------------------------------------------------------------

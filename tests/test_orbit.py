@@ -1,6 +1,5 @@
 """The orbit camera (renderer/orbit.py) and ``whitted render --orbit``: cameras on the
 circle, one frozen frame function whose frames equal traced renders, the animated GIF."""
-from dataclasses import replace
 from pathlib import Path
 
 import imageio.v3 as iio
@@ -16,8 +15,7 @@ SIZE = 24          # tiny frames: the properties do not depend on the resolution
 
 
 def _cornell(size=SIZE):
-    sc = load_scene(SCENES / "cornell_box.toml")
-    return replace(sc, cameras=[replace(c, width=size, height=size) for c in sc.cameras])
+    return load_scene(SCENES / "cornell_box.toml").with_size(size)
 
 
 def _tilted_camera():
@@ -103,7 +101,7 @@ def test_orbit_srgb_frames_are_uint8_encoding_of_linear_frames(backend):
 
 
 def test_gif_has_n_frames_of_frame_size(tmp_path, backend):
-    sc = replace(_cornell(), cameras=[replace(c, width=20, height=12) for c in _cornell().cameras])
+    sc = _cornell().with_size(20, 12)
     n = 5
     orbit = render_orbit(sc, n, backend=backend)
     path = write_gif(tmp_path / "sub" / "orbit.gif", orbit.frames, fps=25)

@@ -1,4 +1,6 @@
-"""Small scene builders for tests: quads, boxes and slabs from numpy arrays."""
+"""Small scene builders for tests: quads, boxes and slabs from numpy arrays, two shared
+test scenes, and ``pixel_ray``, the test oracle of the camera model (written independently of
+``renderer.camera`` on purpose)."""
 from __future__ import annotations
 
 import numpy as np
@@ -93,3 +95,24 @@ def pixel_ray(cam: Camera, px: float, py: float) -> np.ndarray:
     ty = np.tan(np.radians(cam.fov_y) / 2); tx = ty * cam.width / cam.height
     d = f + (2 * px / cam.width - 1) * tx * r + (1 - 2 * py / cam.height) * ty * u
     return d / np.linalg.norm(d)
+
+
+def diffuse_scene(**settings) -> Scene:
+    """A diffuse floor and a specular cube under two lights with ambient light, 32x32."""
+    floor = quad([-2, -1, -2], [-2, -1, 2], [2, -1, 2], [2, -1, -2])
+    cube = box([-0.5, -1, -0.5], [0.5, 0, 0.5])
+    return make_scene([(*floor, 0), (*cube, 1)],
+                      materials=[material("floor", kd=0.7, ka=0.2),
+                                 material("cube", kd=[0.2, 0.4, 0.8], ks=0.5, n=20, ka=0.1)],
+                      lights=[light([1, 2, 1.5], 6.0), light([-1.5, 1, 1], [1, 0.5, 0.2])],
+                      camera=camera([0, 1, 4], [0, -0.5, 0], width=32, height=32),
+                      ambient=0.3, settings=Settings(**settings))
+
+
+def glass_scene(**settings) -> Scene:
+    """``diffuse_scene`` with the cube made of Fresnel glass (reflection and refraction)."""
+    sc = diffuse_scene(**settings)
+    sc.materials.append(material("glass", k_refl=0.2, k_refr=0.8, ks=0.5, n=50,
+                                 combination="fresnel"))
+    sc.face_material[sc.face_object == 1] = 2
+    return sc

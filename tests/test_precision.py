@@ -1,0 +1,14 @@
+"""float64 renders agree with float32 renders up to float32 rounding."""
+from __future__ import annotations
+
+import numpy as np
+
+from renderer.render import render
+from util import glass_scene
+
+
+def test_float64_matches_float32(backend):
+    sc = glass_scene()
+    a = render(sc, backend=backend).image
+    b = render(sc, backend=backend, precision="float64").image
+    assert np.mean(np.abs(a - b)) < 1e-4
