@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import drjit as dr
 import numpy as np
 
-from .device import Types, array3
+from .device import Types
 from .scene import Camera, SceneError, validate_settings
 
 
@@ -58,9 +58,12 @@ def camera_frame(cam: Camera) -> dict:
 def camera_arrays(cam: Camera, t: Types) -> CameraArrays:
     """Upload ``cam``'s frame as opaque width-1 arrays of types ``t``."""
     fr = camera_frame(cam)
-    ca = CameraArrays(position=array3(t, fr["position"]), right=array3(t, fr["right"]),
-                      up=array3(t, fr["up"]), forward=array3(t, fr["forward"]),
-                      tan_x=t.Float(fr["tan_x"]), tan_y=t.Float(fr["tan_y"]))
+    # Scalars made opaque, not ``device.array3`` rows: with arrays built from numpy a
+    # frozen frame function records again for a moved camera (seen on the orbit).
+    a3 = lambda v: t.Array3f(*(float(x) for x in v))
+    ca = CameraArrays(position=a3(fr["position"]), right=a3(fr["right"]), up=a3(fr["up"]),
+                      forward=a3(fr["forward"]), tan_x=t.Float(fr["tan_x"]),
+                      tan_y=t.Float(fr["tan_y"]))
     dr.make_opaque(ca)
     return ca
 
