@@ -60,7 +60,9 @@ def camera_arrays(cam: Camera, t: Types) -> CameraArrays:
     fr = camera_frame(cam)
     # Scalars made opaque, not ``device.array3`` rows: with arrays built from numpy a
     # frozen frame function records again for a moved camera (seen on the orbit).
-    a3 = lambda v: t.Array3f(*(float(x) for x in v))
+    def a3(v):
+        return t.Array3f(*(float(x) for x in v))
+
     ca = CameraArrays(position=a3(fr["position"]), right=a3(fr["right"]), up=a3(fr["up"]),
                       forward=a3(fr["forward"]), tan_x=t.Float(fr["tan_x"]),
                       tan_y=t.Float(fr["tan_y"]))

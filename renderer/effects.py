@@ -2,10 +2,11 @@
 
 ``EffectSet.from_scene(scene)`` derives the set from the scene's materials, lights, objects
 and settings alone (with the reason for each effect and the deepest bounce a ray can reach);
-the integrator traces only the enabled effects (plain Python branches, so Dr.Jit records
-only what runs; ``renderer.stats.kernel_operations`` measures the kernels). ``EffectSet.all()`` traces every effect (the general
-kernel); ``without(name)`` drops one for debugging, with a warning, since the image then
-differs from what the scene describes.
+the integrator traces only the enabled effects (the set is passed down as it is, and every
+term is behind ``if dr.hint(fx.<flag>, mode="scalar")``, so Dr.Jit records only what runs;
+``renderer.stats.kernel_operations`` measures the kernels). ``EffectSet.all()`` traces every
+effect (the general kernel); ``without(name)`` drops one for debugging, with a warning, since
+the image then differs from what the scene describes.
 """
 from __future__ import annotations
 
@@ -57,7 +58,8 @@ class EffectSet:
     def from_scene(cls, scene: Scene) -> "EffectSet":
         s = scene.settings
         mats, lights = scene.materials, scene.lights
-        used = sorted(set(int(m) for m in np.unique(scene.face_material))) if scene.face_count else []
+        used = (sorted(set(int(m) for m in np.unique(scene.face_material)))
+                if scene.face_count else [])
         used_mats = [mats[i] for i in used if i < len(mats)]
         reasons = {}
 
@@ -70,15 +72,16 @@ class EffectSet:
         amb = np.asarray(scene.ambient, np.float64)
         r_amb = first(lambda m: np.any(amb * m.ka > 0), used_mats, "material")
         r_light = f"light {lights[0].name or '0'!r}" if lights else None
-        r_refl = first(lambda m: m.reflective, used_mats, "material") if s.max_depth >= 1 else None
-        r_refr = first(lambda m: m.transmissive, used_mats, "material") if s.max_depth >= 1 else None
+        deep = s.max_depth >= 1
+        r_refl = first(lambda m: m.reflective, used_mats, "material") if deep else None
+        r_refr = first(lambda m: m.transmissive, used_mats, "material") if deep else None
         if r_refr and not r_refl:
             r_refl = f"{r_refr} (total internal reflection)"
         r_smooth = first(lambda o: o.smooth and o.face_count > 0, scene.objects, "object")
         r_spec = first(lambda m: np.any(m.ks > 0), used_mats, "material") if lights else None
         r_many = f"{len(lights)} lights" if len(lights) > 1 else None
         r_fres = first(lambda m: m.combination == "fresnel" and (m.reflective or m.transmissive),
-                       used_mats, "material") if s.max_depth >= 1 else None
+                       used_mats, "material") if deep else None
         for k, r in (("shadows", r_light), ("ambient", r_amb), ("reflection", r_refl),
                      ("refraction", r_refr), ("smooth_normals", r_smooth),
                      ("specular", r_spec), ("many_lights", r_many), ("fresnel", r_fres)):
@@ -116,7 +119,8 @@ class EffectSet:
         """One line per enabled effect, ``"name — reason"``, then the traced depth."""
         out = [f"{k} — {self.reasons.get(k, 'forced')}" for k in FLAGS if getattr(self, k)]
         if self.secondary:
-            out.append(f"secondary rays — depth {self.depth}: {self.reasons.get('depth', 'forced')}")
+            why = self.reasons.get("depth", "forced")
+            out.append(f"secondary rays — depth {self.depth}: {why}")
         else:
             out.append("secondary rays — off (nothing reflects or transmits, or max_depth 0)")
         return out

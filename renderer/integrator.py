@@ -56,7 +56,7 @@ def trace(sa: SceneArrays, o, d, t: Types, fx: EffectSet, opt: TraceOptions):
     max_depth = min(fx.depth, opt.max_depth)   # deepest reachable bounce (host constant)
     use_stack = fx.refraction                  # pending branches exist only with refraction
 
-    # ---- stack of pending branches (one slot per level) ------------------------------------
+    # ---- stack of pending branches (one slot per level) --------------------------------------
     cap = st_o = st_d = st_w = st_depth = None
     if dr.hint(use_stack, mode="scalar"):
         cap = max_depth
@@ -65,7 +65,7 @@ def trace(sa: SceneArrays, o, d, t: Types, fx: EffectSet, opt: TraceOptions):
         st_w = [dr.alloc_local(Float, cap) for _ in range(3)]   # pending weights
         st_depth = dr.alloc_local(UInt32, cap)                  # pending depths
 
-    # ---- loop state -------------------------------------------------------------------------
+    # ---- loop state --------------------------------------------------------------------------
     ray_o = A3(o)                          # origin of the current ray
     ray_d = A3(d)                          # direction of the current ray (unit)
     weight = dr.full(A3, 1.0, n)           # accumulated weight of the current ray
@@ -78,18 +78,18 @@ def trace(sa: SceneArrays, o, d, t: Types, fx: EffectSet, opt: TraceOptions):
     while dr.hint(active, max_iterations=-1, label="whitted",
                   exclude=[sa, t, fx, opt, n, A3, Float, UInt32, max_depth, use_stack, cap,
                            st_o, st_d, st_w, st_depth]):
-        # ---- closest hit, or the background -------------------------------------------------
+        # ---- closest hit, or the background --------------------------------------------------
         ray = Ray(o=ray_o, d=ray_d, t_max=Float(dr.inf))
         hit = sa.accel.intersect(ray, active)
         missed = active & ~hit.found
         radiance = dr.select(missed, dr.fma(weight, sa.background, radiance), radiance)
         on_surface = active & hit.found
 
-        # ---- local light --------------------------------------------------------------------
+        # ---- local light ---------------------------------------------------------------------
         sp, I_local = _shade_hit(sa, ray, hit, t, fx, opt, on_surface)
         radiance = dr.select(on_surface, dr.fma(weight, I_local, radiance), radiance)
 
-        # ---- children: follow the reflected one ---------------------------------------------
+        # ---- children: follow the reflected one ----------------------------------------------
         br = specular_branches(sp, ray_d, sa.materials, t, fx, on_surface)
         can_branch = on_surface & (depth < max_depth)
         child_depth = depth + 1
@@ -100,7 +100,7 @@ def trace(sa: SceneArrays, o, d, t: Types, fx: EffectSet, opt: TraceOptions):
         next_w = w_r
         go = go_r
 
-        # ---- children: push the refracted one, or follow it alone ---------------------------
+        # ---- children: push the refracted one, or follow it alone ----------------------------
         if dr.hint(use_stack, mode="scalar"):
             w_t = weight * br.w_refr
             go_t = can_branch & (dr.max(w_t) >= opt.min_weight) & (dr.max(br.w_refr) > 0)
@@ -118,7 +118,7 @@ def trace(sa: SceneArrays, o, d, t: Types, fx: EffectSet, opt: TraceOptions):
             next_w = dr.select(only_t, w_t, next_w)
             go = go_r | go_t
 
-        # ---- next ray: a child, else a pending branch, else done ----------------------------
+        # ---- next ray: a child, else a pending branch, else done -----------------------------
         ray_o = dr.select(go, next_o, ray_o)
         ray_d = dr.select(go, next_d, ray_d)
         weight = dr.select(go, next_w, weight)

@@ -8,7 +8,6 @@ benchmark can re-run it with a moved camera without re-tracing.
 from __future__ import annotations
 
 import time
-import warnings
 from dataclasses import dataclass, field
 
 import drjit as dr

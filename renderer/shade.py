@@ -25,7 +25,7 @@ INV_PI = 1.0 / np.pi
 INV_TWO_PI = 0.5 / np.pi
 
 
-# ---- the scene on the device ------------------------------------------------------------------
+# ---- the scene on the device -----------------------------------------------------------------
 @dataclass
 class DeviceMaterials:
     """Material table on the device, width M (materials), indexed by the triangles'
@@ -120,7 +120,7 @@ def fresnel(cos_theta_i, eta):
     return r, cos_theta_t, eta_it, eta_ti
 
 
-# ---- geometry at a hit -------------------------------------------------------------------------
+# ---- geometry at a hit -----------------------------------------------------------------------
 @dataclass
 class SurfacePoint:
     """What shading needs at a hit (arrays of the batch width).
@@ -183,7 +183,7 @@ def shading_context(sp: SurfacePoint, d, active) -> ShadingContext:
     return ShadingContext(sp=sp, N=N, V=V, active=active)
 
 
-# ---- local light --------------------------------------------------------------------------------
+# ---- local light -----------------------------------------------------------------------------
 @dataclass
 class PhongLobe:
     """The material's local-light coefficients at the hits: kd (Array3f), and with
@@ -273,7 +273,7 @@ def local_light(ctx: ShadingContext, sa: SceneArrays, t: Types, fx: EffectSet,
     return _light_term(t.UInt32(0), ctx, lobe, sa, t, fx, opt, result)
 
 
-# ---- specular branches ----------------------------------------------------------------------
+# ---- specular branches -----------------------------------------------------------------------
 @dataclass
 class Branches:
     """The two children of a hit (MODEL.md "Specular branches").

@@ -24,7 +24,7 @@ def hit_plane(o, d, z):
     return o + (z - o[2]) / d[2] * d
 
 
-# ---- local light ------------------------------------------------------------------------------
+# ---- local light -----------------------------------------------------------------------------
 def expected_local(p, N, V, lp, I, kd, ks, n, ka, amb, mode, falloff):
     to_l = lp - p
     dist = np.linalg.norm(to_l)
@@ -86,7 +86,7 @@ def test_fully_shadowed_point_gets_exactly_ambient(backend):
     assert np.all(img[8, 0] > amb * ka + 0.05)
 
 
-# ---- mirror -------------------------------------------------------------------------------------
+# ---- mirror ----------------------------------------------------------------------------------
 def test_mirror_shows_k_refl_times_reflected_colour(backend):
     colour, k_refl, amb = np.array([0.2, 0.6, 0.4]), np.array([0.7, 0.5, 0.9]), 0.5
     cam = camera([0, 0, 3], [0, 0, 0], fov_y=40, width=16, height=16)
@@ -101,7 +101,7 @@ def test_mirror_shows_k_refl_times_reflected_colour(backend):
     np.testing.assert_allclose(img[0, 0], [1.0, 0, 1.0])
 
 
-# ---- refraction ---------------------------------------------------------------------------------
+# ---- refraction ------------------------------------------------------------------------------
 def refract_np(d, N, eta):
     cos_i = -d @ N
     sin2 = eta**2 * (1 - cos_i**2)
@@ -192,7 +192,7 @@ def test_physical_mode_scales_refracted_radiance_by_eta_squared(backend):
                                    rtol=1e-6)
 
 
-# ---- the tree ----------------------------------------------------------------------------------
+# ---- the tree --------------------------------------------------------------------------------
 def tree_expected(cA, cB, w_split, max_depth, min_weight):
     """Camera between two half-mirror glass planes (ior 1): every glass hit sends w_split
     through to the coloured plane behind it and w_split back to the other glass plane."""

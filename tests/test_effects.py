@@ -10,8 +10,6 @@ sum also catches work moved into an extra kernel, which the largest kernel alone
 """
 from __future__ import annotations
 
-import subprocess
-import sys
 import warnings
 from dataclasses import replace
 from pathlib import Path
@@ -229,7 +227,7 @@ def test_depth_cap_conditions():
     assert convex_mirror(open_box, 0) is None                          # not closed
 
 
-# ---- visible: CLI and report -------------------------------------------------------------------
+# ---- visible: CLI and report -----------------------------------------------------------------
 def test_cli_render_prints_effects_reasons_and_operations(tmp_path):
     from whitted.cli import main
     import contextlib, io

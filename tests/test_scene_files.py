@@ -89,7 +89,7 @@ def test_physical_table_scales_lights_and_replaces_ambient():
     assert np.all(classic.ambient > 0) and np.all(physical.ambient == 0)
 
 
-# ---- validation ---------------------------------------------------------------------------
+# ---- validation ------------------------------------------------------------------------------
 BASE = """
 ambient = 0.1
 [render]
@@ -276,7 +276,7 @@ def test_views_inherit_camera_defaults_and_override(tmp_path):
     np.testing.assert_array_equal(s.cameras[1].up, [0, 1, 0])
 
 
-# ---- transforms -------------------------------------------------------------------------
+# ---- transforms ------------------------------------------------------------------------------
 def one_object(tmp_path, transform, shape="box", extra=""):
     text = f"""
 [camera]

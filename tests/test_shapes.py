@@ -1,5 +1,4 @@
 """Generated shapes: outward winding, closedness, and the solids' closed-form geometry."""
-import itertools
 
 import numpy as np
 import pytest

@@ -171,7 +171,7 @@ def _read_toml(path: Path) -> dict:
         raise SceneError(f"{path}: cannot read: {e}") from None
 
 
-# ---- [render] ---------------------------------------------------------------------------
+# ---- [render] --------------------------------------------------------------------------------
 def _read_render(r: _Reader, data: dict, shading: str | None) -> Settings:
     """``[render]`` with the caller's shading override; background as the table gives it
     (``[physical]`` may replace it)."""
@@ -198,7 +198,7 @@ def _read_render(r: _Reader, data: dict, shading: str | None) -> Settings:
     )
 
 
-# ---- ambient and [physical] ---------------------------------------------------------------
+# ---- ambient and [physical] ------------------------------------------------------------------
 @dataclass
 class _Look:
     """Ambient and background radiance (float64 (3,)) and the factor on every light's
@@ -226,7 +226,7 @@ def _read_physical(r: _Reader, data: dict, settings: Settings) -> _Look:
     return look
 
 
-# ---- [camera] and [[views]] ----------------------------------------------------------------
+# ---- [camera] and [[views]] ------------------------------------------------------------------
 def _read_views(r: _Reader, data: dict) -> list[Camera]:
     """One camera per ``[[views]]`` entry (``[camera]`` holds their defaults), or the
     ``[camera]`` table alone."""
@@ -248,7 +248,7 @@ def _read_views(r: _Reader, data: dict) -> list[Camera]:
     return cameras
 
 
-# ---- [[lights]] ---------------------------------------------------------------------------
+# ---- [[lights]] ------------------------------------------------------------------------------
 def _read_lights(r: _Reader, data: dict, mode: str, light_scale: np.ndarray
                  ) -> list[PointLight]:
     """Point lights; in physical mode inverse-square only, intensities times
@@ -275,7 +275,7 @@ def _read_lights(r: _Reader, data: dict, mode: str, light_scale: np.ndarray
     return lights
 
 
-# ---- [materials.<name>] --------------------------------------------------------------------
+# ---- [materials.<name>] ----------------------------------------------------------------------
 def _read_materials(r: _Reader, data: dict) -> list[Material]:
     """Materials in file order (``ka`` defaults to ``kd``)."""
     materials = []
@@ -299,7 +299,7 @@ def _read_materials(r: _Reader, data: dict) -> list[Material]:
     return materials
 
 
-# ---- [[objects]] ----------------------------------------------------------------------------
+# ---- [[objects]] -----------------------------------------------------------------------------
 @dataclass
 class _Part:
     """One object before assembly: world-space vertices float64 (V, 3), faces int (F, 3)."""

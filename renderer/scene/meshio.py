@@ -12,8 +12,6 @@ read with one structured ``frombuffer``; ascii PLY is tokenised in one pass.
 """
 from __future__ import annotations
 
-import re
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -35,8 +33,8 @@ def _finish(path, vertices: np.ndarray, faces: np.ndarray):
         lo, hi = int(faces.min()), int(faces.max())
         if lo < 0 or hi >= len(vertices):
             f = int(np.argwhere((faces < 0) | (faces >= len(vertices)))[0, 0])
-            raise MeshError(f"{path}: face {f} has vertex indices {faces[f].tolist()} out of range, "
-                            f"expected 0 <= index < {len(vertices)} (vertex count)")
+            raise MeshError(f"{path}: face {f} has vertex indices {faces[f].tolist()} out of "
+                            f"range, expected 0 <= index < {len(vertices)} (vertex count)")
     return vertices.astype(np.float64, copy=False), faces.astype(np.int64, copy=False)
 
 
@@ -45,7 +43,7 @@ def _fan(polygons: list[list[int]]) -> np.ndarray:
     return np.asarray(tris, dtype=np.int64).reshape(-1, 3)
 
 
-# ---- OBJ ----------------------------------------------------------------------------------
+# ---- OBJ -------------------------------------------------------------------------------------
 def load_obj(path) -> tuple[np.ndarray, np.ndarray]:
     """Read a Wavefront OBJ: ``v x y z [w]`` and ``f`` lines (``i``, ``i/t``, ``i/t/n``,
     ``i//n``; negative indices count back from the last vertex read). Other statements
@@ -110,7 +108,7 @@ def load_obj(path) -> tuple[np.ndarray, np.ndarray]:
     return _finish(path, vertices, faces)
 
 
-# ---- PLY ----------------------------------------------------------------------------------
+# ---- PLY -------------------------------------------------------------------------------------
 _PLY_TYPES = {
     "char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1",
     "short": "i2", "int16": "i2", "ushort": "u2", "uint16": "u2",
@@ -340,7 +338,7 @@ def _ply_binary(path, data: bytes, start: int, elements, order: str):
     return vertices, faces
 
 
-# ---- dispatch ----------------------------------------------------------------------------
+# ---- dispatch --------------------------------------------------------------------------------
 MESH_FORMATS = {".obj": load_obj, ".ply": load_ply}
 
 

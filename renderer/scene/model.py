@@ -207,7 +207,7 @@ class Scene:
     # Files the scene was built from (scene file + meshes), for golden-image hashes.
     source_files: list[Path] = field(default_factory=list)
 
-    # ---- derived facts -------------------------------------------------------------------
+    # ---- derived facts -----------------------------------------------------------------------
     @property
     def face_count(self) -> int:
         return int(self.faces.shape[0])
@@ -283,7 +283,7 @@ class Scene:
                     f"settings.shading: {self.path} was read with {s.shading!r} shading; "
                     f"the mode is chosen when the file is read: load_scene(path, "
                     f"shading={shading!r})", field="settings.shading")
-            bad = [l.name for l in self.lights if l.falloff != "inverse_square"]
+            bad = [light.name for light in self.lights if light.falloff != "inverse_square"]
             if shading == "physical" and bad:
                 raise SceneError(f"settings.shading: physical shading needs "
                                  f"'inverse_square' point lights; light {bad[0]!r} has "
