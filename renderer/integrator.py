@@ -19,6 +19,7 @@ from dataclasses import dataclass
 
 import drjit as dr
 
+from .accel import Ray
 from .device import Types
 from .effects import EffectSet
 from .shade import (DeviceLights, DeviceMaterials, local_light, offset_origin,
@@ -72,9 +73,9 @@ def _shade_hit(sa: SceneArrays, o, d, hit, t: Types, fx: EffectSet, opt: TraceOp
 def _no_secondary(sa, o, d, t, fx, opt):
     """Depth 0 only: one closest hit, local light or the background."""
     active = dr.full(t.Bool, True, dr.width(d))
-    hit = sa.accel.intersect(o, d, t.Float(dr.inf), active)
-    sp, I_local = _shade_hit(sa, o, d, hit, t, fx, opt, hit.valid)
-    return dr.select(hit.valid, I_local, t.Array3f(sa.background))
+    hit = sa.accel.intersect(Ray(o, d, t.Float(dr.inf)), active)
+    sp, I_local = _shade_hit(sa, o, d, hit, t, fx, opt, hit.found)
+    return dr.select(hit.found, I_local, t.Array3f(sa.background))
 
 
 @dr.syntax
@@ -113,10 +114,10 @@ def trace(sa: SceneArrays, o, d, t: Types, fx: EffectSet, opt: TraceOptions):
                   exclude=[sa, t, fx, opt, n, A3, Float, UInt32, max_depth, use_stack, cap,
                            st_o, st_d, st_w, st_depth]):
         # ---- closest hit ------------------------------------------------------------------
-        hit = sa.accel.intersect(ray_o, ray_d, Float(dr.inf), active)
-        missed = active & ~hit.valid
+        hit = sa.accel.intersect(Ray(ray_o, ray_d, Float(dr.inf)), active)
+        missed = active & ~hit.found
         radiance = dr.select(missed, dr.fma(weight, sa.background, radiance), radiance)
-        on_surface = active & hit.valid
+        on_surface = active & hit.found
 
         # ---- local light --------------------------------------------------------------------
         sp, I_local = _shade_hit(sa, ray_o, ray_d, hit, t, fx, opt, on_surface)

@@ -19,7 +19,7 @@ from .device import Types, types
 from .effects import EffectSet
 from .film import develop
 from .integrator import MAX_DEPTH_LIMIT, SceneArrays, TraceOptions, trace
-from .intersect import build_accelerator
+from .accel import build_accelerator
 from .scene import Camera, Scene
 from .shade import upload_lights, upload_materials
 

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 import drjit as dr
 import numpy as np
 
+from .accel import Ray
 from .device import Types
 from .scene import Scene
 
@@ -131,7 +132,7 @@ def surface_point(tris, hit, o, d, smooth_normals: bool) -> SurfacePoint:
     normal interpolation only when some object is smooth."""
     A3 = type(o)
     UInt32 = type(hit.prim)
-    m = hit.valid
+    m = hit.found
     p = dr.fma(d, hit.t, o)
     ng = dr.gather(A3, tris.ng, hit.prim, m)
     ns = ng
@@ -176,7 +177,7 @@ def _light_term(li, sp: SurfacePoint, N, V, lights: DeviceLights, accel, t: Type
         so = offset_origin(sp.p, sp.ng, L, eps)
         sd = lp - so
         s_len = dr.norm(sd)
-        blocked = accel.intersect_p(so, sd / s_len, s_len - eps, lit)
+        blocked = accel.intersect_p(Ray(so, sd / s_len, s_len - eps), lit)
         lit &= ~blocked
     brdf = kd * cos_theta
     if dr.hint(specular, mode="scalar"):
