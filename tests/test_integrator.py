@@ -194,7 +194,7 @@ def test_analytic_quad_scene_file_matches_closed_form(backend):
 
 @pytest.mark.parametrize("accel", ["boxes", "bvh"])
 def test_accelerators_give_brute_force_pixels(backend, accel):
-    pytest.importorskip("renderer.bvh")
+    pytest.importorskip("renderer.accel.bvh")
     sc = _glass_scene()
     np.testing.assert_array_equal(render(sc, backend=backend, accel=accel).image,
                                   render(sc, backend=backend).image)

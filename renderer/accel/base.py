@@ -89,6 +89,12 @@ class Accelerator(Protocol):
     def stats(self) -> dict: ...
 
 
+def array_type(t: Types, name: str) -> type:
+    """The Dr.Jit array type ``name`` (e.g. "Array4f") of the module ``t``'s arrays come
+    from."""
+    return getattr(importlib.import_module(t.Float.__module__), name)
+
+
 def gather_floats(t: Types, src, index, stride: int, count: int, active=True) -> list:
     """The first ``count`` floats of record ``index`` of ``src`` (records of ``stride``
     floats, a multiple of 4), per lane, with the gather the backend is fastest at: on CUDA
@@ -98,8 +104,7 @@ def gather_floats(t: Types, src, index, stride: int, count: int, active=True) ->
     if t.backend == "llvm":
         base = index * stride
         return [dr.gather(t.Float, src, base + k, active) for k in range(count)]
-    A4 = getattr(importlib.import_module(f"drjit.{t.backend}"),
-                 "Array4f64" if t.is_double else "Array4f")
+    A4 = array_type(t, "Array4f64" if t.is_double else "Array4f")
     base = index * (stride // 4)
     out = []
     for k in range((count + 3) // 4):

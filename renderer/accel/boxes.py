@@ -6,15 +6,14 @@ scene order (``tris.order`` is the identity).
 """
 from __future__ import annotations
 
-import importlib
 import time
 from dataclasses import dataclass, field
 
 import drjit as dr
 import numpy as np
 
-from ..device import Types
-from .base import ClosestHit, DeviceTriangles, Ray, gather_floats
+from ..device import Types, types
+from .base import ClosestHit, DeviceTriangles, Ray, array_type, gather_floats
 from .bvh_build import pad_boxes
 from .traverse import Closest, masked_step, robust_scale, setup, slab, triangle_step
 from .triangle import triangle_routine, upload_triangles
@@ -27,15 +26,16 @@ class ObjectBoxes:
     Build with ``ObjectBoxes.build(scene, t, intersection="moller_trumbore")``.
     boxes: Float (8 n_objects) lo xyz, pad, hi xyz, pad (float32 values, ``pad_boxes``);
     ranges: UInt32 (2 n_objects) first face, face count; tri_data: Float (12 F) packed
-    triangles; tris: DeviceTriangles; types; intersection: name of the triangle routine;
-    info: ``stats()``.
+    triangles; tris: DeviceTriangles; backend, precision: of the arrays (``types``);
+    intersection: name of the triangle routine; info: ``stats()``.
     """
 
     boxes: object
     ranges: object
     tri_data: object
     tris: DeviceTriangles
-    types: Types = field(repr=False)
+    backend: str = "llvm"
+    precision: str = "float32"
     intersection: str = "moller_trumbore"
     info: dict = field(default_factory=dict, repr=False)
 
@@ -61,13 +61,18 @@ class ObjectBoxes:
             ranges[k] = (f0, fc)
         tri_data, tris = upload_triangles(scene, t)
         out = cls(t.Float(boxes.reshape(-1)), t.UInt32(ranges.reshape(-1)), tri_data, tris,
-                  types=t, intersection=intersection)
+                  backend=t.backend, precision=t.precision,
+                   intersection=intersection)
         dr.eval(out.boxes, out.ranges, out.tri_data, out.tris)
         out.info = {"accel": "boxes", "intersection": intersection,
                     "build_seconds": time.perf_counter() - t0, "triangles": F,
                     "objects": len(objs),
                     "box_bytes_per_triangle": len(objs) * 8 * (8 if t.is_double else 4) / max(F, 1)}
         return out
+
+    @property
+    def types(self) -> Types:
+        return types(self.backend, self.precision)
 
     def stats(self) -> dict:
         return dict(self.info)
@@ -87,8 +92,7 @@ class ObjectBoxes:
             r0 = dr.gather(t.UInt32, self.ranges, obj * 2, active)
             r1 = dr.gather(t.UInt32, self.ranges, obj * 2 + 1, active)
         else:
-            rng = dr.gather(importlib.import_module(f"drjit.{t.backend}").Array2u,
-                            self.ranges, obj, active)
+            rng = dr.gather(array_type(t, "Array2u"), self.ranges, obj, active)
             r0, r1 = rng.x, rng.y
         hit, _ = slab(t, o, inv, t.Array3f(f[0], f[1], f[2]), t.Array3f(f[4], f[5], f[6]),
                       t_max, robust)

@@ -6,7 +6,7 @@ from dataclasses import dataclass, field
 
 import drjit as dr
 
-from ..device import Types
+from ..device import Types, types
 from .base import ClosestHit, DeviceTriangles, Ray
 from .traverse import Closest, setup, triangle_step
 from .triangle import triangle_routine, upload_triangles
@@ -16,9 +16,9 @@ from .triangle import triangle_routine, upload_triangles
 class BruteForce:
     """Every ray tests every triangle, in scene order.
 
-    tri_data: Float (12 F) packed triangles; tris: DeviceTriangles, in scene order; types;
-    intersection: name of the triangle routine (``renderer.accel.triangle.ROUTINES``);
-    info: ``stats()``.
+    tri_data: Float (12 F) packed triangles; tris: DeviceTriangles, in scene order;
+    backend, precision: of the arrays (``types``); intersection: name of the triangle
+    routine (``renderer.accel.triangle.ROUTINES``); info: ``stats()``.
 
     The candidate loop is a symbolic loop over triangle indices; each candidate goes through
     the shared ``traverse.triangle_step``. Rays start at their offset origin, so
@@ -27,7 +27,8 @@ class BruteForce:
 
     tri_data: object
     tris: DeviceTriangles
-    types: Types = field(repr=False)
+    backend: str = "llvm"
+    precision: str = "float32"
     intersection: str = "moller_trumbore"
     info: dict = field(default_factory=dict, repr=False)
 
@@ -40,7 +41,12 @@ class BruteForce:
         info = {"accel": "brute", "intersection": intersection,
                 "build_seconds": time.perf_counter() - t0, "triangles": tris.count,
                 "nodes": 0}
-        return cls(tri_data, tris, types=t, intersection=intersection, info=info)
+        return cls(tri_data, tris, backend=t.backend, precision=t.precision,
+                   intersection=intersection, info=info)
+
+    @property
+    def types(self) -> Types:
+        return types(self.backend, self.precision)
 
     def stats(self) -> dict:
         return dict(self.info)

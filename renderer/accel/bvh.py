@@ -15,15 +15,14 @@ index), so the hits are bitwise those of brute force.
 """
 from __future__ import annotations
 
-import importlib
 import time
 from dataclasses import dataclass, field
 
 import drjit as dr
 import numpy as np
 
-from ..device import Types
-from .base import ClosestHit, DeviceTriangles, Ray, gather_floats
+from ..device import Types, types
+from .base import ClosestHit, DeviceTriangles, Ray, array_type, gather_floats
 from .bvh_build import BINS, LEAF_SIZE, build_bvh
 from .traverse import (DONE, STACK_SIZE, Closest, enter_leaf, masked_step, pop,
                        robust_scale, setup, slab, triangle_step)
@@ -37,8 +36,7 @@ def load_node(t: Types, nodes, children, cur, active=True):
         ref_a = dr.gather(t.UInt32, children, cur * 2, active)
         ref_b = dr.gather(t.UInt32, children, cur * 2 + 1, active)
     else:
-        A2u = importlib.import_module(f"drjit.{t.backend}").Array2u
-        refs = dr.gather(A2u, children, cur, active)
+        refs = dr.gather(array_type(t, "Array2u"), children, cur, active)
         ref_a, ref_b = refs.x, refs.y
     return (t.Array3f(f[0], f[1], f[2]), t.Array3f(f[3], f[4], f[5]),
             t.Array3f(f[6], f[7], f[8]), t.Array3f(f[9], f[10], f[11]), ref_a, ref_b)
@@ -74,14 +72,16 @@ class BVH:
     Build with ``BVH.build(scene, t, intersection="moller_trumbore", leaf_size=4, bins=32)``.
     nodes: Float (12 N) child boxes; children: UInt32 (2 N) child references;
     tri_data: Float (12 F) packed triangles in BVH order; tris: DeviceTriangles in BVH order;
-    types: the array types; intersection: name of the triangle routine; info: ``stats()``.
+    backend, precision: of the arrays (``types``); intersection: name of the triangle
+    routine; info: ``stats()``.
     """
 
     nodes: object
     children: object
     tri_data: object
     tris: DeviceTriangles
-    types: Types = field(repr=False)
+    backend: str = "llvm"
+    precision: str = "float32"
     intersection: str = "moller_trumbore"
     info: dict = field(default_factory=dict, repr=False)
 
@@ -109,8 +109,13 @@ class BVH:
             "node_bytes_per_triangle": a.node_count * (12 * fsize + 8) / F,
             "traversal_triangle_bytes_per_triangle": STRIDE * fsize,
         }
-        return cls(nodes, children, tri_data, tris, types=t, intersection=intersection,
+        return cls(nodes, children, tri_data, tris, backend=t.backend, precision=t.precision,
+                   intersection=intersection,
                    info=info)
+
+    @property
+    def types(self) -> Types:
+        return types(self.backend, self.precision)
 
     def stats(self) -> dict:
         return dict(self.info)
