@@ -5,8 +5,8 @@ Reference: direct numpy checks of the structure (``check_bvh`` and the ones belo
 """
 import numpy as np
 import pytest
-
 from accel_util import assert_same_hits, hits, random_rays, scene_from_arrays, soup
+
 from renderer.accel import BVH, BruteForce
 from renderer.accel.bvh_build import MAX_LEVELS, build_bvh, check_bvh, pad_boxes
 from renderer.accel.traverse import COUNT_SHIFT, FIRST_MASK, LEAF_BIT

@@ -11,8 +11,8 @@ import dataclasses
 import drjit as dr
 import numpy as np
 import pytest
-
 from accel_util import random_rays, scene_from_arrays, soup
+
 from renderer.accel import ACCELERATORS, triangle
 from renderer.device import types
 

@@ -8,8 +8,8 @@ from pathlib import Path
 import drjit as dr
 import numpy as np
 import pytest
-
 from accel_util import assert_same_hits, hits, random_rays, scene_from_arrays, soup
+
 from renderer.accel import BVH, BruteForce, ObjectBoxes, Ray
 from renderer.accel.bvh_build import build_bvh, check_bvh
 from renderer.device import types

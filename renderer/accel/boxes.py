@@ -121,8 +121,8 @@ class ObjectBoxes:
             # ---- box step: the next object's box, when no triangles are pending ---------
             first, end, obj = masked_step(
                 t, (first >= end) & (obj < n_obj),
-                lambda first, end, obj, on: self._box_step(o, inv, rec.t, robust, obj,
-                                                           first, end, on),
+                lambda first, end, obj, on, best_t=rec.t: self._box_step(
+                    o, inv, best_t, robust, obj, first, end, on),
                 (first, end, obj))
 
             # ---- triangle step -----------------------------------------------------------

@@ -24,8 +24,18 @@ import numpy as np
 from ..device import Types, types
 from .base import ClosestHit, DeviceTriangles, Ray, array_type, gather_floats
 from .bvh_build import BINS, LEAF_SIZE, build_bvh
-from .traverse import (DONE, STACK_SIZE, Closest, enter_leaf, masked_step, pop,
-                       robust_scale, setup, slab, triangle_step)
+from .traverse import (
+    DONE,
+    STACK_SIZE,
+    Closest,
+    enter_leaf,
+    masked_step,
+    pop,
+    robust_scale,
+    setup,
+    slab,
+    triangle_step,
+)
 from .triangle import STRIDE, triangle_routine, upload_triangles
 
 
@@ -148,8 +158,8 @@ class BVH:
             is_leaf, is_inner, first, end = enter_leaf(cur, first, end)
             sp, cur, to_pop = masked_step(
                 t, is_inner,
-                lambda sp, cur, to_pop, on: node_step(t, nodes, children, o, inv, rec.t,
-                                                      robust, stack, sp, cur, to_pop, on),
+                lambda sp, cur, to_pop, on, best_t=rec.t: node_step(
+                    t, nodes, children, o, inv, best_t, robust, stack, sp, cur, to_pop, on),
                 (sp, cur, is_leaf | False))
             sp, cur = pop(stack, sp, cur, to_pop)
 
