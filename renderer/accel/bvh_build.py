@@ -49,11 +49,12 @@ class BVHArrays:
     """A BVH on the host.
 
     boxes: float32 (N, 12) per inner node: child A lo xyz, hi xyz, child B lo xyz, hi xyz
-        (padded by a few ulps so the float32 triangle test never hits outside its box).
+        (grown by ``pad_boxes``, so the triangle test never hits outside its box).
     children: uint32 (N, 2) child references (inner index or packed leaf).
     order: int64 (F,) original face index of each reordered triangle.
     levels: number of inner-node levels (<= MAX_LEVELS); leaf_count; sah_cost (relative to
-        the root's surface area, C_trav = C_tri = 1); build_seconds.
+        the root's surface area, C_trav = C_tri = 1); build_seconds;
+    bounds: float64 (3,) lo, hi of all triangles.
     """
 
     boxes: np.ndarray
