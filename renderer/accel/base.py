@@ -12,7 +12,8 @@ Every accelerator holds the same packed triangles (``renderer.accel.triangle``) 
 the same triangle routine, so brute force, per-object boxes and the BVH return the same hits.
 
 Device structs here and in the accelerators are plain typed dataclasses with no
-``DRJIT_STRUCT``: Dr.Jit 1.5 treats a dataclass as a PyTree and rebuilds it (loop state,
+hand-written Dr.Jit struct field list (with one, Dr.Jit 1.5 rebuilds only the listed
+fields). Dr.Jit 1.5 treats a dataclass as a PyTree and rebuilds it (loop state,
 ``dr.copy``, ``dr.if_stmt``) with ALL its fields, Dr.Jit arrays and host values (str, dict)
 alike. A symbolic loop updates such an object in place, so it holds no frozen dataclass:
 the accelerators keep ``backend`` and ``precision`` as strings and look ``types`` up from
