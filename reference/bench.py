@@ -133,7 +133,7 @@ def ray_throughput(scene, *, backend: str, width: int = 1920, height: int = 1080
     """Closest-hit and shadow-ray throughput, ours vs Mitsuba, on identical ray batches."""
     import mitsuba as mi
     from renderer.device import types
-    from renderer.intersect import build_accelerator
+    from renderer.accel import Ray, build_accelerator
     t = types(backend)
     cam = scene.cameras[0]
     o, d = primary_rays_np(cam, width, height)
@@ -155,13 +155,13 @@ def ray_throughput(scene, *, backend: str, width: int = 1920, height: int = 1080
     res = {}
 
     def ours_closest():
-        h = acc.intersect(O, D, inf, on)
-        dr.eval(h.t, h.prim, h.valid)
+        h = acc.intersect(Ray(O, D, inf), on)
+        dr.eval(h.t, h.prim, h.found)
         return h
 
     res["ours_primary"] = kernel_ms(ours_closest, repeats=repeats)
     h = ours_closest()
-    valid = h.valid.numpy()
+    valid = h.found.numpy()
     t_ours = np.where(valid, h.t.numpy(), np.inf)
     order = acc.tris.order.numpy().astype(np.int64)
     face_ours = np.where(valid, order[np.minimum(h.prim.numpy(), len(order) - 1)], -1)
@@ -209,7 +209,7 @@ def ray_throughput(scene, *, backend: str, width: int = 1920, height: int = 1080
         dr.eval(SO, SD, ST, son)
 
         def ours_shadow():
-            b = acc.intersect_p(SO, SD, ST, son)
+            b = acc.intersect_p(Ray(SO, SD, ST), son)
             dr.eval(b)
             return b
 

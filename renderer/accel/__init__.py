@@ -1,59 +1,36 @@
-"""TEMPORARY SHIM (branch house-scene only; replaced by the ACCEL engineer's package at merge).
+"""Closest-hit and any-hit queries behind one interface (``renderer.accel.base``).
 
-Presents the new accelerator interface over the old ``renderer.intersect`` API so the scene
-and shading code can be written against it:
+``ACCELERATORS`` maps the names used on the command line to accelerator classes, each
+built by ``cls.build(scene, t, intersection=...)``; ``build_accelerator(name, scene, t)``
+validates both names. Where to add:
 
-    accel.intersect(Ray(o, d, t_max), active) -> ClosestHit(t, u, v, prim, found)
-    accel.intersect_p(Ray(o, d, t_max), active) -> Bool
+- a triangle routine: a function in ``triangle.py``, registered in ``ROUTINES``;
+- an accelerator: a module with a plain dataclass answering ``intersect`` / ``intersect_p``
+  / ``stats`` / ``tris`` from the steps of ``traverse.py``, registered in ``ACCELERATORS``.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from ..device import Types
+from .base import Accelerator, ClosestHit, DeviceTriangles, Ray
+from .boxes import ObjectBoxes
+from .brute import BruteForce
+from .bvh import BVH
+from .triangle import ROUTINES, triangle_routine
 
-from ..intersect import build_accelerator as _build_old
-
+ACCELERATORS = {"brute": BruteForce, "boxes": ObjectBoxes, "bvh": BVH}
 DEFAULT_ACCEL = "bvh"
-ACCELERATORS = ("brute", "boxes", "bvh")
+DEFAULT_ROUTINE = "moller_trumbore"
+
+__all__ = ["ACCELERATORS", "BVH", "DEFAULT_ACCEL", "DEFAULT_ROUTINE", "ROUTINES", "Accelerator", "BruteForce",
+           "ClosestHit", "DeviceTriangles", "ObjectBoxes", "Ray", "build_accelerator",
+           "triangle_routine"]
 
 
-@dataclass
-class Ray:
-    """o, d: Array3f; t_max: Float."""
-
-    o: object = None
-    d: object = None
-    t_max: object = None
-
-
-@dataclass
-class ClosestHit:
-    """t, u, v: Float; prim: UInt32; found: Bool."""
-
-    t: object = None
-    u: object = None
-    v: object = None
-    prim: object = None
-    found: object = None
-
-
-@dataclass
-class _Adapter:
-    inner: object = None
-
-    @property
-    def tris(self):
-        return self.inner.tris
-
-    def stats(self) -> dict:
-        return self.inner.stats()
-
-    def intersect(self, ray: Ray, active) -> ClosestHit:
-        h = self.inner.intersect(ray.o, ray.d, ray.t_max, active)
-        return ClosestHit(t=h.t, u=h.u, v=h.v, prim=h.prim, found=h.valid)
-
-    def intersect_p(self, ray: Ray, active):
-        return self.inner.intersect_p(ray.o, ray.d, ray.t_max, active)
-
-
-def build_accelerator(name: str, scene, t, *, intersection: str = "moller_trumbore"):
-    return _Adapter(_build_old(name, scene, t, intersection=intersection))
+def build_accelerator(name: str, scene, t: Types, *,
+                      intersection: str = DEFAULT_ROUTINE) -> Accelerator:
+    """Build the accelerator ``name`` (a key of ``ACCELERATORS``) for ``scene`` with the
+    triangle routine ``intersection`` (a key of ``ROUTINES``)."""
+    if name not in ACCELERATORS:
+        raise ValueError(f"accel: expected one of {sorted(ACCELERATORS)}, got {name!r}")
+    triangle_routine(intersection)
+    return ACCELERATORS[name].build(scene, t, intersection=intersection)

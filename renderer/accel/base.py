@@ -1,0 +1,117 @@
+"""The accelerator interface and the records that travel through it.
+
+An *accelerator* is any object with
+
+    intersect(ray: Ray, active) -> ClosestHit   # closest hit in (0, ray.t_max)
+    intersect_p(ray: Ray, active) -> Bool       # any hit in (0, ray.t_max) (shadow rays)
+    tris: DeviceTriangles                       # shading attributes, indexed by ClosestHit.prim
+    stats() -> dict                             # build time, node count, bytes per triangle, ...
+
+``ray.d`` need not be unit length (``t`` is in units of ``d``); ``active`` is a Bool mask.
+Every accelerator holds the same packed triangles (``renderer.accel.triangle``) and calls
+the same triangle routine, so brute force, per-object boxes and the BVH return the same hits.
+
+Device structs here and in the accelerators are plain typed dataclasses with no
+hand-written Dr.Jit struct field list (with one, Dr.Jit 1.5 rebuilds only the listed
+fields). Dr.Jit 1.5 treats a dataclass as a PyTree and rebuilds it (loop state,
+``dr.copy``, ``dr.if_stmt``) with ALL its fields, Dr.Jit arrays and host values (str, dict)
+alike. A symbolic loop updates such an object in place, so it holds no frozen dataclass:
+the accelerators keep ``backend`` and ``precision`` as strings and look ``types`` up from
+them.
+"""
+from __future__ import annotations
+
+import importlib
+from dataclasses import dataclass
+from typing import Protocol
+
+import drjit as dr
+
+from ..device import Types
+
+
+@dataclass
+class Ray:
+    """A batch of rays. o, d: Array3f (N,) origin and direction; t_max: Float, the end of
+    the ray interval (0, t_max) in units of ``d``."""
+
+    o: object
+    d: object
+    t_max: object
+
+
+@dataclass
+class ClosestHit:
+    """Result of a closest-hit query (arrays of the ray batch's width).
+
+    t: Float ray parameter; u, v: Float barycentrics of v1, v2; prim: UInt32 index into
+    the accelerator's ``DeviceTriangles`` (undefined where not found); found: Bool.
+    """
+
+    t: object
+    u: object
+    v: object
+    prim: object
+    found: object
+
+
+@dataclass
+class DeviceTriangles:
+    """Shading attributes of the triangles on the device, in the accelerator's order
+    (``order``; an accelerator may permute triangles for locality; ``ClosestHit.prim``
+    indexes these arrays).
+
+    ng: Array3f (F,) unit geometric normal ``normalize(e1 × e2)``.
+    n0, n1, n2: Array3f (F,) vertex normals (only uploaded when some object is smooth,
+        else width-1 zeros).
+    material: UInt32 (F,) material index; smooth: Bool (F,) interpolate normals.
+    order: UInt32 (F,) original face index of each triangle.
+    """
+
+    ng: object
+    n0: object
+    n1: object
+    n2: object
+    material: object
+    smooth: object
+    order: object
+
+    @property
+    def count(self) -> int:
+        return dr.width(self.material)
+
+
+class Accelerator(Protocol):
+    """What the integrator needs from an accelerator (see the module docstring)."""
+
+    tris: DeviceTriangles
+
+    def intersect(self, ray: Ray, active=True) -> ClosestHit: ...
+
+    def intersect_p(self, ray: Ray, active=True): ...
+
+    def stats(self) -> dict: ...
+
+
+def array_type(t: Types, name: str) -> type:
+    """The Dr.Jit array type ``name`` (e.g. "Array4f") of the module ``t``'s arrays come
+    from."""
+    return getattr(importlib.import_module(t.Float.__module__), name)
+
+
+def gather_floats(t: Types, src, index, stride: int, count: int, active=True) -> list:
+    """The first ``count`` floats of record ``index`` of ``src`` (records of ``stride``
+    floats, a multiple of 4), per lane, with the gather the backend is fastest at: on CUDA
+    packet gathers of Array4f (all of the record's quads that ``count`` touches); on LLVM
+    one scalar gather per float (a packet gather is emitted there only when numpy's buffer
+    happens to be 64-byte aligned, and is slower than scalar gathers on the CPU)."""
+    if t.backend == "llvm":
+        base = index * stride
+        return [dr.gather(t.Float, src, base + k, active) for k in range(count)]
+    A4 = array_type(t, "Array4f64" if t.is_double else "Array4f")
+    base = index * (stride // 4)
+    out = []
+    for k in range((count + 3) // 4):
+        q = dr.gather(A4, src, base + k if k else base, active)
+        out += [q.x, q.y, q.z, q.w]
+    return out[:count]

@@ -1,0 +1,143 @@
+"""Per-object bounding boxes (the thesis's scheme).
+
+One axis-aligned box per scene object (``Scene.objects`` face ranges); a ray tests each
+object's box (Williams et al.) and, if it hits, the object's triangles. Triangles stay in
+scene order (``tris.order`` is the identity).
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import drjit as dr
+import numpy as np
+
+from ..device import Types, types
+from .base import ClosestHit, DeviceTriangles, Ray, array_type, gather_floats
+from .bvh_build import pad_boxes
+from .traverse import Closest, masked_step, robust_scale, setup, slab, triangle_step
+from .triangle import triangle_routine, upload_triangles
+
+
+@dataclass
+class ObjectBoxes:
+    """Per-object boxes accelerator (see the module docstring).
+
+    Build with ``ObjectBoxes.build(scene, t, intersection="moller_trumbore")``.
+    boxes: Float (8 n_objects) lo xyz, pad, hi xyz, pad (float32 values, ``pad_boxes``);
+    ranges: UInt32 (2 n_objects) first face, face count; tri_data: Float (12 F) packed
+    triangles; tris: DeviceTriangles; backend, precision: of the arrays (``types``);
+    intersection: name of the triangle routine; info: ``stats()``.
+    """
+
+    boxes: object
+    ranges: object
+    tri_data: object
+    tris: DeviceTriangles
+    backend: str = "llvm"
+    precision: str = "float32"
+    intersection: str = "moller_trumbore"
+    info: dict = field(default_factory=dict, repr=False)
+
+    @classmethod
+    def build(cls, scene, t: Types, *, intersection: str = "moller_trumbore") -> "ObjectBoxes":
+        triangle_routine(intersection)
+        t0 = time.perf_counter()
+        F = scene.face_count
+        objs = [(o.first_face, o.face_count) for o in scene.objects if o.face_count > 0]
+        if not objs and F:
+            objs = [(0, F)]
+        fdt = np.float64 if t.is_double else np.float32
+        boxes = np.full((max(len(objs), 1), 8), np.inf, fdt)
+        ranges = np.zeros((max(len(objs), 1), 2), np.uint32)
+        V = scene.vertices.astype(np.float32)
+        ext = 0.0
+        if F:
+            lo_s, hi_s = scene.bounds()
+            ext = float(np.max(hi_s - lo_s))
+        for k, (f0, fc) in enumerate(objs):      # a loop over objects, not triangles
+            p = V[scene.faces[f0:f0 + fc].reshape(-1)]
+            boxes[k, 0:3], boxes[k, 4:7] = pad_boxes(p.min(axis=0), p.max(axis=0), ext)
+            ranges[k] = (f0, fc)
+        tri_data, tris = upload_triangles(scene, t)
+        out = cls(t.Float(boxes.reshape(-1)), t.UInt32(ranges.reshape(-1)), tri_data, tris,
+                  backend=t.backend, precision=t.precision,
+                   intersection=intersection)
+        dr.eval(out.boxes, out.ranges, out.tri_data, out.tris)
+        out.info = {"accel": "boxes", "intersection": intersection,
+                    "build_seconds": time.perf_counter() - t0, "triangles": F,
+                    "objects": len(objs),
+                    "box_bytes_per_triangle": len(objs) * 8 * (8 if t.is_double else 4) / max(F, 1)}
+        return out
+
+    @property
+    def types(self) -> Types:
+        return types(self.backend, self.precision)
+
+    def stats(self) -> dict:
+        return dict(self.info)
+
+    def intersect(self, ray: Ray, active=True) -> ClosestHit:
+        return self._traverse(ray, active, False)
+
+    def intersect_p(self, ray: Ray, active=True):
+        return self._traverse(ray, active, True)
+
+    def _box_step(self, o, inv, t_max, robust, obj, first, end, active=True):
+        """Object ``obj``'s box where ``active``: on a hit its faces become the pending
+        range ``[first, end)``; ``obj`` moves on to the next object."""
+        t = self.types
+        f = gather_floats(t, self.boxes, obj, 8, 8, active)
+        if t.backend == "llvm":
+            r0 = dr.gather(t.UInt32, self.ranges, obj * 2, active)
+            r1 = dr.gather(t.UInt32, self.ranges, obj * 2 + 1, active)
+        else:
+            rng = dr.gather(array_type(t, "Array2u"), self.ranges, obj, active)
+            r0, r1 = rng.x, rng.y
+        hit, _ = slab(t, o, inv, t.Array3f(f[0], f[1], f[2]), t.Array3f(f[4], f[5], f[6]),
+                      t_max, robust)
+        if active is not True:
+            hit &= active
+        return (dr.select(hit, r0, first), dr.select(hit, r0 + r1, end),
+                obj + 1 if active is True else dr.select(active, obj + 1, obj))
+
+    @dr.syntax
+    def _traverse(self, ray: Ray, active, any_hit: bool):
+        t = self.types
+        routine = triangle_routine(self.intersection)
+        robust = robust_scale(t)
+        tri_data, order = self.tri_data, self.tris.order
+        n_obj = dr.width(self.ranges) // 2
+        t_max = ray.t_max
+        o, d, inv, active, n = setup(t, ray, active)
+        active &= n_obj > 0
+        obj = dr.zeros(t.UInt32, n)                 # next object to test
+        first = dr.zeros(t.UInt32, n)               # pending triangles [first, end)
+        end = dr.zeros(t.UInt32, n)
+        rec = Closest.empty(t, t_max, n)            # closest hit so far
+
+        while dr.hint(active, max_iterations=-1, label="boxes",
+                      exclude=[self, t, routine, robust, any_hit]):
+            # ---- box step: the next object's box, when no triangles are pending ---------
+            first, end, obj = masked_step(
+                t, (first >= end) & (obj < n_obj),
+                lambda first, end, obj, on, best_t=rec.t: self._box_step(
+                    o, inv, best_t, robust, obj, first, end, on),
+                (first, end, obj))
+
+            # ---- triangle step -----------------------------------------------------------
+            rec, first = masked_step(
+                t, first < end,
+                lambda rec, first, on: (
+                    triangle_step(t, routine, o, d, tri_data, order, first, t_max, rec,
+                                  any_hit, on),
+                    first + 1 if on is True else dr.select(on, first + 1, first)),
+                (rec, first))
+            if dr.hint(any_hit, mode="scalar"):
+                active &= ~rec.found
+
+            active &= (first < end) | (obj < n_obj)
+
+        if dr.hint(any_hit, mode="scalar"):
+            return rec.found
+        return rec.result()

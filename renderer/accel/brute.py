@@ -1,0 +1,81 @@
+"""Brute force: every ray tests every triangle (the reference accelerator)."""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import drjit as dr
+
+from ..device import Types, types
+from .base import ClosestHit, DeviceTriangles, Ray
+from .traverse import Closest, setup, triangle_step
+from .triangle import triangle_routine, upload_triangles
+
+
+@dataclass
+class BruteForce:
+    """Every ray tests every triangle, in scene order.
+
+    tri_data: Float (12 F) packed triangles; tris: DeviceTriangles, in scene order;
+    backend, precision: of the arrays (``types``); intersection: name of the triangle
+    routine (``renderer.accel.triangle.ROUTINES``); info: ``stats()``.
+
+    The candidate loop is a symbolic loop over triangle indices; each candidate goes through
+    the shared ``traverse.triangle_step``. Rays start at their offset origin, so
+    ``t_min = 0``.
+    """
+
+    tri_data: object
+    tris: DeviceTriangles
+    backend: str = "llvm"
+    precision: str = "float32"
+    intersection: str = "moller_trumbore"
+    info: dict = field(default_factory=dict, repr=False)
+
+    @classmethod
+    def build(cls, scene, t: Types, *, intersection: str = "moller_trumbore") -> "BruteForce":
+        triangle_routine(intersection)
+        t0 = time.perf_counter()
+        tri_data, tris = upload_triangles(scene, t)
+        dr.eval(tri_data, tris)
+        info = {"accel": "brute", "intersection": intersection,
+                "build_seconds": time.perf_counter() - t0, "triangles": tris.count,
+                "nodes": 0}
+        return cls(tri_data, tris, backend=t.backend, precision=t.precision,
+                   intersection=intersection, info=info)
+
+    @property
+    def types(self) -> Types:
+        return types(self.backend, self.precision)
+
+    def stats(self) -> dict:
+        return dict(self.info)
+
+    def intersect(self, ray: Ray, active=True) -> ClosestHit:
+        """Closest hit in ``(0, ray.t_max)``."""
+        return self._candidates(ray, active, False)
+
+    def intersect_p(self, ray: Ray, active=True):
+        """Any hit in ``(0, ray.t_max)`` (shadow rays); stops at the first hit."""
+        return self._candidates(ray, active, True)
+
+    @dr.syntax
+    def _candidates(self, ray: Ray, active, any_hit: bool):
+        t = self.types
+        routine = triangle_routine(self.intersection)
+        tri_data, order = self.tri_data, self.tris.order
+        count = self.tris.count
+        t_max = ray.t_max
+        o, d, _, active, n = setup(t, ray, active)
+        rec = Closest.empty(t, t_max, n)            # closest hit so far
+        i = dr.zeros(t.UInt32, n)                   # next candidate triangle
+        while dr.hint(active & (i < count), max_iterations=-1,
+                      label="brute_force_any" if any_hit else "brute_force_closest",
+                      exclude=[self, t, routine, count, any_hit]):
+            rec = triangle_step(t, routine, o, d, tri_data, order, i, t_max, rec, any_hit)
+            if dr.hint(any_hit, mode="scalar"):
+                active &= ~rec.found
+            i += 1
+        if dr.hint(any_hit, mode="scalar"):
+            return rec.found
+        return rec.result()

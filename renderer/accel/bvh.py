@@ -1,0 +1,181 @@
+"""The BVH accelerator: device side of ``bvh_build``'s tree.
+
+Node layout on the device (``load_node``): ``nodes`` Float, 12 per inner node (child A lo
+xyz, hi xyz, child B lo xyz, hi xyz, as ``BVHArrays.boxes``), ``children`` UInt32, 2 per
+inner node (the node references of ``renderer.accel.traverse``).
+
+Traversal is one symbolic loop per query with a per-ray stack of ``STACK_SIZE`` UInt32
+(``dr.alloc_local``). The stack is kept at 32 entries = 128 bytes because larger local
+arrays crash Dr.Jit 1.5.0's LLVM backend (drjit issue #532); the builder bounds the number
+of inner-node levels by the same number, so the stack cannot overflow. Each iteration does
+a node step (when no leaf triangles are pending) and a triangle step (one pending leaf
+triangle); on LLVM each step is a real branch (``traverse.masked_step``). Traversal order
+and culling never change which triangle wins (nearest ``t``, then smallest original face
+index), so the hits are bitwise those of brute force.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import drjit as dr
+import numpy as np
+
+from ..device import Types, types
+from .base import ClosestHit, DeviceTriangles, Ray, array_type, gather_floats
+from .bvh_build import BINS, LEAF_SIZE, build_bvh
+from .traverse import (
+    DONE,
+    STACK_SIZE,
+    Closest,
+    enter_leaf,
+    masked_step,
+    pop,
+    robust_scale,
+    setup,
+    slab,
+    triangle_step,
+)
+from .triangle import STRIDE, triangle_routine, upload_triangles
+
+
+def load_node(t: Types, nodes, children, cur, active=True):
+    """Inner node(s) ``cur``: ``(a_lo, a_hi, b_lo, b_hi, ref_a, ref_b)``."""
+    f = gather_floats(t, nodes, cur, 12, 12, active)
+    if t.backend == "llvm":
+        ref_a = dr.gather(t.UInt32, children, cur * 2, active)
+        ref_b = dr.gather(t.UInt32, children, cur * 2 + 1, active)
+    else:
+        refs = dr.gather(array_type(t, "Array2u"), children, cur, active)
+        ref_a, ref_b = refs.x, refs.y
+    return (t.Array3f(f[0], f[1], f[2]), t.Array3f(f[3], f[4], f[5]),
+            t.Array3f(f[6], f[7], f[8]), t.Array3f(f[9], f[10], f[11]), ref_a, ref_b)
+
+
+def node_step(t: Types, nodes, children, o, inv, t_max, robust, stack, sp, cur, to_pop,
+              active=True):
+    """One inner node ``cur`` where ``active``: test both child boxes against
+    ``(0, t_max)``, push the far hit child, go to the near one. Returns
+    ``(sp, cur, to_pop)``, ``to_pop`` grown by the lanes where neither child was hit."""
+    a_lo, a_hi, b_lo, b_hi, ref_a, ref_b = load_node(t, nodes, children, cur, active)
+    hit_a, tn_a = slab(t, o, inv, a_lo, a_hi, t_max, robust)
+    hit_b, tn_b = slab(t, o, inv, b_lo, b_hi, t_max, robust)
+    if active is not True:
+        hit_a &= active
+        hit_b &= active
+    both = hit_a & hit_b
+    b_first = tn_b < tn_a
+    near = dr.select(hit_a & ~(hit_b & b_first), ref_a, ref_b)
+    far = dr.select(b_first, ref_a, ref_b)
+    stack.write(far, sp, both)
+    sp = dr.select(both, sp + 1, sp)
+    missed = ~(hit_a | hit_b)
+    if active is not True:
+        missed &= active
+    return sp, dr.select(hit_a | hit_b, near, cur), to_pop | missed
+
+
+@dataclass
+class BVH:
+    """Bounding volume hierarchy accelerator (see the module docstring).
+
+    Build with ``BVH.build(scene, t, intersection="moller_trumbore", leaf_size=4, bins=32)``.
+    nodes: Float (12 N) child boxes; children: UInt32 (2 N) child references;
+    tri_data: Float (12 F) packed triangles in BVH order; tris: DeviceTriangles in BVH order;
+    backend, precision: of the arrays (``types``); intersection: name of the triangle
+    routine; info: ``stats()``.
+    """
+
+    nodes: object
+    children: object
+    tri_data: object
+    tris: DeviceTriangles
+    backend: str = "llvm"
+    precision: str = "float32"
+    intersection: str = "moller_trumbore"
+    info: dict = field(default_factory=dict, repr=False)
+
+    @classmethod
+    def build(cls, scene, t: Types, *, intersection: str = "moller_trumbore",
+              leaf_size: int = LEAF_SIZE, bins: int = BINS, **build_options) -> "BVH":
+        """``build_options`` go to ``build_bvh`` (root_bins, all_axes, sah_leaves,
+        depth_first, sample)."""
+        triangle_routine(intersection)
+        a = build_bvh(scene.vertices, scene.faces, leaf_size=leaf_size, bins=bins,
+                      **build_options)
+        t0 = time.perf_counter()
+        tri_data, tris = upload_triangles(scene, t, order=a.order)
+        fdt = np.float64 if t.is_double else np.float32
+        nodes = t.Float(a.boxes.astype(fdt).reshape(-1))
+        children = t.UInt32(a.children.reshape(-1))
+        dr.eval(nodes, children, tri_data, tris)
+        fsize = 8 if t.is_double else 4
+        F = max(scene.face_count, 1)
+        info = {
+            "accel": "bvh", "intersection": intersection, "build_seconds": a.build_seconds,
+            "upload_seconds": time.perf_counter() - t0, "triangles": scene.face_count,
+            "nodes": a.node_count, "leaves": a.leaf_count, "levels": a.levels,
+            "sah_cost": a.sah_cost, "leaf_size": leaf_size, "bins": bins,
+            "node_bytes_per_triangle": a.node_count * (12 * fsize + 8) / F,
+            "traversal_triangle_bytes_per_triangle": STRIDE * fsize,
+        }
+        return cls(nodes, children, tri_data, tris, backend=t.backend, precision=t.precision,
+                   intersection=intersection,
+                   info=info)
+
+    @property
+    def types(self) -> Types:
+        return types(self.backend, self.precision)
+
+    def stats(self) -> dict:
+        return dict(self.info)
+
+    def intersect(self, ray: Ray, active=True) -> ClosestHit:
+        return self._traverse(ray, active, False)
+
+    def intersect_p(self, ray: Ray, active=True):
+        return self._traverse(ray, active, True)
+
+    @dr.syntax
+    def _traverse(self, ray: Ray, active, any_hit: bool):
+        t = self.types
+        routine = triangle_routine(self.intersection)
+        robust = robust_scale(t)
+        nodes, children, tri_data, order = self.nodes, self.children, self.tri_data, self.tris.order
+        t_max = ray.t_max
+        o, d, inv, active, n = setup(t, ray, active)
+        stack = dr.alloc_local(t.UInt32, STACK_SIZE)
+        sp = dr.zeros(t.UInt32, n)                              # stack depth
+        cur = dr.select(active, dr.zeros(t.UInt32, n), DONE)   # next node (root = 0)
+        first = dr.zeros(t.UInt32, n)                           # pending leaf triangles
+        end = dr.zeros(t.UInt32, n)                             # [first, end)
+        rec = Closest.empty(t, t_max, n)                        # closest hit so far
+
+        while dr.hint(active, max_iterations=-1,
+                      label="bvh_llvm" if t.backend == "llvm" else "bvh",
+                      exclude=[self, t, routine, robust, any_hit]):
+            # ---- node step: only when no leaf triangles are pending ---------------------
+            is_leaf, is_inner, first, end = enter_leaf(cur, first, end)
+            sp, cur, to_pop = masked_step(
+                t, is_inner,
+                lambda sp, cur, to_pop, on, best_t=rec.t: node_step(
+                    t, nodes, children, o, inv, best_t, robust, stack, sp, cur, to_pop, on),
+                (sp, cur, is_leaf | False))
+            sp, cur = pop(stack, sp, cur, to_pop)
+
+            # ---- triangle step: one pending leaf triangle ---------------------------------
+            rec, first = masked_step(
+                t, first < end,
+                lambda rec, first, on: (
+                    triangle_step(t, routine, o, d, tri_data, order, first, t_max, rec,
+                                  any_hit, on),
+                    first + 1 if on is True else dr.select(on, first + 1, first)),
+                (rec, first))
+            if dr.hint(any_hit, mode="scalar"):
+                active &= ~rec.found
+
+            active &= (first < end) | (cur != DONE)
+
+        if dr.hint(any_hit, mode="scalar"):
+            return rec.found
+        return rec.result()

@@ -1,0 +1,156 @@
+"""Traversal steps shared by every accelerator and backend.
+
+A traversal is one symbolic loop per query whose body is made of these steps: the ray
+set-up (``setup``), the slab test of a box (``slab``), the triangle step that folds one
+candidate triangle into the closest-hit record (``triangle_step``), the leaf entry
+(``enter_leaf``) and the stack pop (``pop``). Where a backend needs different code for the
+same step (the slab test's min/max on the CPU, the gathers), the branch is inside the step.
+
+Node references (the BVH's children, the traversal's ``cur`` and stack entries) are UInt32:
+an inner-node index, or a packed leaf ``LEAF_BIT | (count - 1) << COUNT_SHIFT | first``
+(``count`` triangles from position ``first``), or ``DONE``.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import drjit as dr
+
+from ..device import Types
+from .base import ClosestHit, Ray
+from .triangle import load, unit_roundoff
+
+LEAF_BIT = 1 << 31
+COUNT_SHIFT = 27
+FIRST_MASK = (1 << COUNT_SHIFT) - 1
+MAX_LEAF = 16                # leaf size limit of the packed reference (4 count bits)
+DONE = 0xFFFFFFFF            # "no node left" sentinel of the traversal
+STACK_SIZE = 32              # UInt32 entries per ray: 128 bytes (drjit #532 limit)
+
+
+@dataclass
+class Closest:
+    """The closest-hit record a traversal carries: ``t`` starts at ``t_max`` and shrinks
+    to the nearest hit; ``prim`` is the triangle in the accelerator's order and ``order``
+    its original face index (the tie-break); u, v: barycentrics; found: Bool."""
+
+    t: object
+    u: object
+    v: object
+    prim: object
+    order: object
+    found: object
+
+    @classmethod
+    def empty(cls, t: Types, t_max, n: int) -> "Closest":
+        return cls(t=t.Float(t_max) + dr.zeros(t.Float, n), u=dr.zeros(t.Float, n),
+                   v=dr.zeros(t.Float, n), prim=dr.zeros(t.UInt32, n),
+                   order=dr.full(t.UInt32, DONE, n), found=dr.zeros(t.Bool, n))
+
+    def result(self) -> ClosestHit:
+        return ClosestHit(t=self.t, u=self.u, v=self.v, prim=self.prim, found=self.found)
+
+
+def robust_scale(t: Types) -> float:
+    """``1 + 2 gamma(3)`` of the precision in use (pbrt): the slab test's growth of t_far."""
+    eps = unit_roundoff(t.is_double)
+    gamma3 = 3 * eps / (1 - 3 * eps)
+    return 1.0 + 2.0 * gamma3
+
+
+def safe_inv(t: Types, d):
+    """1/d per component, clamped to a huge finite value so that ``(lo - o) * inv`` is never
+    0 * inf = NaN for axis-parallel rays (a zero component then means "the slab never ends")."""
+    big = 2.0 ** 900 if t.is_double else 2.0 ** 100
+    return dr.clip(1.0 / d, -big, big)
+
+
+def setup(t: Types, ray: Ray, active):
+    """The ray as a traversal loop reads it: ``(o, d, inv, active, n)``, every array of
+    the batch width ``n``; ``inv = safe_inv(d)``."""
+    n = dr.width(ray.o, ray.d, ray.t_max, active)
+    o, d = t.Array3f(ray.o), t.Array3f(ray.d)
+    return o, d, safe_inv(t, d), t.Bool(active) & dr.full(t.Bool, True, n), n
+
+
+def slab(t: Types, o, inv, lo, hi, t_max, robust):
+    """Williams et al. ray/box slab test; t_far grown by ``robust_scale`` (pbrt) so that
+    the float test never misses a box the exact ray hits. Returns ``(hit, t_near)``.
+
+    On LLVM min/max are written as compare + select: Dr.Jit emits ``dr.minimum`` /
+    ``dr.maximum`` as LLVM's NaN-propagating ``llvm.minimum``/``maximum``, which x86 has no
+    instruction for; compare + select is two instructions. The values differ only where a
+    slab value is NaN, which needs a NaN ray (``safe_inv`` never returns 0 or inf): the
+    triangle test never hits such a ray, so the hits stay the same."""
+    t0 = (lo - o) * inv
+    t1 = (hi - o) * inv
+    if t.backend == "llvm":
+        c = t0 < t1
+        tn = dr.select(c, t0, t1)
+        tf = dr.select(c, t1, t0)
+        a = dr.select(tn.x > tn.y, tn.x, tn.y)
+        b = dr.select(tn.z > 0.0, tn.z, 0.0)
+        t_near = dr.select(a > b, a, b)
+        a = dr.select(tf.x < tf.y, tf.x, tf.y)
+        t_far = dr.select(a < tf.z, a, tf.z) * robust
+        return (t_near <= t_far) & (t_near <= t_max), t_near
+    tn = dr.minimum(t0, t1)
+    tf = dr.maximum(t0, t1)
+    t_near = dr.maximum(dr.maximum(tn.x, tn.y), dr.maximum(tn.z, 0.0))
+    t_far = dr.minimum(dr.minimum(tf.x, tf.y), tf.z) * robust
+    return t_near <= dr.minimum(t_far, t_max), t_near
+
+
+def triangle_step(t: Types, routine, o, d, tri_data, order, i, t_max, rec: Closest,
+                  any_hit: bool, active=True) -> Closest:
+    """Test packed triangle ``i`` where ``active`` and fold it into ``rec``: accept a hit
+    that is nearer, or (once something was found) equally near with a smaller original face
+    index (``order``), so ties resolve the same in every accelerator. For ``any_hit`` only
+    ``found`` (a hit in (0, t_max)) is updated. ``active`` is True where the caller's
+    symbolic ``if`` already masks the lanes."""
+    v0, e1, e2 = load(t, tri_data, i, active)
+    th, u, v, h = routine(o, d, v0, e1, e2)
+    if active is not True:
+        h &= active
+    if any_hit:
+        return Closest(rec.t, rec.u, rec.v, rec.prim, rec.order, rec.found | (h & (th < t_max)))
+    h &= th <= rec.t
+    nearer = h & (th < rec.t)
+    tie = h & rec.found & (th == rec.t)
+    i_order = dr.gather(t.UInt32, order, i, nearer | tie)
+    accept = nearer | (tie & (i_order < rec.order))
+    return Closest(t=dr.select(accept, th, rec.t), u=dr.select(accept, u, rec.u),
+                   v=dr.select(accept, v, rec.v), prim=dr.select(accept, i, rec.prim),
+                   order=dr.select(accept, i_order, rec.order), found=rec.found | accept)
+
+
+def enter_leaf(cur, first, end):
+    """When no leaf triangles are pending (``first >= end``), classify node reference
+    ``cur``; a leaf's triangle range becomes ``[first, end)``. Returns
+    ``(is_leaf, is_inner, first, end)``."""
+    node_step = first >= end
+    is_leaf = node_step & ((cur & LEAF_BIT) != 0) & (cur != DONE)
+    is_inner = node_step & ((cur & LEAF_BIT) == 0)
+    first = dr.select(is_leaf, cur & FIRST_MASK, first)
+    end = dr.select(is_leaf, (cur & FIRST_MASK) + ((cur >> COUNT_SHIFT) & 15) + 1, end)
+    return is_leaf, is_inner, first, end
+
+
+def pop(stack, sp, cur, where):
+    """Where ``where``: the next node is the top of the stack, or DONE when it is empty.
+    Returns ``(sp, cur)``."""
+    can_pop = where & (sp > 0)
+    sp = dr.select(can_pop, sp - 1, sp)
+    popped = stack.read(sp, can_pop)
+    return sp, dr.select(where, dr.select(can_pop, popped, DONE), cur)
+
+
+def masked_step(t: Types, where, step, state: tuple) -> tuple:
+    """``step(*state, active)`` applied to the lanes ``where``; returns the new state. On
+    LLVM the step runs inside a symbolic ``if`` with ``active=True``: a real branch, taken
+    only when some lane of the 16-lane SIMD packet needs it (the backend otherwise pays for
+    every instruction of the loop body on every iteration). Elsewhere the step runs inline
+    and masks its own updates with ``active=where``."""
+    if t.backend == "llvm":
+        return dr.if_stmt(state, where, lambda *s: step(*s, True), lambda *s: s)
+    return step(*state, where)
