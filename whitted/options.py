@@ -3,9 +3,10 @@
 Every ``choices`` list comes from the constant that defines it (``renderer.device``,
 ``renderer.scene``, ``renderer.accel``, ``renderer.effects``), so a new backend, shading
 mode, accelerator, triangle routine or effect shows up on the command line without an edit
-here. Overrides of the scene's settings go through ``Scene.with_overrides``, the one place
-that validates them; a bad value there is a ``SceneError``, which ``whitted.cli.main``
-prints as one ``error:`` line (exit code 2).
+here. ``--spp``, ``--max-depth`` and ``--size`` go through ``Scene.with_overrides``, the one
+place that validates them (``--spp`` alone also sets exact mode to ``spp == 1``); a bad value
+there is a ``SceneError`` naming the field, which ``whitted.cli.main`` prints as one
+``error:`` line (exit code 2).
 """
 from __future__ import annotations
 
@@ -26,13 +27,16 @@ except ImportError:
 
     DEFAULT_ACCEL = "bvh"
 if not hasattr(Scene, "with_overrides"):
-    def _with_overrides(self, **changes):
-        spp, depth = changes.get("spp"), changes.get("max_depth")
+    def _with_overrides(self, *, spp=None, exact=None, max_depth=None, size=None):
         if spp is not None and (spp < 1 or round(spp ** 0.5) ** 2 != spp):
-            raise SceneError(f"spp: expected a perfect square >= 1 (k x k strata), got {spp}")
-        if depth is not None and depth < 0:
-            raise SceneError(f"max_depth: expected >= 0, got {depth}")
-        return self.with_settings(**changes)
+            raise SceneError(f"settings.spp: expected a perfect square >= 1, got {spp}")
+        if max_depth is not None and max_depth < 0:
+            raise SceneError(f"settings.max_depth: expected >= 0, got {max_depth}")
+        changes = {k: v for k, v in (("spp", spp), ("max_depth", max_depth)) if v is not None}
+        if spp is not None:
+            changes["exact"] = spp == 1 if exact is None else exact
+        scene = self.with_settings(**changes) if changes else self
+        return scene.with_size(*size) if size else scene
 
     Scene.with_overrides = _with_overrides
 # ---- end TEMPORARY ----------------------------------------------------------------------
@@ -95,15 +99,7 @@ def load_for_cli(args: argparse.Namespace) -> tuple[Scene, list[int]]:
 
     Raises ``SceneError`` for a bad scene file or override, ``CliError`` for a bad view."""
     scene = load_scene(args.scene, shading=args.shading)
-    if args.size:
-        scene = scene.with_size(*args.size)
-    changes = {}
-    if args.spp is not None:
-        changes.update(spp=args.spp, exact=args.spp == 1)
-    if args.max_depth is not None:
-        changes.update(max_depth=args.max_depth)
-    if changes:
-        scene = scene.with_overrides(**changes)
+    scene = scene.with_overrides(spp=args.spp, max_depth=args.max_depth, size=args.size)
     return scene, select_views(scene, args.view)
 
 
