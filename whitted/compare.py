@@ -49,7 +49,7 @@ def register(subparsers) -> None:
     p.set_defaults(source="golden", func=cmd_compare)
 
 
-# ───────────────────────────────────────────── Mitsuba's side ──
+# ---- Mitsuba's side ------------------------------------------------------------------------------
 def mitsuba_live(scene, view: int) -> tuple[np.ndarray, float, dict]:
     """Render ``scene.cameras[view]`` with the reference harness now.
 
@@ -79,7 +79,7 @@ def mitsuba_golden(scene, view: int) -> tuple[np.ndarray, float | None, dict]:
             {"Mitsuba image": f"golden {g.path}" + (f" ({made})" if made else "")})
 
 
-# ───────────────────────────────────────────── the command ──
+# ---- the command ---------------------------------------------------------------------------------
 def _default_out(scene) -> Path:
     return Path("out") / "compare" / f"{scene.name}_{scene.settings.shading}"
 
