@@ -27,7 +27,9 @@ py=${PYTHON:-python3}
   || { echo "setup: Python >= 3.11 required ($("$py" --version 2>&1))" >&2; exit 1; }
 [ -x .venv/bin/python ] || "$py" -m venv .venv
 stamp=.venv/.whitted-installed
-want=$(sha256sum pyproject.toml | cut -d' ' -f1)
+# Reinstall when pyproject.toml or the set of packages changes (an editable install maps
+# the top-level packages that existed when it was made).
+want=$( (cat pyproject.toml; ls -d -- */__init__.py) | sha256sum | cut -d' ' -f1)
 if [ "$(cat "$stamp" 2>/dev/null)" != "$want" ]; then
   echo "setup: pip install -e .[reference,test]"
   .venv/bin/python -m pip install -q --upgrade pip

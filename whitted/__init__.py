@@ -1,1 +1,2 @@
-"""Command-line entry point: wires the Dr.Jit renderer and the Mitsuba reference harness."""
+"""The ``whitted`` command line: parse, call the renderer, the reference harness or the
+evaluation, print, return an exit code (entry point ``whitted.cli.main``)."""

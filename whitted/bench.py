@@ -1,0 +1,46 @@
+"""``whitted bench``: the timing study (``evaluation.bench``), ours vs Mitsuba, one call;
+``--parts`` picks study parts by their names in the ``PARTS`` registry."""
+from __future__ import annotations
+
+import argparse
+
+from .options import add_backend_option
+
+# ---- TEMPORARY: pre-merge layout. The merge deletes this block down to its end marker and
+# keeps only the first import line of the ``try`` (evaluation/bench/ exists after the merge).
+try:
+    from evaluation.bench import PARTS, run
+except ImportError:
+    from reference.bench import run
+
+    PARTS = ("throughput", "seed", "whitted", "effects")
+# ---- end TEMPORARY ----------------------------------------------------------------------
+
+
+def register(subparsers) -> None:
+    """Add the ``bench`` subcommand to the main CLI's subparsers."""
+    p = subparsers.add_parser("bench", help="timing study: ray throughput, the thesis's table, "
+                                            "Whitted frames and effect savings, vs Mitsuba")
+    add_backend_option(p)
+    p.add_argument("--out", default="results", help="folder for bench-<backend>.json/.md")
+    p.add_argument("--scenes", default="scenes", help="folder holding the scene files")
+    p.add_argument("--quick", action="store_true", help="small sizes (smoke run)")
+    p.add_argument("--parts", type=part_names, default=tuple(PARTS),
+                   help=f"comma-separated subset of {','.join(PARTS)} (default all)")
+    p.set_defaults(func=cmd_bench)
+
+
+def part_names(text: str) -> tuple[str, ...]:
+    """``argparse`` type of ``--parts``: comma-separated names from ``PARTS``."""
+    names = tuple(n.strip() for n in text.split(",") if n.strip())
+    unknown = [n for n in names if n not in PARTS]
+    if unknown or not names:
+        raise argparse.ArgumentTypeError(
+            f"expected a comma-separated subset of {','.join(PARTS)}, got {text!r}")
+    return names
+
+
+def cmd_bench(args: argparse.Namespace) -> int:
+    run(args.out, backend=args.backend, scenes_dir=args.scenes, quick=args.quick,
+        parts=args.parts)
+    return 0

@@ -1,0 +1,124 @@
+"""Options and helpers shared by the subcommands that render a scene with our tracer.
+
+Every ``choices`` list comes from the constant that defines it (``renderer.device``,
+``renderer.scene``, ``renderer.accel``, ``renderer.effects``), so a new backend, shading
+mode, accelerator, triangle routine or effect shows up on the command line without an edit
+here. ``--spp``, ``--max-depth`` and ``--size`` go through ``Scene.with_overrides``, the one
+place that validates them (``--spp`` alone also sets exact mode to ``spp == 1``); a bad value
+there is a ``SceneError`` naming the field, which ``whitted.cli.main`` prints as one
+``error:`` line (exit code 2).
+"""
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from renderer.device import BACKENDS, PRECISIONS
+from renderer.effects import FLAGS, EffectSet
+from renderer.scene import SHADING_MODES, Scene, SceneError, load_scene
+
+# ---- TEMPORARY: pre-merge layout. The merge deletes this block down to its end marker and
+# keeps only the first import line of the ``try`` (renderer.accel exists after the merge).
+try:
+    from renderer.accel import ACCELERATORS, DEFAULT_ACCEL, ROUTINES
+except ImportError:
+    from renderer.intersect import ACCELERATORS
+    from renderer.triangle import ROUTINES
+
+    DEFAULT_ACCEL = "bvh"
+if not hasattr(Scene, "with_overrides"):
+    def _with_overrides(self, *, spp=None, exact=None, max_depth=None, size=None):
+        if spp is not None and (spp < 1 or round(spp ** 0.5) ** 2 != spp):
+            raise SceneError(f"settings.spp: expected a perfect square >= 1, got {spp}")
+        if max_depth is not None and max_depth < 0:
+            raise SceneError(f"settings.max_depth: expected >= 0, got {max_depth}")
+        changes = {k: v for k, v in (("spp", spp), ("max_depth", max_depth)) if v is not None}
+        if spp is not None:
+            changes["exact"] = spp == 1 if exact is None else exact
+        scene = self.with_settings(**changes) if changes else self
+        return scene.with_size(*size) if size else scene
+
+    Scene.with_overrides = _with_overrides
+# ---- end TEMPORARY ----------------------------------------------------------------------
+
+#: The ray/triangle routine used unless ``--intersection`` names another.
+DEFAULT_ROUTINE = "moller_trumbore"
+
+
+class CliError(SystemExit):
+    """A command-line request that cannot be carried out (a view that does not exist, an
+    output that would be replaced, a golden that cannot be compared). It ends the program
+    like ``SystemExit`` with the one line ``error: <message>`` on stderr (exit status 1)."""
+
+    def __init__(self, message: str):
+        super().__init__(f"error: {message}")
+
+
+def size(text: str) -> tuple[int, int]:
+    """``argparse`` type of ``--size``: ``"WIDTHxHEIGHT"`` -> (width, height), both > 0."""
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+        if w <= 0 or h <= 0:
+            raise ValueError
+        return w, h
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected WIDTHxHEIGHT with positive integers, got {text!r}") from None
+
+
+def add_backend_option(p: argparse.ArgumentParser) -> None:
+    """``--backend``, one of ``renderer.device.BACKENDS`` (default auto)."""
+    p.add_argument("--backend", default="auto", choices=BACKENDS)
+
+
+def add_scene_options(p: argparse.ArgumentParser) -> None:
+    """Options shared by every subcommand that renders a scene with our tracer."""
+    p.add_argument("scene", type=Path, help="scene file (.toml)")
+    p.add_argument("--view", default="0", help="view index, view name, or 'all' (default 0)")
+    p.add_argument("--size", type=size, help="override the resolution, e.g. 512x512")
+    p.add_argument("--shading", choices=SHADING_MODES, help="override the shading mode")
+    p.add_argument("--spp", type=int,
+                   help="samples per pixel (a perfect square; implies converged mode)")
+    p.add_argument("--max-depth", type=int, help="override the specular depth limit")
+    add_backend_option(p)
+    p.add_argument("--precision", default=PRECISIONS[0], choices=PRECISIONS)
+    p.add_argument("--accel", default=DEFAULT_ACCEL, choices=tuple(ACCELERATORS),
+                   help=f"acceleration structure (default {DEFAULT_ACCEL})")
+    p.add_argument("--intersection", default=DEFAULT_ROUTINE, choices=tuple(ROUTINES),
+                   help=f"ray/triangle routine (default {DEFAULT_ROUTINE})")
+    p.add_argument("--effects", default="auto", choices=("auto", "all"),
+                   help="'auto': trace only the effects the scene calls for; 'all': every effect")
+    p.add_argument("--effect-off", action="append", default=[], metavar="EFFECT",
+                   choices=FLAGS,
+                   help="force one effect off for debugging (the image then differs from the "
+                        f"scene's truth); one of {', '.join(FLAGS)}")
+
+
+def load_for_cli(args: argparse.Namespace) -> tuple[Scene, list[int]]:
+    """The scene with the command line's overrides applied, and the selected view indices.
+
+    Raises ``SceneError`` for a bad scene file or override, ``CliError`` for a bad view."""
+    scene = load_scene(args.scene, shading=args.shading)
+    scene = scene.with_overrides(spp=args.spp, max_depth=args.max_depth, size=args.size)
+    return scene, select_views(scene, args.view)
+
+
+def select_views(scene: Scene, view: str) -> list[int]:
+    """Indices of the views ``--view`` names: an index, a view name, or ``all``."""
+    names = [c.name for c in scene.cameras]
+    if view == "all":
+        return list(range(len(names)))
+    if view.isdigit() and int(view) < len(names):
+        return [int(view)]
+    if view in names:
+        return [names.index(view)]
+    raise CliError(f"--view: expected an index < {len(names)}, a name in {names} or 'all', "
+                   f"got {view!r}")
+
+
+def effects_for_cli(scene: Scene, args: argparse.Namespace) -> EffectSet:
+    """The effect set ``--effects`` and ``--effect-off`` ask for."""
+    eff = EffectSet.all(scene) if args.effects == "all" else EffectSet.from_scene(scene)
+    for name in args.effect_off:
+        eff = eff.without(name)
+    return eff
