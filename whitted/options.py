@@ -17,33 +17,7 @@ from renderer.device import BACKENDS, PRECISIONS
 from renderer.effects import FLAGS, EffectSet
 from renderer.scene import SHADING_MODES, Scene, SceneError, load_scene
 
-# ---- TEMPORARY: pre-merge layout. The merge deletes this block down to its end marker and
-# keeps only the first import line of the ``try`` (renderer.accel exists after the merge).
-try:
-    from renderer.accel import ACCELERATORS, DEFAULT_ACCEL, ROUTINES
-except ImportError:
-    from renderer.intersect import ACCELERATORS
-    from renderer.triangle import ROUTINES
-
-    DEFAULT_ACCEL = "bvh"
-if not hasattr(Scene, "with_overrides"):
-    def _with_overrides(self, *, spp=None, exact=None, max_depth=None, size=None):
-        if spp is not None and (spp < 1 or round(spp ** 0.5) ** 2 != spp):
-            raise SceneError(f"settings.spp: expected a perfect square >= 1, got {spp}")
-        if max_depth is not None and max_depth < 0:
-            raise SceneError(f"settings.max_depth: expected >= 0, got {max_depth}")
-        changes = {k: v for k, v in (("spp", spp), ("max_depth", max_depth)) if v is not None}
-        if spp is not None:
-            changes["exact"] = spp == 1 if exact is None else exact
-        scene = self.with_settings(**changes) if changes else self
-        return scene.with_size(*size) if size else scene
-
-    Scene.with_overrides = _with_overrides
-# ---- end TEMPORARY ----------------------------------------------------------------------
-
-#: The ray/triangle routine used unless ``--intersection`` names another.
-DEFAULT_ROUTINE = "moller_trumbore"
-
+from renderer.accel import ACCELERATORS, DEFAULT_ACCEL, DEFAULT_ROUTINE, ROUTINES
 
 class CliError(SystemExit):
     """A command-line request that cannot be carried out (a view that does not exist, an
