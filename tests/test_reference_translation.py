@@ -4,12 +4,11 @@ from __future__ import annotations
 
 import json
 import shutil
-from dataclasses import replace
 
 import numpy as np
 import pytest
 
-from reference import mitsuba_variant
+from reference import mitsuba_variant, plugins
 from reference.golden import GoldenError, load_golden, render_goldens
 from reference.mitsuba_scene import (export_xml, film_positions, load, render_exact,
                                      render_mitsuba, to_mitsuba_dict)
@@ -20,8 +19,7 @@ import mitsuba as mi  # noqa: E402  (after the variant is chosen)
 
 
 def _small(path, w, h, shading=None):
-    s = load_scene(path, shading=shading)
-    return replace(s, cameras=[replace(c, width=w, height=h) for c in s.cameras])
+    return load_scene(path, shading=shading).with_size(w, h)
 
 
 def _model_directions(cam, xy):
@@ -118,7 +116,7 @@ def test_export_xml_loads_and_renders_like_the_dict(tmp_path):
     scene = _small("scenes/cornell_sphere.toml", 40, 32)
     xml = export_xml(scene, tmp_path / "scene.xml", view=1)
     assert sorted(p.suffix for p in tmp_path.iterdir()).count(".ply") == len(scene.objects)
-    import reference.plugins  # noqa: F401  (registers whitted_* for mi.load_file)
+    plugins.register()  # whitted_* for mi.load_file (mitsuba_variant() did it already)
     from_xml = render_exact(mi.load_file(str(xml)))
     from_dict = render_mitsuba(scene, view=1)
     assert from_xml.shape == (32, 40, 3) and from_dict.mean() > 0.05

@@ -27,8 +27,9 @@ from pathlib import Path
 
 import numpy as np
 
-from reference import compare
-from renderer.film import write_exr
+from renderer.film import srgb_encode, write_exr
+
+from .metrics import abs_error_heatmap, colormap_stops, flip_error, flip_heatmap, metrics
 
 __all__ = ["ReportEntry", "format_metrics_table", "write_report"]
 
@@ -46,8 +47,8 @@ class ReportEntry:
     effects: our kernel's effect set, as text (e.g. "shadows, reflection").
     operations: our kernel's operation counts, as text.
     info: further (label, text) rows for the run table (settings, golden file, ...).
-    metrics: ``compare.metrics`` of (ours, ref); computed and stored by ``write_report``
-        when None.
+    metrics: ``evaluation.metrics.metrics`` of (ours, ref); computed and stored by
+        ``write_report`` when None.
     """
 
     name: str
@@ -61,7 +62,7 @@ class ReportEntry:
     metrics: dict | None = None
 
 
-# ───────────────────────────────────────────── formatting ──
+# ---- formatting ---------------------------------------------------------------------------
 def _num(x: float | int | None, digits: int = 4) -> str:
     if x is None:
         return "—"
@@ -128,7 +129,7 @@ def format_metrics_table(entries: list[ReportEntry]) -> str:
     return "\n".join(lines)
 
 
-# ───────────────────────────────────────────── images ──
+# ---- images -------------------------------------------------------------------------------
 def _save_png(path: Path, rgb: np.ndarray) -> None:
     from PIL import Image
 
@@ -166,7 +167,7 @@ def _slug(name: str, taken: set[str]) -> str:
     return slug
 
 
-# ───────────────────────────────────────────── page ──
+# ---- page ---------------------------------------------------------------------------------
 _CSS = """
 :root { --fg:#1d2126; --muted:#6b7280; --line:#e3e6ea; --bg:#f6f7f9; --card:#fff; --accent:#2563eb; }
 * { box-sizing: border-box; }
@@ -218,7 +219,7 @@ for (const fig of document.querySelectorAll('figure.swap')) {
 
 
 def _gradient(cmap: str) -> str:
-    return "linear-gradient(to right, " + ", ".join(compare.colormap_stops(cmap, 11)) + ")"
+    return "linear-gradient(to right, " + ", ".join(colormap_stops(cmap, 11)) + ")"
 
 
 def _swap_figure(own: str, own_label: str, other: str, other_label: str) -> str:
@@ -281,7 +282,7 @@ def write_report(out_dir: str | Path, entries: list[ReportEntry], *, title: str,
     """Write the HTML report and per-entry PNGs into ``out_dir``; return the page's path.
 
     entries: the comparisons, in page order; an entry without metrics gets them computed
-        (``compare.metrics``) and stored on it, so the caller can print them afterwards.
+        (``evaluation.metrics.metrics``) and stored on it, so the caller can print them afterwards.
     overwrite: replace the files of an existing, non-empty ``out_dir``; otherwise that is a
         ``FileExistsError``.
     """
@@ -302,15 +303,15 @@ def write_report(out_dir: str | Path, entries: list[ReportEntry], *, title: str,
         folder = out / slug
         folder.mkdir(exist_ok=True)
 
-        flip_map, _ = compare.flip_error(e.ours, e.ref)
+        flip_map, _ = flip_error(e.ours, e.ref)
         if e.metrics is None:
-            e.metrics = compare.metrics(e.ours, e.ref, flip_map=flip_map)
-        heat, scale = compare.abs_error_heatmap(e.ours, e.ref, cmap=HEAT_CMAP)
+            e.metrics = metrics(e.ours, e.ref, flip_map=flip_map)
+        heat, scale = abs_error_heatmap(e.ours, e.ref, cmap=HEAT_CMAP)
         panels = [
-            ("ours (Dr.Jit)", compare.srgb_encode(e.ours)),
-            ("Mitsuba 3", compare.srgb_encode(e.ref)),
+            ("ours (Dr.Jit)", srgb_encode(e.ours)),
+            ("Mitsuba 3", srgb_encode(e.ref)),
             (f"|diff| 0..{scale:.3g}", heat),
-            ("FLIP 0..1", compare.flip_heatmap(flip_map, cmap=FLIP_CMAP)),
+            ("FLIP 0..1", flip_heatmap(flip_map, cmap=FLIP_CMAP)),
         ]
         for fname, (_, rgb) in zip(("ours", "mitsuba", "absdiff", "flip"), panels):
             _save_png(folder / f"{fname}.png", rgb)
