@@ -75,7 +75,7 @@ def _pair(ours: np.ndarray, ref: np.ndarray) -> tuple[np.ndarray, np.ndarray, in
     return a, r, int(bad.sum())
 
 
-# ---- per-pixel errors -----------------------------------------------------------------------
+# ---- per-pixel errors ---------------------------------------------------------------------
 def outlier_mask(ours: np.ndarray, ref: np.ndarray, *, eps: float = 1e-2) -> np.ndarray:
     """The outlier rule: bool (H, W), True where some channel has relative error
     ``|a - r| / max(|r|, eps)`` above ``OUTLIER_REL`` and absolute error above
@@ -142,7 +142,7 @@ def flip_error(ours: np.ndarray, ref: np.ndarray) -> tuple[np.ndarray, float]:
     return np.asarray(err, np.float32).reshape(h, w), float(mean)
 
 
-# ---- scalar metrics ---------------------------------------------------------------------------
+# ---- scalar metrics -----------------------------------------------------------------------
 def metrics(ours: np.ndarray, ref: np.ndarray, *, eps: float = 1e-2,
             flip_map: np.ndarray | None = None) -> dict:
     """All scalar metrics of ``ours`` against ``ref`` (see the module docstring).
@@ -194,7 +194,7 @@ def image_difference(ours: np.ndarray, ref: np.ndarray) -> dict:
             "outliers": int(np.sum(outlier_mask(a, r)))}
 
 
-# ---- maps for reports ---------------------------------------------------------------------------
+# ---- maps for reports ---------------------------------------------------------------------
 def _apply_colormap(values: np.ndarray, cmap: str) -> np.ndarray:
     """values float (H, W) in [0, 1] -> uint8 (H, W, 3) through a matplotlib colormap."""
     import matplotlib
@@ -230,7 +230,7 @@ def flip_heatmap(flip_map: np.ndarray, *, cmap: str = "magma") -> np.ndarray:
     return _apply_colormap(np.asarray(flip_map, np.float64), cmap)
 
 
-# ---- statistical test ---------------------------------------------------------------------------
+# ---- statistical test ---------------------------------------------------------------------
 def _normal_quantile_two_sided(alpha: float) -> float:
     """z with P(|Z| > z) = alpha for a standard normal Z (bisection on math.erfc)."""
     lo, hi = 0.0, 40.0

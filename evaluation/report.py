@@ -90,7 +90,8 @@ def _metric_rows(m: dict) -> list[tuple[str, str, str]]:
         ("max abs error", _num(m["max_abs"]), "over pixels and channels"),
         ("relative error", f"{_num(m['mean_rel'])} mean, {_num(m['max_rel'])} max",
          "per pixel: max over RGB of |ours − ref| / max(|ref|, ε)"),
-        ("outlier pixels", f"{m['outliers']:,} of {m['pixels']:,} ({share:.2%})", m["outlier_rule"]),
+        ("outlier pixels", f"{m['outliers']:,} of {m['pixels']:,} ({share:.2%})",
+         m["outlier_rule"]),
         ("non-finite pixels", f"{m['nonfinite_pixels']:,}", "NaN or inf in either image"),
         ("mean FLIP", _num(m["flip_mean"]), "HDR-FLIP, 0 = identical"),
         ("ΔE2000", f"{_num(m['de2000_mean'])} mean, {_num(m['de2000_p99'])} p99, "
@@ -169,7 +170,8 @@ def _slug(name: str, taken: set[str]) -> str:
 
 # ---- page ---------------------------------------------------------------------------------
 _CSS = """
-:root { --fg:#1d2126; --muted:#6b7280; --line:#e3e6ea; --bg:#f6f7f9; --card:#fff; --accent:#2563eb; }
+:root { --fg:#1d2126; --muted:#6b7280; --line:#e3e6ea; --bg:#f6f7f9; --card:#fff;
+        --accent:#2563eb; }
 * { box-sizing: border-box; }
 body { margin:0; font:14px/1.45 system-ui,-apple-system,"Segoe UI",Roboto,"DejaVu Sans",sans-serif;
        color:var(--fg); background:var(--bg); }
@@ -190,10 +192,11 @@ figcaption { font-size:12.5px; color:var(--muted); margin-top:5px; min-height:34
 figcaption b { color:var(--fg); font-weight:600; }
 .bar { height:9px; border-radius:2px; margin:4px 0 2px; border:1px solid var(--line); }
 .scale { display:flex; justify-content:space-between; font-variant-numeric:tabular-nums; }
-.tables { display:grid; grid-template-columns:minmax(0, 3fr) minmax(0, 2fr); gap:24px; margin-top:16px;
-          align-items:start; }
+.tables { display:grid; grid-template-columns:minmax(0, 3fr) minmax(0, 2fr); gap:24px;
+          margin-top:16px; align-items:start; }
 table { border-collapse:collapse; width:100%; }
-th, td { text-align:left; padding:5px 10px 5px 0; border-bottom:1px solid var(--line); vertical-align:top; overflow-wrap:anywhere; }
+th, td { text-align:left; padding:5px 10px 5px 0; border-bottom:1px solid var(--line);
+         vertical-align:top; overflow-wrap:anywhere; }
 th { font-weight:600; white-space:nowrap; }
 td.v { font-variant-numeric:tabular-nums; white-space:nowrap; }
 td.note, .note { color:var(--muted); font-size:12.5px; }
@@ -250,7 +253,8 @@ def _entry_html(e: ReportEntry, slug: str, scale: float) -> str:
         _map_figure(f"{slug}/flip.png", "HDR-FLIP error", FLIP_CMAP, "0", "1"),
     ])
     metric_rows = "".join(f'<tr><th>{esc(k)}</th><td class="v">{esc(v)}</td>'
-                          f'<td class="note">{esc(n)}</td></tr>' for k, v, n in _metric_rows(e.metrics))
+                          f'<td class="note">{esc(n)}</td></tr>'
+                          for k, v, n in _metric_rows(e.metrics))
     run_rows = "".join(f"<tr><th>{esc(k)}</th><td>{esc(v)}</td></tr>" for k, v in _run_rows(e))
     return (f'<section class="entry" id="{esc(slug)}"><h2>{esc(e.name)} '
             f'<span class="note">{w}×{h} · <a href="{esc(slug)}/strip.png">strip.png</a> · '
@@ -264,7 +268,8 @@ def _entry_html(e: ReportEntry, slug: str, scale: float) -> str:
 
 def _summary_html(entries: list[ReportEntry], slugs: list[str]) -> str:
     esc = html.escape
-    head = ("entry", "RMSE", "max abs", "outliers", "mean FLIP", "ΔE mean", "ΔE p99", "ours", "Mitsuba")
+    head = ("entry", "RMSE", "max abs", "outliers", "mean FLIP", "ΔE mean", "ΔE p99", "ours",
+            "Mitsuba")
     rows = []
     for e, s in zip(entries, slugs):
         m = e.metrics

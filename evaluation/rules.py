@@ -112,7 +112,7 @@ def _view_count(scene_path: str) -> int:
     return max(1, len(data.get("views", [])))
 
 
-# ---- the comparisons ------------------------------------------------------------------------
+# ---- the comparisons ----------------------------------------------------------------------
 def _neighbour_range(img: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Channel-wise min and max over each pixel's 3x3 neighbourhood (edge-clamped)."""
     p = np.pad(img, ((1, 1), (1, 1), (0, 0)), mode="edge")
@@ -130,7 +130,9 @@ def check_exact(ours: np.ndarray, ref: np.ndarray, th: dict) -> dict:
     silhouette hit by the neighbouring triangle. Otherwise it is a *hard* pixel.
     Passes iff mean_rel (over non-edge pixels) ≤ mean_rel, no hard pixel, and
     edge pixels ≤ edge_fraction of all pixels. Returns the numbers and ``ok``."""
-    g = lambda k: th[k][0]
+    def g(key: str) -> float:
+        return th[key][0]
+
     ours = np.nan_to_num(np.asarray(ours, np.float64), nan=1e30, posinf=1e30)
     ref = np.asarray(ref, np.float64)
     rel = (np.abs(ours - ref) / np.maximum(np.abs(ref), g("eps"))).max(-1)

@@ -75,7 +75,7 @@ def golden_path(scene_name: str, view_name: str, shading: str, mode: str,
     return Path(root) / scene_name / f"{view_name}_{shading}_{mode}.exr"
 
 
-# ---- rendering --------------------------------------------------------------------------------
+# ---- rendering ----------------------------------------------------------------------------
 def _resize(scene: Scene, size: int | None) -> Scene:
     """``scene`` with every view ``size`` pixels high, the width following the aspect of
     the scene's resolution (None: unchanged)."""
@@ -103,7 +103,8 @@ def _progress_bar(total: int, enabled: bool):
 
 def render_goldens(scene_paths, *, force: bool = False, spp: int = CONVERGED_SPP,
                    batches: int = CONVERGED_BATCHES, size: int = DEFAULT_SIZE,
-                   converged_size: int | None = CONVERGED_SIZE, modes=MODES, shadings=SHADING_MODES, progress: bool = True,
+                   converged_size: int | None = CONVERGED_SIZE, modes=MODES,
+                   shadings=SHADING_MODES, progress: bool = True,
                    root: Path = GOLDEN_DIR) -> list[Path]:
     """Render every scene × view × shading × mode with Mitsuba into ``root``.
 

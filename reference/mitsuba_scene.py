@@ -137,8 +137,8 @@ def to_mitsuba_dict(scene: Scene, *, view: int = 0, spp: int = 1, mode: str = "e
             "min_weight": float(st.min_weight), "shading": st.shading,
             "ray_offset": float(scene.ray_offset), "background": _rgb(st.background),
             "ambient": _rgb(scene.ambient),
-            "falloff_none": ",".join(f"light{i}" for i, l in enumerate(scene.lights)
-                                     if l.falloff == "none")}
+            "falloff_none": ",".join(f"light{i}" for i, light in enumerate(scene.lights)
+                                     if light.falloff == "none")}
     d["sensor"] = sensor_dict(scene, view=view, spp=spp, mode=mode, seed=seed)
     for i, light in enumerate(scene.lights):
         if builtins and light.falloff != "inverse_square":
@@ -147,7 +147,7 @@ def to_mitsuba_dict(scene: Scene, *, view: int = 0, spp: int = 1, mode: str = "e
         d[f"light{i}"] = {"type": "point", "position": [float(v) for v in light.position],
                           "intensity": _rgb(light.intensity)}
     mats: dict[int, object] = {}
-    for key, obj, m, verts, normals, faces in mesh_parts(scene):
+    for key, _, m, verts, normals, faces in mesh_parts(scene):
         if m not in mats:
             md = (_builtin_material_dict(scene, scene.materials[m]) if builtins
                   else material_dict(scene.materials[m], st.shading))
@@ -227,7 +227,7 @@ def render_converged_with_variance(scene: Scene, *, view: int = 0, spp: int = 25
             b_spp)
 
 
-# ---- bare geometry and rays (the benchmark's peer) -----------------------------------------
+# ---- bare geometry and rays (the benchmark's peer) ----------------------------------------
 def load_triangles(vertices: np.ndarray, faces: np.ndarray):
     """A loaded Mitsuba scene of one mesh holding every triangle, no material or light, so
     ``prim_index`` of a hit is the row of ``faces``. vertices: float (V, 3); faces: int

@@ -187,7 +187,7 @@ def _define_plugins() -> dict[str, type]:
             self.falloff_none = {s for s in ids.split(",") if s}
             self._tables = None
 
-        # ---- host-side tables -----------------------------------------------------------------
+        # ---- host-side tables -------------------------------------------------------------
         def _prepare(self, scene):
             """Material list and shape-id → material-index table (cached per scene)."""
             if self._tables is not None and self._tables[0] is scene:
@@ -215,13 +215,13 @@ def _define_plugins() -> dict[str, type]:
             self._tables = (scene, materials, mi.UInt32(table), lights)
             return self._tables
 
-        # ---- Mitsuba entry point (converged mode, via mi.render) --------------------------------
+        # ---- Mitsuba entry point (converged mode, via mi.render) --------------------------
         def sample(self, scene, sampler, ray, medium=None, active=True):
             ray = mi.Ray3f(ray.o, ray.d)
             L = self.radiance(scene, ray, mi.Bool(active))
             return L, mi.Bool(True), []
 
-        # ---- exact mode ----------------------------------------------------------------------------
+        # ---- exact mode -------------------------------------------------------------------
         def render_exact(self, scene, film_xy: np.ndarray) -> np.ndarray:
             """Radiance of one ray per film position. film_xy: float (N, 2) in [0, 1]^2
             (pixel position / resolution, y = 0 the top row). Returns float32 (N, 3)."""
@@ -234,7 +234,7 @@ def _define_plugins() -> dict[str, type]:
             L = self.radiance(scene, mi.Ray3f(ray.o, ray.d), dr.full(mi.Bool, True, n))
             return np.ascontiguousarray(np.array(L, dtype=np.float32).reshape(3, n).T)
 
-        # ---- the Whitted tree ------------------------------------------------------------------
+        # ---- the Whitted tree -------------------------------------------------------------
         def radiance(self, scene, ray, active, depth=0, acc=None):
             """Radiance along ``ray`` (Ray3f, unit d) for lanes ``active``; ``acc`` is the
             accumulated weight of the path (Color3f), ``depth`` the tree depth of ``ray``."""
@@ -244,7 +244,7 @@ def _define_plugins() -> dict[str, type]:
             mode = (mi.TransportMode.Radiance if self.shading == "physical"
                     else mi.TransportMode.Importance)    # Importance: no η² factor (classic)
 
-            # ---- closest hit ----------------------------------------------------------------
+            # ---- closest hit --------------------------------------------------------------
             si = scene.ray_intersect(ray, active)
             hit = active & si.is_valid()
             result = dr.select(active & ~hit, _const(self.background), mi.Color3f(0.0))
@@ -260,11 +260,11 @@ def _define_plugins() -> dict[str, type]:
                 side = dr.select(dr.dot(direction, ng) >= 0, 1.0, -1.0)
                 return x + (eps * side) * ng
 
-            # ---- ambient ------------------------------------------------------------------------
+            # ---- ambient ------------------------------------------------------------------
             for k, m in enumerate(materials):
                 result += dr.select(hit & (mat == k), _const(self.ambient * m.ka), 0.0)
 
-            # ---- local light: every point light, with a shadow ray --------------------------------
+            # ---- local light: every point light, with a shadow ray ------------------------
             ctx = mi.BSDFContext(mode)
             for em, no_falloff in lights:
                 ds, intensity = em.sample_direction(si, mi.Point2f(0.5), hit)   # I / dist²
@@ -285,7 +285,7 @@ def _define_plugins() -> dict[str, type]:
             if depth + 1 > self.max_depth:
                 return result
 
-            # ---- specular children: directions from Mitsuba's BSDFs, weights per MODEL.md -------
+            # ---- specular children: directions from Mitsuba's BSDFs, weights per MODEL.md ----
             refl_d, refl_w = mi.Vector3f(0.0), mi.Color3f(0.0)
             refr_d, refr_w = mi.Vector3f(0.0), mi.Color3f(0.0)
             any_refl = any_refr = False

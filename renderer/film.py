@@ -30,7 +30,8 @@ def _check_image(image, what: str) -> np.ndarray:
 
 
 def output_path(path, overwrite: bool) -> Path:
-    """``path`` as a Path, its folder created; FileExistsError if it exists and not ``overwrite``."""
+    """``path`` as a Path, its folder created; FileExistsError if it exists and not
+    ``overwrite``."""
     path = Path(path)
     if path.exists() and not overwrite:
         raise FileExistsError(f"{path}: exists (pass overwrite=True to replace it)")

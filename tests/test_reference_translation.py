@@ -10,8 +10,14 @@ import pytest
 
 from reference import mitsuba_variant, plugins
 from reference.golden import GoldenError, load_golden, render_goldens
-from reference.mitsuba_scene import (export_xml, film_positions, load, render_exact,
-                                     render_mitsuba, to_mitsuba_dict)
+from reference.mitsuba_scene import (
+    export_xml,
+    film_positions,
+    load,
+    render_exact,
+    render_mitsuba,
+    to_mitsuba_dict,
+)
 from renderer.scene import load_scene
 
 mitsuba_variant()

@@ -1,9 +1,9 @@
-"""``whitted bench``: the timing study (reference/bench.py), ours vs Mitsuba, one call."""
+"""``whitted bench``: the timing study (evaluation/bench/), ours vs Mitsuba, one call."""
 from __future__ import annotations
 
 
 def cmd_bench(args) -> int:
-    from reference.bench import run
+    from evaluation.bench import run
     run(args.out, backend=args.backend, scenes_dir=args.scenes, quick=args.quick,
         parts=tuple(args.parts.split(",")))
     return 0

@@ -95,7 +95,7 @@ def _default_out(scene) -> Path:
 
 
 def cmd_compare(args: argparse.Namespace) -> int:
-    from reference.report import ReportEntry, format_metrics_table, write_report
+    from evaluation.report import ReportEntry, format_metrics_table, write_report
     from whitted.cli import effects_for_cli, load_for_cli
 
     scene, views = load_for_cli(args)

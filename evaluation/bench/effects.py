@@ -10,7 +10,7 @@ import numpy as np
 
 from .. import SEED_SCENES
 from .frames import frozen_frame_ms
-from .part import Context, Part
+from .part import Context, Part, table
 
 SCENES = SEED_SCENES + ("analytic_quad", "bunny", "glass_bunny")
 
@@ -47,18 +47,13 @@ def run(ctx: Context) -> list[dict]:
 
 
 def markdown(rows: list[dict]) -> list[str]:
-    lines = ["## Effects: the scene's specialised kernel vs all effects", "",
-             "| scene | effects on | ops specialised | ops general | ms specialised | "
-             "ms general | saved ms | same pixels |",
-             "| --- | --- | ---: | ---: | ---: | ---: | ---: | --- |"]
-    for e in rows:
-        same = ("yes" if e["same_pixels"]
-                else "max rel " + format(e["max_rel_diff"], ".1e"))
-        lines.append(f"| {e['scene']} | {e['effects']} | {e['ops_specialised']:,} | "
-                     f"{e['ops_general']:,} | {e['ms_specialised']:.3f} | "
-                     f"{e['ms_general']:.3f} | {e['saved_ms']:.3f} | {same} |")
-    lines.append("")
-    return lines
+    cells = [[r["scene"], r["effects"], f"{r['ops_specialised']:,}", f"{r['ops_general']:,}",
+              f"{r['ms_specialised']:.3f}", f"{r['ms_general']:.3f}", f"{r['saved_ms']:.3f}",
+              "yes" if r["same_pixels"] else "max rel " + format(r["max_rel_diff"], ".1e")]
+             for r in rows]
+    return table("Effects: the scene's specialised kernel vs all effects",
+                 ["scene", "effects on", "ops specialised", "ops general", "ms specialised",
+                  "ms general", "saved ms", "same pixels"], "llrrrrrl", cells)
 
 
 PART = Part(name="effects", key="effects", run=run, markdown=markdown)

@@ -69,3 +69,16 @@ def jsonable(x):
     if isinstance(x, (int, float, str, bool)) or x is None:
         return x
     return str(x)
+
+
+def table(title: str, columns: list[str], align: str, rows: list[list[str]]) -> list[str]:
+    """A markdown section: ``## title``, a blank line, the table, a blank line.
+
+    columns: the header cells; align: one letter per column, "l" (left) or "r" (right);
+    rows: the cells of each row, as text.
+    """
+    rule = {"l": "---", "r": "---:"}
+    lines = [f"## {title}", "", "| " + " | ".join(columns) + " |",
+             "| " + " | ".join(rule[a] for a in align) + " |"]
+    lines += ["| " + " | ".join(cells) + " |" for cells in rows]
+    return lines + [""]

@@ -11,7 +11,7 @@ import numpy as np
 
 from .. import SEED_SCENES
 from .frames import frozen_frame_ms
-from .part import Context, Part
+from .part import Context, Part, table
 
 #: The thesis's GeForce 8800 GT numbers (ms per 512² frame, mean of three views).
 THESIS_MS = {
@@ -60,17 +60,13 @@ def run(ctx: Context) -> list[dict]:
 
 
 def markdown(rows: list[dict]) -> list[str]:
-    lines = ["## The thesis's table (ms per frame, mean of three views, median of frozen "
-             "frames)", "",
-             "| scene | test | accel | ms | kernel ms | thesis 8800 GT ms | speed-up |",
-             "| --- | --- | --- | ---: | ---: | ---: | ---: |"]
-    for s in rows:
-        th = f"{s['thesis_ms']}" if s["thesis_ms"] else "—"
-        sp = f"{s['speedup_vs_thesis']:,.0f}×" if s["speedup_vs_thesis"] else "—"
-        lines.append(f"| {s['scene']} | {s['test']} | {s['accel']} | {s['ms']:.3f} | "
-                     f"{s['kernel_ms']:.3f} | {th} | {sp} |")
-    lines.append("")
-    return lines
+    cells = [[r["scene"], r["test"], r["accel"], f"{r['ms']:.3f}", f"{r['kernel_ms']:.3f}",
+              f"{r['thesis_ms']}" if r["thesis_ms"] else "—",
+              f"{r['speedup_vs_thesis']:,.0f}×" if r["speedup_vs_thesis"] else "—"]
+             for r in rows]
+    return table("The thesis's table (ms per frame, mean of three views, median of frozen "
+                 "frames)", ["scene", "test", "accel", "ms", "kernel ms", "thesis 8800 GT ms",
+                             "speed-up"], "lllrrrr", cells)
 
 
 PART = Part(name="seed", key="seed_table", run=run, markdown=markdown)

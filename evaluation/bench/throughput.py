@@ -18,12 +18,12 @@ from renderer.device import array3, types
 from renderer.stats import kernel_ms
 
 from .. import SEED_SCENES
-from .part import Context, Part, jsonable
+from .part import Context, Part, jsonable, table
 
 SCENES = SEED_SCENES + ("bunny", "conference", "bunny_1m")
 
 
-# ---- the accelerator seam: the one place that names the accelerator interface ------------
+# ---- the accelerator seam: the one place that names the accelerator interface -------------
 def _build_accelerator(name: str, scene, t):
     from renderer.intersect import build_accelerator
     return build_accelerator(name, scene, t)
@@ -40,7 +40,7 @@ def _occluded(acc, o, d, t_max, active):
     return acc.intersect_p(o, d, t_max, active)
 
 
-# ---- identical ray batches ---------------------------------------------------------------
+# ---- identical ray batches ----------------------------------------------------------------
 def primary_rays_host(scene, width: int, height: int, t) -> tuple[np.ndarray, np.ndarray]:
     """Pixel-centre rays of the scene's first camera at ``width``×``height``, from
     ``renderer.camera``: origins (N, 3) and unit directions (N, 3), float32, row-major from
@@ -72,7 +72,7 @@ def shadow_rays_host(scene, o, d, t, prim_face, light_pos) -> tuple[np.ndarray, 
     return so.astype(np.float32), sd.astype(np.float32), tmax.astype(np.float32)
 
 
-# ---- the measurement -----------------------------------------------------------------------
+# ---- the measurement ----------------------------------------------------------------------
 def ray_throughput(scene, *, backend: str, width: int = 1920, height: int = 1080,
                    repeats: int = 10, accel: str = "bvh") -> dict:
     """Closest-hit and shadow-ray throughput, ours vs Mitsuba, on identical ray batches."""
@@ -82,20 +82,20 @@ def ray_throughput(scene, *, backend: str, width: int = 1920, height: int = 1080
     o, d = primary_rays_host(scene, width, height, t)
     n = len(o)
 
-    # -- ours ----------------------------------------------------------------------------
+    # ---- ours -----------------------------------------------------------------------------
     t0 = time.perf_counter()
     acc = _build_accelerator(accel, scene, t)
     dr.eval(acc)
     build_s = time.perf_counter() - t0
 
-    O, D = array3(t, o), array3(t, d)
+    o_dev, d_dev = array3(t, o), array3(t, d)
     inf = t.Float(np.full(n, np.inf, np.float32))
     on = dr.full(t.Bool, True, n)
-    dr.eval(O, D, inf, on)
+    dr.eval(o_dev, d_dev, inf, on)
     res = {}
 
     def ours_closest():
-        h = _closest(acc, O, D, inf, on)
+        h = _closest(acc, o_dev, d_dev, inf, on)
         dr.eval(*h)
         return h
 
@@ -106,7 +106,7 @@ def ray_throughput(scene, *, backend: str, width: int = 1920, height: int = 1080
     order = acc.tris.order.numpy().astype(np.int64)
     face_ours = np.where(valid, order[np.minimum(h_prim.numpy(), len(order) - 1)], -1)
 
-    # -- Mitsuba (one mesh holding every triangle, so prim_index is the face index) -----
+    # ---- Mitsuba (one mesh holding every triangle, so prim_index is the face index) -------
     mitsuba_variant("cuda_ad_rgb" if backend == "cuda" else "llvm_ad_rgb")
     mscene, mi_build_s = load_triangles(scene.vertices, scene.faces)
     ray = rays(o, d)
@@ -131,17 +131,17 @@ def ray_throughput(scene, *, backend: str, width: int = 1920, height: int = 1080
         "hits": int(np.isfinite(t_ours).sum()),
     }
 
-    # -- shadow rays to the first light (from our primary hits) ----------------------------
+    # ---- shadow rays to the first light (from our primary hits) ---------------------------
     if scene.lights:
         so, sd, stmax = shadow_rays_host(scene, o, d, t_ours, np.maximum(face_ours, 0),
                                          scene.lights[0].position)
         m = len(so)
-        SO, SD, ST = array3(t, so), array3(t, sd), t.Float(stmax)
+        so_dev, sd_dev, st_dev = array3(t, so), array3(t, sd), t.Float(stmax)
         son = dr.full(t.Bool, True, m)
-        dr.eval(SO, SD, ST, son)
+        dr.eval(so_dev, sd_dev, st_dev, son)
 
         def ours_shadow():
-            b = _occluded(acc, SO, SD, ST, son)
+            b = _occluded(acc, so_dev, sd_dev, st_dev, son)
             dr.eval(b)
             return b
 
@@ -170,7 +170,7 @@ def ray_throughput(scene, *, backend: str, width: int = 1920, height: int = 1080
     return res
 
 
-# ---- the part ------------------------------------------------------------------------------
+# ---- the part -----------------------------------------------------------------------------
 def run(ctx: Context) -> list[dict]:
     """Every scene of ``SCENES`` present in the scenes folder, at 1920×1080 (quick: 320×180)."""
     from renderer.scene import load_scene
@@ -191,22 +191,20 @@ def run(ctx: Context) -> list[dict]:
 
 
 def markdown(rows: list[dict]) -> list[str]:
-    lines = ["## Ray throughput (identical rays; kernel time, median of repeats)", "",
-             "| scene | triangles | rays | ours primary Mrays/s | Mitsuba primary | ratio | "
-             "same triangle | ours shadow Mrays/s | Mitsuba shadow | ratio | shadow agree | "
-             "BVH build s |",
-             "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |"]
-    for t in rows:
-        op, mp = t["ours_primary"]["mrays_per_s"], t["mitsuba_primary"]["mrays_per_s"]
-        os_ = t.get("ours_shadow", {}).get("mrays_per_s", float("nan"))
-        ms_ = t.get("mitsuba_shadow", {}).get("mrays_per_s", float("nan"))
-        lines.append(f"| {t['scene']} | {t['triangles']:,} | {t['rays']:,} | {op:,.0f} | "
-                     f"{mp:,.0f} | {op / mp:.2f} | "
-                     f"{t['primary_agreement']['same_triangle']:.4f} | {os_:,.0f} | "
-                     f"{ms_:,.0f} | {os_ / ms_:.2f} | "
-                     f"{t.get('shadow_agreement', float('nan')):.4f} | {t['build_s']:.2f} |")
-    lines.append("")
-    return lines
+    cells = []
+    for r in rows:
+        op, mp = r["ours_primary"]["mrays_per_s"], r["mitsuba_primary"]["mrays_per_s"]
+        os_ = r.get("ours_shadow", {}).get("mrays_per_s", float("nan"))
+        ms_ = r.get("mitsuba_shadow", {}).get("mrays_per_s", float("nan"))
+        cells.append([r["scene"], f"{r['triangles']:,}", f"{r['rays']:,}", f"{op:,.0f}",
+                      f"{mp:,.0f}", f"{op / mp:.2f}",
+                      f"{r['primary_agreement']['same_triangle']:.4f}", f"{os_:,.0f}",
+                      f"{ms_:,.0f}", f"{os_ / ms_:.2f}",
+                      f"{r.get('shadow_agreement', float('nan')):.4f}", f"{r['build_s']:.2f}"])
+    return table("Ray throughput (identical rays; kernel time, median of repeats)",
+                 ["scene", "triangles", "rays", "ours primary Mrays/s", "Mitsuba primary",
+                  "ratio", "same triangle", "ours shadow Mrays/s", "Mitsuba shadow", "ratio",
+                  "shadow agree", "BVH build s"], "lrrrrrrrrrrr", cells)
 
 
 PART = Part(name="throughput", key="throughput", run=run, markdown=markdown)

@@ -13,7 +13,7 @@ from renderer.stats import kernel_ms
 from .. import SEED_SCENES
 from ..metrics import image_difference, outlier_mask
 from .frames import frozen_frame_ms
-from .part import Context, Part
+from .part import Context, Part, table
 
 
 def whitted_frame(scene, *, backend: str, frames: int = 20, accel: str = "bvh",
@@ -65,20 +65,16 @@ def run(ctx: Context) -> list[dict]:
 
 
 def markdown(rows: list[dict]) -> list[str]:
-    lines = ["## Whitted frame, ours (frozen) vs Mitsuba (reference integrator), exact mode",
-             "",
-             "| scene | size | depth | ours traced ms | ours frozen ms | ours kernel ms | "
-             "Mitsuba kernel ms | Mitsuba wall ms | RMSE | outlier px | mean rel |",
-             "| --- | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |"]
-    for w in rows:
-        d = w["difference"]
-        lines.append(f"| {w['scene']} | {w['size'][0]}×{w['size'][1]} | {w['depth']} | "
-                     f"{w['ours_traced_ms']:.2f} | {w['ours_frozen_ms']:.3f} | "
-                     f"{w['ours_kernel_ms']:.3f} | {w['mitsuba_kernel_ms']:.3f} | "
-                     f"{w['mitsuba_wall_ms']:.1f} | {d['rmse']:.2e} | {d['outliers']} | "
-                     f"{d['mean_rel']:.2e} |")
-    lines.append("")
-    return lines
+    cells = [[r["scene"], f"{r['size'][0]}×{r['size'][1]}", f"{r['depth']}",
+              f"{r['ours_traced_ms']:.2f}", f"{r['ours_frozen_ms']:.3f}",
+              f"{r['ours_kernel_ms']:.3f}", f"{r['mitsuba_kernel_ms']:.3f}",
+              f"{r['mitsuba_wall_ms']:.1f}", f"{r['difference']['rmse']:.2e}",
+              f"{r['difference']['outliers']}", f"{r['difference']['mean_rel']:.2e}"]
+             for r in rows]
+    return table("Whitted frame, ours (frozen) vs Mitsuba (reference integrator), exact mode",
+                 ["scene", "size", "depth", "ours traced ms", "ours frozen ms",
+                  "ours kernel ms", "Mitsuba kernel ms", "Mitsuba wall ms", "RMSE",
+                  "outlier px", "mean rel"], "llrrrrrrrrr", cells)
 
 
 PART = Part(name="whitted", key="whitted", run=run, markdown=markdown)
