@@ -2,14 +2,10 @@
 Mitsuba side against a closed-form radiance (so correctness never rests on Mitsuba alone)."""
 from __future__ import annotations
 
-import json
-import shutil
-
 import numpy as np
 import pytest
 
 from reference import mitsuba_variant, plugins
-from reference.golden import GoldenError, load_golden, render_goldens
 from reference.mitsuba_scene import (
     export_xml,
     film_positions,
@@ -127,25 +123,3 @@ def test_export_xml_loads_and_renders_like_the_dict(tmp_path):
     from_dict = render_mitsuba(scene, view=1)
     assert from_xml.shape == (32, 40, 3) and from_dict.mean() > 0.05
     np.testing.assert_allclose(from_xml, from_dict, rtol=1e-5, atol=1e-6)
-
-
-def test_missing_and_stale_goldens_name_the_command(tmp_path):
-    src = tmp_path / "scenes"
-    src.mkdir()
-    path = src / "analytic_quad.toml"
-    shutil.copy("scenes/analytic_quad.toml", path)
-    root = tmp_path / "goldens"
-    scene = load_scene(path)
-    with pytest.raises(GoldenError, match=r"whitted reference --force .*analytic_quad\.toml"):
-        load_golden(scene, view=0, shading="classic", mode="exact", root=root)
-    render_goldens([path], size=16, modes=("exact",), shadings=("classic",), root=root,
-                   progress=False)
-    g = load_golden(scene, view=0, shading="classic", mode="exact", root=root)
-    assert g.image.shape == (16, 16, 3) and g.meta["variant"] == mi.variant()
-    assert json.loads(g.path.with_suffix(".json").read_text())["spp"] == 1
-    with pytest.raises(GoldenError, match="exists"):
-        render_goldens([path], size=16, modes=("exact",), shadings=("classic",), root=root,
-                       progress=False)
-    path.write_text(path.read_text() + "\n# edited\n")
-    with pytest.raises(GoldenError, match=r"stale.*whitted reference --force"):
-        load_golden(load_scene(path), view=0, shading="classic", mode="exact", root=root)
