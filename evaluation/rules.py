@@ -126,10 +126,9 @@ def check_exact(ours: np.ndarray, ref: np.ndarray, th: dict) -> dict:
     A pixel with ``rel > max_rel`` is an *edge pixel* if the golden's value at it lies within
     the channel-wise range of OUR image over its 3x3 neighbourhood (± edge_tol relative and
     absolute), or ours within the golden's, i.e. one renderer produces the other's value one
-    pixel away: a geometric edge or
-    silhouette hit by the neighbouring triangle. Otherwise it is a *hard* pixel.
-    Passes iff mean_rel (over non-edge pixels) ≤ mean_rel, no hard pixel, and
-    edge pixels ≤ edge_fraction of all pixels. Returns the numbers and ``ok``."""
+    pixel away: a geometric edge or silhouette hit by the neighbouring triangle. Otherwise it
+    is a *hard* pixel. Passes iff mean_rel (over non-edge pixels) ≤ mean_rel, no hard pixel,
+    and edge pixels ≤ edge_fraction of all pixels. Returns the numbers and ``ok``."""
     def g(key: str) -> float:
         return th[key][0]
 
