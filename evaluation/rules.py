@@ -96,13 +96,13 @@ def cases(scenes=GOLDEN_SCENES, modes=MODES) -> list[Case]:
     """Every view × shading mode × mode of ``scenes`` (converged only for
     ``CONVERGED_SCENES``), each with its mode's thresholds."""
     out = []
-    for sp in scenes:
-        for view in range(_view_count(sp)):
+    for scene_path in scenes:
+        for view in range(_view_count(scene_path)):
             for shading in ("classic", "physical"):
                 for mode in modes:
-                    if mode == "converged" and sp not in CONVERGED_SCENES:
+                    if mode == "converged" and scene_path not in CONVERGED_SCENES:
                         continue
-                    out.append(Case(sp, view, shading, mode, THRESHOLDS[mode]))
+                    out.append(Case(scene_path, view, shading, mode, THRESHOLDS[mode]))
     return out
 
 

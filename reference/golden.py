@@ -121,23 +121,23 @@ def render_goldens(scene_paths, *, force: bool = False, spp: int = CONVERGED_SPP
 
     variant = mitsuba_variant()
     jobs = []
-    for sp in scene_paths:
+    for scene_path in scene_paths:
         for shading in shadings:
-            name = Path(sp).stem
+            name = Path(scene_path).stem
             for mode in modes:
                 h = size if mode == "exact" or converged_size is None else converged_size
-                scene = _resize(load_scene(sp, shading=shading), h)
+                scene = _resize(load_scene(scene_path, shading=shading), h)
                 for v, cam in enumerate(scene.cameras):
-                    jobs.append((sp, name, scene, v, cam, shading, mode))
+                    jobs.append((scene_path, name, scene, v, cam, shading, mode))
     units = sum(batches if j[6] == "converged" else 1 for j in jobs)
     step = _progress_bar(units, progress)
     written = []
-    for sp, name, scene, v, cam, shading, mode in jobs:
+    for scene_path, name, scene, v, cam, shading, mode in jobs:
         out = golden_path(name, cam.name, shading, mode, root)
         label = f"{name}/{out.name}"
         if out.exists() and not force:
             raise GoldenError(f"{_rel(out)} exists; pass force=True "
-                              f"({regenerate_command(sp)}) to overwrite it")
+                              f"({regenerate_command(scene_path)}) to overwrite it")
         var, b_spp = None, 1
         if mode == "exact":
             img = render_mitsuba(scene, view=v, mode="exact")
@@ -149,7 +149,7 @@ def render_goldens(scene_paths, *, force: bool = False, spp: int = CONVERGED_SPP
             used_spp = spp
         write_exr(out, img, layers=None if var is None else {"var": var}, overwrite=True)
         meta = {
-            "scene": _rel(Path(sp)), "view": v, "view_name": cam.name, "shading": shading,
+            "scene": _rel(Path(scene_path)), "view": v, "view_name": cam.name, "shading": shading,
             "mode": mode, "spp": used_spp, "batch_spp": b_spp,
             "batches": batches if mode == "converged" else 1,
             "resolution": [cam.width, cam.height], "mitsuba_version": mi.__version__,
@@ -166,15 +166,15 @@ def load_golden(scene: Scene, *, view: int, shading: str, mode: str,
                 root: Path = GOLDEN_DIR) -> Golden:
     """The golden of ``scene`` (its path names it) for one view/shading/mode. Raises
     ``GoldenError`` naming the regeneration command when missing or stale."""
-    sp = scene.path
-    if sp is None:
+    scene_path = scene.path
+    if scene_path is None:
         raise GoldenError(f"scene {scene.name!r} has no path; goldens exist only for files")
     cam = scene.cameras[view]
-    out = golden_path(Path(sp).stem, cam.name, shading, mode, root)
+    out = golden_path(Path(scene_path).stem, cam.name, shading, mode, root)
     side = out.with_suffix(".json")
     if not out.exists() or not side.exists():
         raise GoldenError(f"golden {_rel(out)} is missing; render it with "
-                          f"`{regenerate_command(sp)}`")
+                          f"`{regenerate_command(scene_path)}`")
     meta = json.loads(side.read_text())
     now = source_hashes(scene)
     if meta.get("sources") != now:
@@ -182,6 +182,6 @@ def load_golden(scene: Scene, *, view: int, shading: str, mode: str,
                          if now.get(k) != meta.get("sources", {}).get(k))
         raise GoldenError(f"golden {_rel(out)} is stale ({', '.join(changed)} changed since "
                           f"it was rendered); regenerate it with "
-                          f"`{regenerate_command(sp)}`")
+                          f"`{regenerate_command(scene_path)}`")
     layers = read_exr_layers(out)
     return Golden(layers[""], layers.get("var"), meta, out)
