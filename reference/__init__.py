@@ -1,12 +1,17 @@
-"""The Mitsuba 3 side of the check: scene translation, plugins and golden images.
+"""The Mitsuba 3 side of the check: scene translation and XML export (``mitsuba_scene``), our
+plugins (``plugins``) and golden images (``golden``): only what talks to Mitsuba.
 
 ``reference`` may import ``renderer``; ``renderer`` never imports ``reference``. Mitsuba is
-imported lazily through ``mitsuba_variant()`` so that ``import reference`` stays cheap.
+imported lazily through ``mitsuba_variant()`` so that ``import reference`` stays cheap, and
+nothing here picks a variant or registers a plugin on import.
 """
 from __future__ import annotations
 
 #: Variants the harness renders with, best first (the GPU machine has only cuda_ad_rgb).
 VARIANTS = ("cuda_ad_rgb", "llvm_ad_rgb")
+#: Comparison modes: "exact" (one ray through each pixel centre in both renderers) and
+#: "converged" (k x k stratified samples per pixel, box filter).
+MODES = ("exact", "converged")
 
 
 def mitsuba_variant(variant: str | None = None) -> str:

@@ -3,8 +3,10 @@
 Layout: ``reference/goldens/<scene>/<view>_<shading>_<mode>.exr`` (linear RGB, float32, ZIP
 compressed) and a JSON sidecar ``.json`` beside each (Mitsuba version, variant, spp, mode,
 shading, view, resolution, sha256 of the scene file and of every mesh in
-``Scene.source_files``, date). Converged goldens also hold ``var.R/var.G/var.B`` (float32: smooth pixels have variances far below half's range): the
+``Scene.source_files``, date). Converged goldens also hold a ``var`` layer (channels
+``var.R/var.G/var.B``, float32: smooth pixels have variances far below half's range): the
 per-pixel variance of one ``batch_spp`` estimate (see ``render_converged_with_variance``).
+The files are read and written by ``renderer.film`` (``write_exr`` / ``read_exr_layers``).
 
 Goldens change only through ``render_goldens(..., force=True)`` / ``whitted reference
 --force``; ``load_golden`` refuses a missing or stale (hash mismatch) golden and says the
@@ -21,11 +23,13 @@ from pathlib import Path
 
 import numpy as np
 
+from renderer.film import read_exr_layers, write_exr
 from renderer.scene import SHADING_MODES, Scene, load_scene
+
+from . import MODES
 
 ROOT = Path(__file__).resolve().parent.parent
 GOLDEN_DIR = Path(__file__).resolve().parent / "goldens"
-MODES = ("exact", "converged")
 #: Converged goldens: total spp and the number of independent batches (variance estimate).
 CONVERGED_SPP = 64
 CONVERGED_BATCHES = 16
@@ -71,42 +75,14 @@ def golden_path(scene_name: str, view_name: str, shading: str, mode: str,
     return Path(root) / scene_name / f"{view_name}_{shading}_{mode}.exr"
 
 
-# ---- EXR i/o ------------------------------------------------------------------------------
-def write_golden_exr(path: Path, image: np.ndarray, var: np.ndarray | None = None) -> None:
-    import OpenEXR
-    chans = {"R": image[..., 0], "G": image[..., 1], "B": image[..., 2]}
-    chans = {k: np.ascontiguousarray(v, np.float32) for k, v in chans.items()}
-    if var is not None:
-        for i, c in enumerate("RGB"):
-            chans[f"var.{c}"] = np.ascontiguousarray(var[..., i], np.float32)
-    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with OpenEXR.File(header, chans) as f:
-        f.write(str(path))
-
-
-def read_golden_exr(path: Path) -> tuple[np.ndarray, np.ndarray | None]:
-    import OpenEXR
-    with OpenEXR.File(str(path), separate_channels=True) as f:
-        ch = {k: np.asarray(v.pixels) for k, v in f.channels().items()}
-    img = np.stack([ch["R"], ch["G"], ch["B"]], -1).astype(np.float32)
-    var = None
-    if "var.R" in ch:
-        var = np.stack([ch["var.R"], ch["var.G"], ch["var.B"]], -1).astype(np.float32)
-    return img, var
-
-
-# ---- rendering --------------------------------------------------------------------------------
+# ---- rendering ----------------------------------------------------------------------------
 def _resize(scene: Scene, size: int | None) -> Scene:
-    from dataclasses import replace
+    """``scene`` with every view ``size`` pixels high, the width following the aspect of
+    the scene's resolution (None: unchanged)."""
     if size is None:
         return scene
-    cams = []
-    for c in scene.cameras:
-        h = int(size)
-        w = max(1, int(round(size * c.width / c.height)))
-        cams.append(replace(c, width=w, height=h))
-    return replace(scene, cameras=cams)
+    cam = scene.cameras[0]
+    return scene.with_size(max(1, int(round(size * cam.width / cam.height))), int(size))
 
 
 def _progress_bar(total: int, enabled: bool):
@@ -127,7 +103,8 @@ def _progress_bar(total: int, enabled: bool):
 
 def render_goldens(scene_paths, *, force: bool = False, spp: int = CONVERGED_SPP,
                    batches: int = CONVERGED_BATCHES, size: int = DEFAULT_SIZE,
-                   converged_size: int | None = CONVERGED_SIZE, modes=MODES, shadings=SHADING_MODES, progress: bool = True,
+                   converged_size: int | None = CONVERGED_SIZE, modes=MODES,
+                   shadings=SHADING_MODES, progress: bool = True,
                    root: Path = GOLDEN_DIR) -> list[Path]:
     """Render every scene × view × shading × mode with Mitsuba into ``root``.
 
@@ -144,23 +121,23 @@ def render_goldens(scene_paths, *, force: bool = False, spp: int = CONVERGED_SPP
 
     variant = mitsuba_variant()
     jobs = []
-    for sp in scene_paths:
+    for scene_path in scene_paths:
         for shading in shadings:
-            name = Path(sp).stem
+            name = Path(scene_path).stem
             for mode in modes:
                 h = size if mode == "exact" or converged_size is None else converged_size
-                scene = _resize(load_scene(sp, shading=shading), h)
+                scene = _resize(load_scene(scene_path, shading=shading), h)
                 for v, cam in enumerate(scene.cameras):
-                    jobs.append((sp, name, scene, v, cam, shading, mode))
+                    jobs.append((scene_path, name, scene, v, cam, shading, mode))
     units = sum(batches if j[6] == "converged" else 1 for j in jobs)
     step = _progress_bar(units, progress)
     written = []
-    for sp, name, scene, v, cam, shading, mode in jobs:
+    for scene_path, name, scene, v, cam, shading, mode in jobs:
         out = golden_path(name, cam.name, shading, mode, root)
         label = f"{name}/{out.name}"
         if out.exists() and not force:
             raise GoldenError(f"{_rel(out)} exists; pass force=True "
-                              f"({regenerate_command(sp)}) to overwrite it")
+                              f"({regenerate_command(scene_path)}) to overwrite it")
         var, b_spp = None, 1
         if mode == "exact":
             img = render_mitsuba(scene, view=v, mode="exact")
@@ -168,11 +145,11 @@ def render_goldens(scene_paths, *, force: bool = False, spp: int = CONVERGED_SPP
             used_spp = 1
         else:
             img, var, b_spp = render_converged_with_variance(
-                scene, view=v, spp=spp, batches=batches, progress=lambda: step(label))
+                scene, view=v, spp=spp, batches=batches, progress=lambda label=label: step(label))
             used_spp = spp
-        write_golden_exr(out, img, var)
+        write_exr(out, img, layers=None if var is None else {"var": var}, overwrite=True)
         meta = {
-            "scene": _rel(Path(sp)), "view": v, "view_name": cam.name, "shading": shading,
+            "scene": _rel(Path(scene_path)), "view": v, "view_name": cam.name, "shading": shading,
             "mode": mode, "spp": used_spp, "batch_spp": b_spp,
             "batches": batches if mode == "converged" else 1,
             "resolution": [cam.width, cam.height], "mitsuba_version": mi.__version__,
@@ -189,15 +166,15 @@ def load_golden(scene: Scene, *, view: int, shading: str, mode: str,
                 root: Path = GOLDEN_DIR) -> Golden:
     """The golden of ``scene`` (its path names it) for one view/shading/mode. Raises
     ``GoldenError`` naming the regeneration command when missing or stale."""
-    sp = scene.path
-    if sp is None:
+    scene_path = scene.path
+    if scene_path is None:
         raise GoldenError(f"scene {scene.name!r} has no path; goldens exist only for files")
     cam = scene.cameras[view]
-    out = golden_path(Path(sp).stem, cam.name, shading, mode, root)
+    out = golden_path(Path(scene_path).stem, cam.name, shading, mode, root)
     side = out.with_suffix(".json")
     if not out.exists() or not side.exists():
         raise GoldenError(f"golden {_rel(out)} is missing; render it with "
-                          f"`{regenerate_command(sp)}`")
+                          f"`{regenerate_command(scene_path)}`")
     meta = json.loads(side.read_text())
     now = source_hashes(scene)
     if meta.get("sources") != now:
@@ -205,6 +182,6 @@ def load_golden(scene: Scene, *, view: int, shading: str, mode: str,
                          if now.get(k) != meta.get("sources", {}).get(k))
         raise GoldenError(f"golden {_rel(out)} is stale ({', '.join(changed)} changed since "
                           f"it was rendered); regenerate it with "
-                          f"`{regenerate_command(sp)}`")
-    img, var = read_golden_exr(out)
-    return Golden(img, var, meta, out)
+                          f"`{regenerate_command(scene_path)}`")
+    layers = read_exr_layers(out)
+    return Golden(layers[""], layers.get("var"), meta, out)

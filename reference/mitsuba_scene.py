@@ -16,7 +16,7 @@ import numpy as np
 
 from renderer.scene import Scene
 
-MODES = ("exact", "converged")
+from . import MODES
 
 
 def _mi():
@@ -137,8 +137,8 @@ def to_mitsuba_dict(scene: Scene, *, view: int = 0, spp: int = 1, mode: str = "e
             "min_weight": float(st.min_weight), "shading": st.shading,
             "ray_offset": float(scene.ray_offset), "background": _rgb(st.background),
             "ambient": _rgb(scene.ambient),
-            "falloff_none": ",".join(f"light{i}" for i, l in enumerate(scene.lights)
-                                     if l.falloff == "none")}
+            "falloff_none": ",".join(f"light{i}" for i, light in enumerate(scene.lights)
+                                     if light.falloff == "none")}
     d["sensor"] = sensor_dict(scene, view=view, spp=spp, mode=mode, seed=seed)
     for i, light in enumerate(scene.lights):
         if builtins and light.falloff != "inverse_square":
@@ -147,7 +147,7 @@ def to_mitsuba_dict(scene: Scene, *, view: int = 0, spp: int = 1, mode: str = "e
         d[f"light{i}"] = {"type": "point", "position": [float(v) for v in light.position],
                           "intensity": _rgb(light.intensity)}
     mats: dict[int, object] = {}
-    for key, obj, m, verts, normals, faces in mesh_parts(scene):
+    for key, _, m, verts, normals, faces in mesh_parts(scene):
         if m not in mats:
             md = (_builtin_material_dict(scene, scene.materials[m]) if builtins
                   else material_dict(scene.materials[m], st.shading))
@@ -225,6 +225,39 @@ def render_converged_with_variance(scene: Scene, *, view: int = 0, spp: int = 25
     stack = np.stack(imgs).astype(np.float64)
     return (stack.mean(0).astype(np.float32), stack.var(0, ddof=1).astype(np.float32),
             b_spp)
+
+
+# ---- bare geometry and rays (the benchmark's peer) ----------------------------------------
+def load_triangles(vertices: np.ndarray, faces: np.ndarray):
+    """A loaded Mitsuba scene of one mesh holding every triangle, no material or light, so
+    ``prim_index`` of a hit is the row of ``faces``. vertices: float (V, 3); faces: int
+    (F, 3). Returns (the scene, seconds ``mi.load_dict`` took to build its accelerator)."""
+    import time
+    mi = _mi()
+    mesh = mi.Mesh("all", vertices.shape[0], faces.shape[0])
+    params = mi.traverse(mesh)
+    params["vertex_positions"] = mi.Float(np.asarray(vertices, np.float32).ravel())
+    params["faces"] = mi.UInt32(np.asarray(faces, np.uint32).ravel())
+    params.update()
+    t0 = time.perf_counter()
+    scene = mi.load_dict({"type": "scene", "mesh": mesh})
+    return scene, time.perf_counter() - t0
+
+
+def rays(o: np.ndarray, d: np.ndarray, t_max: np.ndarray | None = None):
+    """A ``mi.Ray3f`` batch from host rows: origins and directions float (N, 3), and
+    ``t_max`` float (N,) (None: unbounded)."""
+    mi = _mi()
+
+    def column(x, k):
+        return mi.Float(np.ascontiguousarray(np.asarray(x)[:, k], np.float32))
+
+    o3 = mi.Point3f(*(column(o, k) for k in range(3)))
+    d3 = mi.Vector3f(*(column(d, k) for k in range(3)))
+    if t_max is None:
+        return mi.Ray3f(o3, d3)
+    return mi.Ray3f(o3, d3, mi.Float(np.asarray(t_max, np.float32)), mi.Float(0.0),
+                    mi.Color0f())
 
 
 # ---- export -------------------------------------------------------------------------------
@@ -305,7 +338,8 @@ def _xml_object(parent, tag, d, name=None, id=None):
 def export_xml(scene: Scene, path, *, view: int = 0, spp: int = 1,
                mode: str = "exact") -> Path:
     """Write ``scene`` as a Mitsuba 3 XML file at ``path`` (meshes as .ply files beside it).
-    It loads with ``mi.load_file`` once ``reference.plugins`` is imported."""
+    It loads with ``mi.load_file`` once our plugins are registered for the variant in use
+    (``reference.mitsuba_variant()`` or ``reference.plugins.register()``)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     d = to_mitsuba_dict(scene, view=view, spp=spp, mode=mode, meshes=str(path.parent))

@@ -1,9 +1,10 @@
 """Film: averaging samples into pixels, and image files.
 
 Images are numpy float32 arrays of shape (H, W, 3), linear RGB, row 0 at the top.
-EXR files hold linear float32 R, G, B channels (OpenEXR 3.x Python API); PNGs are 8-bit
-sRGB (clamped), for looking at. Writers never replace an existing file unless the caller
-passes ``overwrite=True``.
+EXR files hold linear float32 R, G, B channels, plus optional layers such as a per-pixel
+variance (``var.R``, ``var.G``, ``var.B``) (OpenEXR 3.x Python API); PNGs are 8-bit sRGB
+(clamped), for looking at; ``srgb_encode`` is the one linear -> sRGB conversion. Writers
+never replace an existing file unless the caller passes ``overwrite=True``.
 """
 from __future__ import annotations
 
@@ -29,7 +30,8 @@ def _check_image(image, what: str) -> np.ndarray:
 
 
 def output_path(path, overwrite: bool) -> Path:
-    """``path`` as a Path, its folder created; FileExistsError if it exists and not ``overwrite``."""
+    """``path`` as a Path, its folder created; FileExistsError if it exists and not
+    ``overwrite``."""
     path = Path(path)
     if path.exists() and not overwrite:
         raise FileExistsError(f"{path}: exists (pass overwrite=True to replace it)")
@@ -37,30 +39,54 @@ def output_path(path, overwrite: bool) -> Path:
     return path
 
 
-def write_exr(path, image, *, overwrite: bool = False) -> Path:
-    """Write ``image`` (float (H, W, 3) linear RGB) as a float32 RGB OpenEXR file."""
+def write_exr(path, image, *, layers: dict | None = None, overwrite: bool = False) -> Path:
+    """Write ``image`` (float (H, W, 3) linear RGB) as a float32 OpenEXR file (ZIP, scanline).
+
+    layers: further (H, W, 3) images stored beside it as channels ``<name>.R``, ``<name>.G``,
+        ``<name>.B`` (e.g. ``{"var": variance}``; float32, so values far below half's range
+        survive).
+    """
     import OpenEXR
     img = np.ascontiguousarray(_check_image(image, str(path)), dtype=np.float32)
+    extra = {name: np.ascontiguousarray(_check_image(v, f"{path}: layer {name!r}"), np.float32)
+             for name, v in (layers or {}).items()}
+    for name, v in extra.items():
+        if v.shape != img.shape:
+            raise ValueError(f"{path}: layer {name!r} has shape {v.shape}, the image {img.shape}")
     path = output_path(path, overwrite)
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
     channels = {c: np.ascontiguousarray(img[:, :, i]) for i, c in enumerate("RGB")}
+    for name, v in extra.items():
+        channels.update({f"{name}.{c}": np.ascontiguousarray(v[:, :, i])
+                         for i, c in enumerate("RGB")})
     with OpenEXR.File(header, channels) as f:
         f.write(str(path))
     return path
 
 
-def read_exr(path) -> np.ndarray:
-    """Read an RGB OpenEXR file as float32 (H, W, 3)."""
+def read_exr_layers(path) -> dict[str, np.ndarray]:
+    """Read an OpenEXR file written by ``write_exr``: ``{"": RGB image, name: layer, ...}``,
+    each float32 (H, W, 3) (a layer is the channels ``<name>.R/G/B``)."""
     import OpenEXR
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"{path}: no such EXR file")
     with OpenEXR.File(str(path), separate_channels=True) as f:
-        ch = f.channels()
-        missing = [c for c in "RGB" if c not in ch]
-        if missing:
-            raise ValueError(f"{path}: missing channels {missing} (has {sorted(ch)})")
-        return np.stack([np.asarray(ch[c].pixels, np.float32) for c in "RGB"], axis=-1)
+        ch = {k: np.asarray(v.pixels, np.float32) for k, v in f.channels().items()}
+    missing = [c for c in "RGB" if c not in ch]
+    if missing:
+        raise ValueError(f"{path}: missing channels {missing} (has {sorted(ch)})")
+    names = sorted({k.rsplit(".", 1)[0] for k in ch if k.endswith((".R", ".G", ".B"))})
+    out = {"": np.stack([ch[c] for c in "RGB"], axis=-1)}
+    for name in names:
+        if all(f"{name}.{c}" in ch for c in "RGB"):
+            out[name] = np.stack([ch[f"{name}.{c}"] for c in "RGB"], axis=-1)
+    return out
+
+
+def read_exr(path) -> np.ndarray:
+    """Read an RGB OpenEXR file as float32 (H, W, 3) (other layers are ignored)."""
+    return read_exr_layers(path)[""]
 
 
 def srgb_encode(image) -> np.ndarray:

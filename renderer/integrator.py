@@ -20,8 +20,15 @@ import drjit as dr
 from .accel import Ray
 from .device import Types
 from .effects import EffectSet
-from .shade import (SceneArrays, TraceOptions, local_light, offset_origin, shading_context,
-                    specular_branches, surface_point)
+from .shade import (
+    SceneArrays,
+    TraceOptions,
+    local_light,
+    offset_origin,
+    shading_context,
+    specular_branches,
+    surface_point,
+)
 
 
 def _shade_hit(sa: SceneArrays, ray: Ray, hit, t: Types, fx: EffectSet, opt: TraceOptions,

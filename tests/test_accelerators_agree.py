@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from util import glass_scene
 
 from renderer.accel import DEFAULT_ACCEL
 from renderer.render import Renderer, render
-from util import glass_scene
 
 
 @pytest.mark.parametrize("accel", ["boxes", "bvh"])

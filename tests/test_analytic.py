@@ -5,10 +5,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from util import box, camera, light, make_scene, material, pixel_ray, quad
 
 from renderer.render import render
 from renderer.scene import Settings, load_scene
-from util import box, camera, light, make_scene, material, pixel_ray, quad
 
 ROOT = Path(__file__).resolve().parents[1]
 BIG = 20.0
@@ -54,7 +54,8 @@ def test_diffuse_quad_matches_closed_form(backend, mode, falloff):
     for x, y in [(0, 0), (3, 12), (8, 8), (7, 9), (15, 4), (11, 11)]:
         d = pixel_ray(cam, x + 0.5, y + 0.5)
         p = hit_plane(cam.position, d, 0.0)
-        want = expected_local(p, np.array([0, 0, 1.0]), -d, lp, I, kd, ks, n, ka, amb, mode, falloff)
+        want = expected_local(p, np.array([0, 0, 1.0]), -d, lp, I, kd, ks, n, ka, amb, mode,
+                              falloff)
         np.testing.assert_allclose(img[y, x], want, rtol=2e-5, atol=1e-7,
                                    err_msg=f"pixel ({x}, {y}), {mode}/{falloff}")
     # the image really depends on the light: brightest pixel is near the light's foot

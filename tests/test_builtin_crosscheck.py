@@ -8,7 +8,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from reference.compare import z_test
+from evaluation.metrics import z_test
 from reference.mitsuba_scene import render_converged_with_variance, to_mitsuba_dict
 from renderer.render import render
 from renderer.scene import load_scene
@@ -24,8 +24,7 @@ def _diffuse_only(path):
     s = load_scene(path, shading="physical")
     z = np.zeros(3)
     mats = [replace(m, ks=z, k_refl=z, k_refr=z, ka=z) for m in s.materials]
-    cams = [replace(c, width=SIZE, height=SIZE) for c in s.cameras]
-    s = replace(s, materials=mats, cameras=cams, ambient=z)
+    s = replace(s.with_size(SIZE), materials=mats, ambient=z)
     return s.with_settings(background=z, seed=SEED)
 
 

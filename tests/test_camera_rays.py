@@ -3,10 +3,10 @@ oracle ``util.pixel_ray``); converged-mode samples stay inside their strata."""
 from __future__ import annotations
 
 import numpy as np
+from util import camera, pixel_ray
 
 from renderer.camera import camera_arrays, primary_rays
 from renderer.device import types
-from util import camera, pixel_ray
 
 
 def test_primary_rays_follow_camera_model(backend):
@@ -19,10 +19,13 @@ def test_primary_rays_follow_camera_model(backend):
     # converged mode: 4 strata per pixel, each inside its quarter of the pixel
     o, d = primary_rays(camera_arrays(cam, t), 7, 5, t, spp=4, exact=False, seed=3)
     D = np.stack([c.numpy() for c in d], axis=1).reshape(5, 7, 4, 3)
-    f = cam.target - cam.position; f /= np.linalg.norm(f)
-    r = np.cross(f, cam.up); r /= np.linalg.norm(r)
+    f = cam.target - cam.position
+    f /= np.linalg.norm(f)
+    r = np.cross(f, cam.up)
+    r /= np.linalg.norm(r)
     u = np.cross(r, f)
-    ty = np.tan(np.radians(cam.fov_y) / 2); tx = ty * 7 / 5
+    ty = np.tan(np.radians(cam.fov_y) / 2)
+    tx = ty * 7 / 5
     px = ((D @ r) / (D @ f) / tx + 1) * 7 / 2          # back to film positions
     py = (1 - (D @ u) / (D @ f) / ty) * 5 / 2
     for s in range(4):

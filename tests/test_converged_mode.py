@@ -2,9 +2,9 @@
 from __future__ import annotations
 
 import numpy as np
+from util import diffuse_scene
 
 from renderer.render import render
-from util import diffuse_scene
 
 
 def test_converged_mode_is_seeded_and_close_to_exact(backend):

@@ -7,13 +7,13 @@ import dataclasses
 import drjit as dr
 import numpy as np
 import pytest
+from util import glass_scene
 
 from renderer.camera import camera_arrays
 from renderer.device import types
 from renderer.lights import sample_light, upload_lights
 from renderer.render import Renderer
 from renderer.shade import upload_materials
-from util import glass_scene
 
 
 def _records(backend):

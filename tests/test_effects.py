@@ -16,12 +16,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from util import box, camera, light, make_scene, material, quad
 
 from renderer.effects import FLAGS, EffectSet, convex_mirror, reachable_depth
 from renderer.render import Renderer
 from renderer.scene import Settings
 from renderer.stats import kernel_operations
-from util import box, camera, light, make_scene, material, quad
 
 ROOT = Path(__file__).resolve().parents[1]
 SIZE = 24
@@ -222,18 +222,22 @@ def test_depth_cap_conditions():
     plane = make_scene([(*quad([-1, 0, -1], [-1, 0, 1], [1, 0, 1], [1, 0, -1]), 0)],
                        materials=[material("mirror", k_refl=0.9)])
     assert "planar" in convex_mirror(plane, 0)
-    open_box = make_scene([(box([-1, -1, -1], [1, 1, 1])[0], box([-1, -1, -1], [1, 1, 1])[1][2:], 0)],
+    bv, bf = box([-1, -1, -1], [1, 1, 1])
+    open_box = make_scene([(bv, bf[2:], 0)],
                           materials=[material("mirror", k_refl=0.9)])
     assert convex_mirror(open_box, 0) is None                          # not closed
 
 
 # ---- visible: CLI and report -----------------------------------------------------------------
 def test_cli_render_prints_effects_reasons_and_operations(tmp_path):
+    import contextlib
+    import io
+
     from whitted.cli import main
-    import contextlib, io
     out = io.StringIO()
     err = io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err), warnings.catch_warnings():
+    with (contextlib.redirect_stdout(out), contextlib.redirect_stderr(err),
+          warnings.catch_warnings()):
         warnings.simplefilter("ignore")
         assert main(["render", str(ROOT / "scenes" / "cornell_box.toml"), "--size", "16x16",
                      "--backend", "llvm", "--accel", "brute", "--out", str(tmp_path),

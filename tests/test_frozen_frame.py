@@ -3,9 +3,9 @@ giving the pixels of a traced frame."""
 from __future__ import annotations
 
 import numpy as np
+from util import camera, glass_scene
 
 from renderer.render import Renderer
-from util import camera, glass_scene
 
 
 def test_frozen_frame_matches_traced_frame_with_moved_camera(backend):

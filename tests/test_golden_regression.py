@@ -1,7 +1,7 @@
-"""Our renderer against Mitsuba's golden images, pixel by pixel (cases: reference/cases.py).
+"""Our renderer against Mitsuba's golden images, pixel by pixel (cases: evaluation/rules.py).
 
 Exact mode: the same rays in both renderers, so only rounding and ties at shared edges may
-differ (rule: ``reference.cases.check_exact``). Converged mode: a per-pixel Z-test of our
+differ (rule: ``evaluation.rules.check_exact``). Converged mode: a per-pixel Z-test of our
 k x k stratified render against the golden's mean and variance (``check_converged``).
 The last tests break our renderer on purpose (wrong ior, reflection forced off, the other
 shading mode) and require the same checks to fail.
@@ -11,11 +11,9 @@ from __future__ import annotations
 import warnings
 from dataclasses import replace
 
-import numpy as np
 import pytest
 
-from reference.cases import CONVERGED_THRESHOLDS, EXACT_THRESHOLDS, cases, check_converged, \
-    check_exact
+from evaluation.rules import CONVERGED_THRESHOLDS, EXACT_THRESHOLDS, RULES, cases, check_exact
 from reference.golden import load_golden
 from renderer.effects import EffectSet
 from renderer.render import render
@@ -27,8 +25,7 @@ OUR_SEED = 20240611   # fixed: ours must be independent of the golden's Mitsuba 
 def _scene_at(path, shading, golden=None, **settings):
     scene = load_scene(path, shading=shading)
     if golden is not None:
-        w, h = golden.meta["resolution"]
-        scene = replace(scene, cameras=[replace(c, width=w, height=h) for c in scene.cameras])
+        scene = scene.with_size(*golden.meta["resolution"])
     return scene.with_settings(**settings) if settings else scene
 
 
@@ -43,17 +40,12 @@ def _ours_converged(scene, view, golden, **kw):
                   exact=False, spp=spp, **kw).image
 
 
-def _converged_check(ours, golden, case_th):
-    var = golden.var
-    return check_converged(ours, var, golden.image, var / golden.meta["batches"], case_th)
-
-
 @pytest.mark.parametrize("case", cases(modes=("exact",)), ids=lambda c: c.name)
 def test_exact_matches_golden(case):
     g = _golden(case)
     scene = _scene_at(case.scene, case.shading, g)
     ours = render(scene, view=case.view, backend="llvm").image
-    res = check_exact(ours, g.image, case.thresholds)
+    res = case.check(ours, g)
     print(case.name, res)
     assert res["ok"], f"{case.name}: {res} (thresholds {case.thresholds})"
 
@@ -64,7 +56,7 @@ def test_converged_matches_golden(case):
     g = _golden(case)
     scene = _scene_at(case.scene, case.shading, g)
     ours = _ours_converged(scene, case.view, g)
-    res = _converged_check(ours, g, case.thresholds)
+    res = case.check(ours, g)
     print(case.name, res)
     assert res["ok"], f"{case.name}: {res}"
 
@@ -116,5 +108,5 @@ def test_converged_check_fails_on_wrong_ior():
     scene = _scene_at(SCENE, shading, g)
     mats = [replace(m, ior=1.3) if m.transmissive else m for m in scene.materials]
     ours = _ours_converged(replace(scene, materials=mats), VIEW, g)
-    res = _converged_check(ours, g, CONVERGED_THRESHOLDS)
+    res = RULES["converged"](ours, g, CONVERGED_THRESHOLDS)
     assert not res["ok"], f"the Z-test passed a render with the wrong ior: {res}"

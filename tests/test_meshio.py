@@ -44,7 +44,8 @@ def test_obj_malformed_lines_name_file_and_line(tmp_path, body, where):
     assert str(p) in str(e.value) and where in str(e.value)
 
 
-def _ply_header(fmt, nv, nf, vtype="float", extra="", face="property list uchar int vertex_indices"):
+def _ply_header(fmt, nv, nf, vtype="float", extra="",
+                face="property list uchar int vertex_indices"):
     return (f"ply\nformat {fmt} 1.0\ncomment test\nelement vertex {nv}\n"
             f"property {vtype} x\nproperty {vtype} y\nproperty {vtype} z\n{extra}"
             f"element face {nf}\n{face}\nend_header\n").encode()

@@ -129,7 +129,8 @@ def test_write_gif_refuses_to_overwrite_without_permission(tmp_path):
 
 def test_write_gif_rejects_mismatched_frames(tmp_path):
     with pytest.raises(ValueError, match=r"frames\[1\]"):
-        write_gif(tmp_path / "y.gif", [np.zeros((4, 4, 3), np.uint8), np.zeros((4, 5, 3), np.uint8)])
+        write_gif(tmp_path / "y.gif",
+                  [np.zeros((4, 4, 3), np.uint8), np.zeros((4, 5, 3), np.uint8)])
     assert not (tmp_path / "y.gif").exists()
 
 

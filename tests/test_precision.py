@@ -2,9 +2,9 @@
 from __future__ import annotations
 
 import numpy as np
+from util import glass_scene
 
 from renderer.render import render
-from util import glass_scene
 
 
 def test_float64_matches_float32(backend):

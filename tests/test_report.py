@@ -1,4 +1,4 @@
-"""The HTML/PNG report of reference/report.py, checked in headless Chromium."""
+"""The HTML/PNG report of evaluation/report.py, checked in headless Chromium."""
 import html
 import json
 import os
@@ -10,8 +10,9 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from reference import compare
-from reference.report import ReportEntry, format_metrics_table, write_report
+from evaluation import metrics
+from evaluation.report import ReportEntry, format_metrics_table, write_report
+from renderer.film import srgb_encode
 
 CHROMIUM = Path("/usr/bin/chromium")
 
@@ -68,14 +69,14 @@ def test_report_files_and_metrics(tmp_path):
                    "12.3 ms", "1.50 s", html.escape(entry.metrics["outlier_rule"])):
         assert needle in text, needle
     ours, ref = _images()
-    assert entry.metrics == compare.metrics(ours, ref)
+    assert entry.metrics == metrics.metrics(ours, ref)
     folder = tmp_path / "rep" / "box-front-classic"
     for name in ("ours", "mitsuba", "absdiff", "flip", "strip"):
         assert (folder / f"{name}.png").exists(), name
         assert f"box-front-classic/{name}.png" in text
     # the PNGs are the sRGB-encoded images, pixel for pixel
-    assert np.array_equal(np.asarray(Image.open(folder / "ours.png")), compare.srgb_encode(ours))
-    assert np.array_equal(np.asarray(Image.open(folder / "mitsuba.png")), compare.srgb_encode(ref))
+    assert np.array_equal(np.asarray(Image.open(folder / "ours.png")), srgb_encode(ours))
+    assert np.array_equal(np.asarray(Image.open(folder / "mitsuba.png")), srgb_encode(ref))
     record = json.loads((folder / "metrics.json").read_text())
     assert record["metrics"]["rmse"] == pytest.approx(entry.metrics["rmse"])
     assert record["absdiff_scale"] == pytest.approx(entry.metrics["max_abs"], rel=1e-5)

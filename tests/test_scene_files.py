@@ -203,7 +203,8 @@ BAD_CASES = {   # id: (scene text, extra files, field named, words expected in t
                         {}, "objects[0].matrix", "singular"),
     "projective_matrix": (edit("scale = 2.0", "matrix = [[1,0,0,0],[0,1,0,0],[0,0,1,0],[0,1,0,1]]"),
                           {}, "objects[0].matrix[3]", "affine"),
-    "matrix_and_scale": (edit("scale = 2.0", "scale = 2.0\nmatrix = [[1,0,0,0],[0,1,0,0],[0,0,1,0],[0,0,0,1]]"),
+    "matrix_and_scale": (edit("scale = 2.0",
+                              "scale = 2.0\nmatrix = [[1,0,0,0],[0,1,0,0],[0,0,1,0],[0,0,0,1]]"),
                          {}, "objects[0].matrix", "not both"),
     "all_degenerate": (edit('shape = "quad"', 'mesh = "m.obj"'),
                        {"m.obj": "v 0 0 0\nv 1 0 0\nv 2 0 0\nf 1 2 3\n"}, "objects[0]",
@@ -266,7 +267,8 @@ def test_degenerate_triangles_dropped_with_warning(tmp_path):
 
 
 def test_views_inherit_camera_defaults_and_override(tmp_path):
-    text = BASE + '\n[[views]]\nname = "side"\nposition = [4.0, 1.0, 0.0]\ntarget = [0.0, 0.0, 0.0]\n' \
+    text = BASE + '\n[[views]]\nname = "side"\nposition = [4.0, 1.0, 0.0]\n' \
+                  'target = [0.0, 0.0, 0.0]\n' \
                   'resolution = [32, 8]\n'
     s = load_scene(write(tmp_path, text))
     assert [c.name for c in s.cameras] == ["front", "side"]
@@ -329,8 +331,8 @@ def signed_volume(s):
 
 def test_mirroring_keeps_winding_outward_and_flip_normals_reverses(tmp_path):
     assert np.isclose(signed_volume(one_object(tmp_path, "scale = [-1.0, 2.0, 3.0]")), 6, rtol=1e-5)
-    assert np.isclose(signed_volume(one_object(tmp_path, "scale = 2.0", extra="flip_normals = true")),
-                      -8, rtol=1e-5)
+    flipped = one_object(tmp_path, "scale = 2.0", extra="flip_normals = true")
+    assert np.isclose(signed_volume(flipped), -8, rtol=1e-5)
 
 
 def test_smooth_sphere_normals_are_radial(tmp_path):

@@ -6,12 +6,12 @@ from __future__ import annotations
 from dataclasses import replace
 
 import pytest
+from util import diffuse_scene, glass_scene, light
 
-from renderer.device import types
 from renderer.camera import camera_arrays, primary_rays
+from renderer.device import types
 from renderer.render import render
 from renderer.scene import MAX_DEPTH_LIMIT, SceneError, validate_settings
-from util import diffuse_scene, glass_scene, light
 
 
 @pytest.mark.parametrize("kwargs, field, text", [

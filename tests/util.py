@@ -25,7 +25,8 @@ def quad(p0, p1, p2, p3):
 def box(lo, hi):
     """Closed axis-aligned box with outward winding."""
     lo, hi = np.asarray(lo, float), np.asarray(hi, float)
-    c = np.array([[x, y, z] for z in (lo[2], hi[2]) for y in (lo[1], hi[1]) for x in (lo[0], hi[0])])
+    c = np.array([[x, y, z] for z in (lo[2], hi[2]) for y in (lo[1], hi[1])
+                  for x in (lo[0], hi[0])])
     # vertex index bits: x=1, y=2, z=4
     faces = [(0, 2, 3, 1), (4, 5, 7, 6), (0, 1, 5, 4), (2, 6, 7, 3), (0, 4, 6, 2), (1, 3, 7, 5)]
     F = []
@@ -56,12 +57,16 @@ def make_scene(objects, *, materials, lights=(), camera=None, settings=None, amb
         for i in range(3):
             np.add.at(vn, F[:, i], fn)
         vn /= np.maximum(np.linalg.norm(vn, axis=1, keepdims=True), 1e-30)
-        verts.append(V); norms.append(vn); faces.append(F + nv)
-        fmat.append(np.full(len(F), m)); fobj.append(np.full(len(F), k))
+        verts.append(V)
+        norms.append(vn)
+        faces.append(F + nv)
+        fmat.append(np.full(len(F), m))
+        fobj.append(np.full(len(F), k))
         infos.append(ObjectInfo(name=f"obj{k}", kind="test", material=m, first_face=nf,
                                 face_count=len(F), first_vertex=nv, vertex_count=len(V),
                                 smooth=bool(smooth)))
-        nv += len(V); nf += len(F)
+        nv += len(V)
+        nf += len(F)
     if camera is None:
         camera = Camera(position=np.array([0, 0, 5.0]), target=np.zeros(3),
                         up=np.array([0, 1.0, 0]), fov_y=40.0, width=16, height=16)
@@ -90,9 +95,11 @@ def pixel_ray(cam: Camera, px: float, py: float) -> np.ndarray:
     """The unit camera direction through film position (px, py) (docs/MODEL.md), float64."""
     f = cam.target - cam.position
     f = f / np.linalg.norm(f)
-    r = np.cross(f, cam.up); r /= np.linalg.norm(r)
+    r = np.cross(f, cam.up)
+    r /= np.linalg.norm(r)
     u = np.cross(r, f)
-    ty = np.tan(np.radians(cam.fov_y) / 2); tx = ty * cam.width / cam.height
+    ty = np.tan(np.radians(cam.fov_y) / 2)
+    tx = ty * cam.width / cam.height
     d = f + (2 * px / cam.width - 1) * tx * r + (1 - 2 * py / cam.height) * ty * u
     return d / np.linalg.norm(d)
 

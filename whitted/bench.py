@@ -4,17 +4,9 @@ from __future__ import annotations
 
 import argparse
 
+from evaluation.bench import PARTS, run
+
 from .options import add_backend_option
-
-# ---- TEMPORARY: pre-merge layout. The merge deletes this block down to its end marker and
-# keeps only the first import line of the ``try`` (evaluation/bench/ exists after the merge).
-try:
-    from evaluation.bench import PARTS, run
-except ImportError:
-    from reference.bench import run
-
-    PARTS = ("throughput", "seed", "whitted", "effects")
-# ---- end TEMPORARY ----------------------------------------------------------------------
 
 
 def register(subparsers) -> None:

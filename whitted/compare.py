@@ -16,20 +16,13 @@ from pathlib import Path
 
 import numpy as np
 
+from evaluation.report import ReportEntry, format_metrics_table, write_report
 from reference import golden
 from reference.mitsuba_scene import render_mitsuba
 from renderer.render import Renderer
 from renderer.stats import format_operations, kernel_operations
 
 from .options import CliError, add_scene_options, effects_for_cli, load_for_cli
-
-# ---- TEMPORARY: pre-merge layout. The merge deletes this block down to its end marker and
-# keeps only the first import line of the ``try`` (evaluation/ exists after the merge).
-try:
-    from evaluation.report import ReportEntry, format_metrics_table, write_report
-except ImportError:
-    from reference.report import ReportEntry, format_metrics_table, write_report
-# ---- end TEMPORARY ----------------------------------------------------------------------
 
 
 def register(subparsers) -> None:

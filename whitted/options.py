@@ -13,11 +13,11 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from renderer.accel import ACCELERATORS, DEFAULT_ACCEL, DEFAULT_ROUTINE, ROUTINES
 from renderer.device import BACKENDS, PRECISIONS
 from renderer.effects import FLAGS, EffectSet
-from renderer.scene import SHADING_MODES, Scene, SceneError, load_scene
+from renderer.scene import SHADING_MODES, Scene, load_scene
 
-from renderer.accel import ACCELERATORS, DEFAULT_ACCEL, DEFAULT_ROUTINE, ROUTINES
 
 class CliError(SystemExit):
     """A command-line request that cannot be carried out (a view that does not exist, an

@@ -21,8 +21,8 @@ ACCELERATORS = {"brute": BruteForce, "boxes": ObjectBoxes, "bvh": BVH}
 DEFAULT_ACCEL = "bvh"
 DEFAULT_ROUTINE = "moller_trumbore"
 
-__all__ = ["ACCELERATORS", "BVH", "DEFAULT_ACCEL", "DEFAULT_ROUTINE", "ROUTINES", "Accelerator", "BruteForce",
-           "ClosestHit", "DeviceTriangles", "ObjectBoxes", "Ray", "build_accelerator",
+__all__ = ["ACCELERATORS", "BVH", "DEFAULT_ACCEL", "DEFAULT_ROUTINE", "ROUTINES", "Accelerator",
+           "BruteForce", "ClosestHit", "DeviceTriangles", "ObjectBoxes", "Ray", "build_accelerator",
            "triangle_routine"]
 
 

@@ -2,8 +2,20 @@
 sources it reads (``meshio`` for OBJ/PLY files, ``shapes`` for built-in shapes,
 ``subdivide`` for midpoint subdivision)."""
 from .loader import load_scene
-from .model import (COMBINATIONS, FALLOFFS, MAX_DEPTH_LIMIT, SHADING_MODES, Camera, Material,
-                    ObjectInfo, PointLight, Scene, SceneError, Settings, validate_settings)
+from .model import (
+                    COMBINATIONS,
+                    FALLOFFS,
+                    MAX_DEPTH_LIMIT,
+                    SHADING_MODES,
+                    Camera,
+                    Material,
+                    ObjectInfo,
+                    PointLight,
+                    Scene,
+                    SceneError,
+                    Settings,
+                    validate_settings,
+)
 
 __all__ = ["COMBINATIONS", "FALLOFFS", "MAX_DEPTH_LIMIT", "SHADING_MODES", "Camera", "Material",
            "ObjectInfo", "PointLight", "Scene", "SceneError", "Settings", "load_scene",

@@ -18,8 +18,19 @@ from pathlib import Path
 import numpy as np
 
 from . import meshio, shapes
-from .model import (COMBINATIONS, FALLOFFS, SHADING_MODES, Camera, Material, ObjectInfo,
-                    PointLight, Scene, SceneError, Settings, validate_settings)
+from .model import (
+    COMBINATIONS,
+    FALLOFFS,
+    SHADING_MODES,
+    Camera,
+    Material,
+    ObjectInfo,
+    PointLight,
+    Scene,
+    SceneError,
+    Settings,
+    validate_settings,
+)
 from .subdivide import subdivide_midpoint
 
 _TOP_KEYS = ("description", "camera", "views", "render", "ambient", "lights", "materials",

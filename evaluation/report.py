@@ -27,8 +27,9 @@ from pathlib import Path
 
 import numpy as np
 
-from reference import compare
-from renderer.film import write_exr
+from renderer.film import srgb_encode, write_exr
+
+from .metrics import abs_error_heatmap, colormap_stops, flip_error, flip_heatmap, metrics
 
 __all__ = ["ReportEntry", "format_metrics_table", "write_report"]
 
@@ -46,8 +47,8 @@ class ReportEntry:
     effects: our kernel's effect set, as text (e.g. "shadows, reflection").
     operations: our kernel's operation counts, as text.
     info: further (label, text) rows for the run table (settings, golden file, ...).
-    metrics: ``compare.metrics`` of (ours, ref); computed and stored by ``write_report``
-        when None.
+    metrics: ``evaluation.metrics.metrics`` of (ours, ref); computed and stored by
+        ``write_report`` when None.
     """
 
     name: str
@@ -61,7 +62,7 @@ class ReportEntry:
     metrics: dict | None = None
 
 
-# ───────────────────────────────────────────── formatting ──
+# ---- formatting ---------------------------------------------------------------------------
 def _num(x: float | int | None, digits: int = 4) -> str:
     if x is None:
         return "—"
@@ -89,7 +90,8 @@ def _metric_rows(m: dict) -> list[tuple[str, str, str]]:
         ("max abs error", _num(m["max_abs"]), "over pixels and channels"),
         ("relative error", f"{_num(m['mean_rel'])} mean, {_num(m['max_rel'])} max",
          "per pixel: max over RGB of |ours − ref| / max(|ref|, ε)"),
-        ("outlier pixels", f"{m['outliers']:,} of {m['pixels']:,} ({share:.2%})", m["outlier_rule"]),
+        ("outlier pixels", f"{m['outliers']:,} of {m['pixels']:,} ({share:.2%})",
+         m["outlier_rule"]),
         ("non-finite pixels", f"{m['nonfinite_pixels']:,}", "NaN or inf in either image"),
         ("mean FLIP", _num(m["flip_mean"]), "HDR-FLIP, 0 = identical"),
         ("ΔE2000", f"{_num(m['de2000_mean'])} mean, {_num(m['de2000_p99'])} p99, "
@@ -128,7 +130,7 @@ def format_metrics_table(entries: list[ReportEntry]) -> str:
     return "\n".join(lines)
 
 
-# ───────────────────────────────────────────── images ──
+# ---- images -------------------------------------------------------------------------------
 def _save_png(path: Path, rgb: np.ndarray) -> None:
     from PIL import Image
 
@@ -166,9 +168,10 @@ def _slug(name: str, taken: set[str]) -> str:
     return slug
 
 
-# ───────────────────────────────────────────── page ──
+# ---- page ---------------------------------------------------------------------------------
 _CSS = """
-:root { --fg:#1d2126; --muted:#6b7280; --line:#e3e6ea; --bg:#f6f7f9; --card:#fff; --accent:#2563eb; }
+:root { --fg:#1d2126; --muted:#6b7280; --line:#e3e6ea; --bg:#f6f7f9; --card:#fff;
+        --accent:#2563eb; }
 * { box-sizing: border-box; }
 body { margin:0; font:14px/1.45 system-ui,-apple-system,"Segoe UI",Roboto,"DejaVu Sans",sans-serif;
        color:var(--fg); background:var(--bg); }
@@ -189,10 +192,11 @@ figcaption { font-size:12.5px; color:var(--muted); margin-top:5px; min-height:34
 figcaption b { color:var(--fg); font-weight:600; }
 .bar { height:9px; border-radius:2px; margin:4px 0 2px; border:1px solid var(--line); }
 .scale { display:flex; justify-content:space-between; font-variant-numeric:tabular-nums; }
-.tables { display:grid; grid-template-columns:minmax(0, 3fr) minmax(0, 2fr); gap:24px; margin-top:16px;
-          align-items:start; }
+.tables { display:grid; grid-template-columns:minmax(0, 3fr) minmax(0, 2fr); gap:24px;
+          margin-top:16px; align-items:start; }
 table { border-collapse:collapse; width:100%; }
-th, td { text-align:left; padding:5px 10px 5px 0; border-bottom:1px solid var(--line); vertical-align:top; overflow-wrap:anywhere; }
+th, td { text-align:left; padding:5px 10px 5px 0; border-bottom:1px solid var(--line);
+         vertical-align:top; overflow-wrap:anywhere; }
 th { font-weight:600; white-space:nowrap; }
 td.v { font-variant-numeric:tabular-nums; white-space:nowrap; }
 td.note, .note { color:var(--muted); font-size:12.5px; }
@@ -218,7 +222,7 @@ for (const fig of document.querySelectorAll('figure.swap')) {
 
 
 def _gradient(cmap: str) -> str:
-    return "linear-gradient(to right, " + ", ".join(compare.colormap_stops(cmap, 11)) + ")"
+    return "linear-gradient(to right, " + ", ".join(colormap_stops(cmap, 11)) + ")"
 
 
 def _swap_figure(own: str, own_label: str, other: str, other_label: str) -> str:
@@ -249,7 +253,8 @@ def _entry_html(e: ReportEntry, slug: str, scale: float) -> str:
         _map_figure(f"{slug}/flip.png", "HDR-FLIP error", FLIP_CMAP, "0", "1"),
     ])
     metric_rows = "".join(f'<tr><th>{esc(k)}</th><td class="v">{esc(v)}</td>'
-                          f'<td class="note">{esc(n)}</td></tr>' for k, v, n in _metric_rows(e.metrics))
+                          f'<td class="note">{esc(n)}</td></tr>'
+                          for k, v, n in _metric_rows(e.metrics))
     run_rows = "".join(f"<tr><th>{esc(k)}</th><td>{esc(v)}</td></tr>" for k, v in _run_rows(e))
     return (f'<section class="entry" id="{esc(slug)}"><h2>{esc(e.name)} '
             f'<span class="note">{w}×{h} · <a href="{esc(slug)}/strip.png">strip.png</a> · '
@@ -263,7 +268,8 @@ def _entry_html(e: ReportEntry, slug: str, scale: float) -> str:
 
 def _summary_html(entries: list[ReportEntry], slugs: list[str]) -> str:
     esc = html.escape
-    head = ("entry", "RMSE", "max abs", "outliers", "mean FLIP", "ΔE mean", "ΔE p99", "ours", "Mitsuba")
+    head = ("entry", "RMSE", "max abs", "outliers", "mean FLIP", "ΔE mean", "ΔE p99", "ours",
+            "Mitsuba")
     rows = []
     for e, s in zip(entries, slugs):
         m = e.metrics
@@ -281,7 +287,7 @@ def write_report(out_dir: str | Path, entries: list[ReportEntry], *, title: str,
     """Write the HTML report and per-entry PNGs into ``out_dir``; return the page's path.
 
     entries: the comparisons, in page order; an entry without metrics gets them computed
-        (``compare.metrics``) and stored on it, so the caller can print them afterwards.
+        (``evaluation.metrics.metrics``) and stored on it, so the caller can print them afterwards.
     overwrite: replace the files of an existing, non-empty ``out_dir``; otherwise that is a
         ``FileExistsError``.
     """
@@ -302,15 +308,15 @@ def write_report(out_dir: str | Path, entries: list[ReportEntry], *, title: str,
         folder = out / slug
         folder.mkdir(exist_ok=True)
 
-        flip_map, _ = compare.flip_error(e.ours, e.ref)
+        flip_map, _ = flip_error(e.ours, e.ref)
         if e.metrics is None:
-            e.metrics = compare.metrics(e.ours, e.ref, flip_map=flip_map)
-        heat, scale = compare.abs_error_heatmap(e.ours, e.ref, cmap=HEAT_CMAP)
+            e.metrics = metrics(e.ours, e.ref, flip_map=flip_map)
+        heat, scale = abs_error_heatmap(e.ours, e.ref, cmap=HEAT_CMAP)
         panels = [
-            ("ours (Dr.Jit)", compare.srgb_encode(e.ours)),
-            ("Mitsuba 3", compare.srgb_encode(e.ref)),
+            ("ours (Dr.Jit)", srgb_encode(e.ours)),
+            ("Mitsuba 3", srgb_encode(e.ref)),
             (f"|diff| 0..{scale:.3g}", heat),
-            ("FLIP 0..1", compare.flip_heatmap(flip_map, cmap=FLIP_CMAP)),
+            ("FLIP 0..1", flip_heatmap(flip_map, cmap=FLIP_CMAP)),
         ]
         for fname, (_, rgb) in zip(("ours", "mitsuba", "absdiff", "flip"), panels):
             _save_png(folder / f"{fname}.png", rgb)

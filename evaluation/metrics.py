@@ -15,7 +15,7 @@ Metrics (``metrics()``):
   |a - r| / max(|r|, eps); its mean and max over pixels.
 - ``outliers``: number of pixels where some channel has relative error > ``OUTLIER_REL``
   *and* absolute error > ``OUTLIER_ABS`` (both must hold, so dark pixels with tiny absolute
-  errors and bright pixels with tiny relative errors are not outliers).
+  errors and bright pixels with tiny relative errors are not outliers): ``outlier_mask``.
 - ``flip_mean``: mean HDR-FLIP error (NVIDIA's ``flip-evaluator``, HDR mode on the linear
   images, default viewing conditions of 67 pixels per degree), in [0, 1].
 - ``de2000_mean`` / ``de2000_p99`` / ``de2000_max``: CIEDE2000 colour difference per
@@ -23,8 +23,9 @@ Metrics (``metrics()``):
   99th percentile and max over pixels.
   Values above 1 are not clipped (L* > 100 for over-white pixels).
 
-``z_test`` is the statistical test for converged (noisy) renders, in the style of
-Mitsuba's ``test_renders.py``.
+``image_difference`` is the numpy-only subset (rmse, max_abs, mean_rel, outliers) for the
+benchmark, which runs where colour-science and FLIP are not installed. ``z_test`` is the
+statistical test for converged (noisy) renders, in the style of Mitsuba's ``test_renders.py``.
 """
 from __future__ import annotations
 
@@ -47,13 +48,14 @@ __all__ = [
     "delta_e2000",
     "flip_error",
     "flip_heatmap",
+    "image_difference",
     "metrics",
-    "srgb_encode",
+    "outlier_mask",
     "z_test",
 ]
 
 
-# ───────────────────────────────────────────── inputs ──
+# ---- inputs -------------------------------------------------------------------------------
 def _pair(ours: np.ndarray, ref: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
     """Check shapes, convert to float64 and zero non-finite values.
 
@@ -73,7 +75,19 @@ def _pair(ours: np.ndarray, ref: np.ndarray) -> tuple[np.ndarray, np.ndarray, in
     return a, r, int(bad.sum())
 
 
-# ───────────────────────────────────────────── per-pixel errors ──
+# ---- per-pixel errors ---------------------------------------------------------------------
+def outlier_mask(ours: np.ndarray, ref: np.ndarray, *, eps: float = 1e-2) -> np.ndarray:
+    """The outlier rule: bool (H, W), True where some channel has relative error
+    ``|a - r| / max(|r|, eps)`` above ``OUTLIER_REL`` and absolute error above
+    ``OUTLIER_ABS``. Non-finite values are compared as they are (NaN is never an outlier
+    here; ``metrics`` zeroes them first)."""
+    a = np.asarray(ours, np.float64)
+    r = np.asarray(ref, np.float64)
+    err = np.abs(a - r)
+    rel = err / np.maximum(np.abs(r), eps)
+    return ((rel > OUTLIER_REL) & (err > OUTLIER_ABS)).any(axis=-1)
+
+
 def abs_error(ours: np.ndarray, ref: np.ndarray) -> np.ndarray:
     """Per-pixel absolute error, the max over channels of |a - r|: float32 (H, W)."""
     a, r, _ = _pair(ours, ref)
@@ -128,7 +142,7 @@ def flip_error(ours: np.ndarray, ref: np.ndarray) -> tuple[np.ndarray, float]:
     return np.asarray(err, np.float32).reshape(h, w), float(mean)
 
 
-# ───────────────────────────────────────────── scalar metrics ──
+# ---- scalar metrics -----------------------------------------------------------------------
 def metrics(ours: np.ndarray, ref: np.ndarray, *, eps: float = 1e-2,
             flip_map: np.ndarray | None = None) -> dict:
     """All scalar metrics of ``ours`` against ``ref`` (see the module docstring).
@@ -147,7 +161,7 @@ def metrics(ours: np.ndarray, ref: np.ndarray, *, eps: float = 1e-2,
     absd = np.abs(diff)
     rel = absd / np.maximum(np.abs(r), eps)
     rel_pixel = rel.max(axis=2)
-    outlier = ((rel > OUTLIER_REL) & (absd > OUTLIER_ABS)).any(axis=2)
+    outlier = outlier_mask(a, r, eps=eps)
     if flip_map is None:
         flip_map, _ = flip_error(a, r)
     de = delta_e2000(a, r)
@@ -169,14 +183,18 @@ def metrics(ours: np.ndarray, ref: np.ndarray, *, eps: float = 1e-2,
     }
 
 
-# ───────────────────────────────────────────── maps for reports ──
-def srgb_encode(linear: np.ndarray) -> np.ndarray:
-    """Linear RGB float (H, W, 3) -> sRGB-encoded uint8 (H, W, 3), clipped to [0, 1]."""
-    x = np.clip(np.nan_to_num(np.asarray(linear, np.float64), nan=0.0), 0.0, 1.0)
-    s = np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
-    return np.round(s * 255).astype(np.uint8)
+def image_difference(ours: np.ndarray, ref: np.ndarray) -> dict:
+    """RMSE, max abs, mean relative error (eps 1e-2) and outlier pixels (``outlier_mask``),
+    numpy only. Returns a dict of plain Python numbers."""
+    a, r = np.asarray(ours, np.float64), np.asarray(ref, np.float64)
+    err = np.abs(a - r)
+    rel = err / np.maximum(np.abs(r), 1e-2)
+    return {"rmse": float(np.sqrt(np.mean(err ** 2))), "max_abs": float(err.max()),
+            "mean_rel": float(rel.max(axis=-1).mean()),
+            "outliers": int(np.sum(outlier_mask(a, r)))}
 
 
+# ---- maps for reports ---------------------------------------------------------------------
 def _apply_colormap(values: np.ndarray, cmap: str) -> np.ndarray:
     """values float (H, W) in [0, 1] -> uint8 (H, W, 3) through a matplotlib colormap."""
     import matplotlib
@@ -212,7 +230,7 @@ def flip_heatmap(flip_map: np.ndarray, *, cmap: str = "magma") -> np.ndarray:
     return _apply_colormap(np.asarray(flip_map, np.float64), cmap)
 
 
-# ───────────────────────────────────────────── statistical test ──
+# ---- statistical test ---------------------------------------------------------------------
 def _normal_quantile_two_sided(alpha: float) -> float:
     """z with P(|Z| > z) = alpha for a standard normal Z (bisection on math.erfc)."""
     lo, hi = 0.0, 40.0

@@ -1,8 +1,8 @@
-"""Metrics of reference/compare.py on synthetic images with known answers."""
+"""Metrics of evaluation/metrics.py on synthetic images with known answers."""
 import numpy as np
 import pytest
 
-from reference import compare
+from evaluation import metrics
 
 
 def _image(seed=0, h=16, w=24, lo=0.05, hi=0.9):
@@ -12,7 +12,7 @@ def _image(seed=0, h=16, w=24, lo=0.05, hi=0.9):
 
 def test_identical_images_have_zero_error():
     img = _image()
-    m = compare.metrics(img, img.copy())
+    m = metrics.metrics(img, img.copy())
     for key in ("rmse", "relmse", "max_abs", "mean_rel", "max_rel", "flip_mean",
                 "de2000_mean", "de2000_p99", "de2000_max"):
         assert m[key] == pytest.approx(0.0, abs=1e-6), key
@@ -24,7 +24,7 @@ def test_identical_images_have_zero_error():
 def test_constant_shift_gives_known_errors():
     ref = _image()
     shift = 0.05
-    m = compare.metrics(ref + shift, ref, eps=1e-2)
+    m = metrics.metrics(ref + shift, ref, eps=1e-2)
     r = ref.astype(np.float64)
     assert m["rmse"] == pytest.approx(shift, rel=1e-5)
     assert m["max_abs"] == pytest.approx(shift, rel=1e-5)
@@ -47,14 +47,16 @@ def test_outlier_rule_needs_both_relative_and_absolute_error():
     ours[4, 4] = 0.006      # rel 0.5 (eps floor 1e-2), abs 0.005: not
     ref[5, 5] = 10.0
     ours[5, 5] = 10.5       # abs 0.5, rel 0.05: not
-    assert compare.metrics(ours, ref)["outliers"] == 2
+    assert metrics.metrics(ours, ref)["outliers"] == 2
+    assert metrics.outlier_mask(ours, ref).sum() == 2
+    assert metrics.image_difference(ours, ref)["outliers"] == 2
 
 
 def test_delta_e_white_against_black_is_100():
     # CIEDE2000 with a* = b* = 0 and mean L* = 50 reduces to |ΔL*| = 100.
     white = np.ones((4, 4, 3), np.float32)
     black = np.zeros((4, 4, 3), np.float32)
-    de = compare.delta_e2000(white, black)
+    de = metrics.delta_e2000(white, black)
     assert de.shape == (4, 4)
     np.testing.assert_allclose(de, 100.0, atol=0.05)
 
@@ -64,28 +66,28 @@ def test_delta_e_separates_close_and_different_colours():
     red[..., 0] = 0.8
     green = np.zeros((4, 4, 3), np.float32)
     green[..., 1] = 0.8
-    assert compare.delta_e2000(red, red).max() == 0.0
-    assert compare.delta_e2000(red, green).min() > 50.0
-    assert compare.delta_e2000(red * 1.001, red).max() < 0.5
+    assert metrics.delta_e2000(red, red).max() == 0.0
+    assert metrics.delta_e2000(red, green).min() > 50.0
+    assert metrics.delta_e2000(red * 1.001, red).max() < 0.5
 
 
 def test_flip_map_matches_mean_and_locates_the_error():
     ref = _image(1)
     ours = ref.copy()
     ours[4:8, 4:8] = 0.0
-    fmap, mean = compare.flip_error(ours, ref)
+    fmap, mean = metrics.flip_error(ours, ref)
     assert fmap.shape == ref.shape[:2] and fmap.dtype == np.float32
     assert mean == pytest.approx(fmap.mean(), rel=1e-5)
     assert 0.0 <= fmap.min() and fmap.max() <= 1.0
     assert fmap[4:8, 4:8].mean() > 5 * fmap[12:, 16:].mean()
-    assert compare.metrics(ours, ref, flip_map=fmap)["flip_mean"] == pytest.approx(mean)
+    assert metrics.metrics(ours, ref, flip_map=fmap)["flip_mean"] == pytest.approx(mean)
 
 
 def test_flip_handles_black_reference():
     # FLIP cannot choose exposures from an all-black reference (it would end the process).
     black = np.zeros((8, 8, 3), np.float32)
-    assert compare.flip_error(black, black)[1] == 0.0
-    _, mean = compare.flip_error(_image(2, 8, 8), black)
+    assert metrics.flip_error(black, black)[1] == 0.0
+    _, mean = metrics.flip_error(_image(2, 8, 8), black)
     assert mean > 0.1
 
 
@@ -94,7 +96,7 @@ def test_nonfinite_pixels_are_counted_and_do_not_poison_metrics():
     ours = ref.copy()
     ours[0, 0, 0] = np.nan
     ours[1, 1, 2] = np.inf
-    m = compare.metrics(ours, ref)
+    m = metrics.metrics(ours, ref)
     assert m["nonfinite_pixels"] == 2
     assert np.isfinite(m["rmse"]) and m["rmse"] > 0
     assert np.isfinite(m["flip_mean"]) and np.isfinite(m["de2000_mean"])
@@ -102,30 +104,22 @@ def test_nonfinite_pixels_are_counted_and_do_not_poison_metrics():
 
 def test_shape_mismatch_is_an_error():
     with pytest.raises(ValueError, match="shape"):
-        compare.metrics(_image(h=8), _image(h=9))
+        metrics.metrics(_image(h=8), _image(h=9))
 
 
 def test_abs_heatmap_scale_and_colours():
     ref = np.full((6, 6, 3), 0.5, np.float32)
     ours = ref.copy()
     ours[2, 3, 1] += 0.25
-    rgb, scale = compare.abs_error_heatmap(ours, ref, cmap="inferno")
+    rgb, scale = metrics.abs_error_heatmap(ours, ref, cmap="inferno")
     assert rgb.shape == (6, 6, 3) and rgb.dtype == np.uint8
     assert scale == pytest.approx(0.25, rel=1e-5)
-    stops = compare.colormap_stops("inferno", 2)
+    stops = metrics.colormap_stops("inferno", 2)
     low, high = (tuple(int(s[i:i + 2], 16) for i in (1, 3, 5)) for s in stops)
     assert tuple(rgb[0, 0]) == low
     assert tuple(rgb[2, 3]) == high
-    rgb2, scale2 = compare.abs_error_heatmap(ours, ref, scale=1.0)
+    rgb2, scale2 = metrics.abs_error_heatmap(ours, ref, scale=1.0)
     assert scale2 == 1.0 and tuple(rgb2[2, 3]) != high
-
-
-def test_srgb_encode_known_values():
-    lin = np.array([[[0.0, 0.5, 1.0], [0.0031308, 2.0, -1.0]]], np.float32)
-    enc = compare.srgb_encode(lin)
-    assert enc.dtype == np.uint8
-    # 0.5 linear -> 1.055 * 0.5^(1/2.4) - 0.055 = 0.7354 -> 188
-    assert enc.tolist() == [[[0, 188, 255], [10, 255, 0]]]
 
 
 def _estimates(rng, mean, sigma, n, shape):
@@ -142,20 +136,20 @@ def test_z_test_passes_for_same_distribution_and_fails_for_bias():
     n = 256
     ref_m, ref_v = _estimates(rng, truth, sigma, n, shape)
     ours_m, ours_v = _estimates(rng, truth, sigma, n, shape)
-    frac, mask = compare.z_test(ours_m, ours_v, ref_m, ref_v)
+    frac, mask = metrics.z_test(ours_m, ours_v, ref_m, ref_v)
     assert mask.shape == shape and mask.dtype == bool
     assert frac == 1.0
 
     # A bias of 8 standard errors of the difference fails nearly everywhere.
     bias = 8 * sigma * np.sqrt(2.0 / n)
     biased_m, biased_v = _estimates(rng, truth + bias, sigma, n, shape)
-    frac_b, mask_b = compare.z_test(biased_m, biased_v, ref_m, ref_v)
+    frac_b, mask_b = metrics.z_test(biased_m, biased_v, ref_m, ref_v)
     assert frac_b < 0.1
     # A bias confined to one region is found there and only there.
     local = truth.copy()
     local[:4, :4] += bias
     local_m, local_v = _estimates(rng, local, sigma, n, shape)
-    _, mask_l = compare.z_test(local_m, local_v, ref_m, ref_v)
+    _, mask_l = metrics.z_test(local_m, local_v, ref_m, ref_v)
     assert not mask_l[:4, :4].all()
     assert mask_l[4:, 4:].all()
 
@@ -163,6 +157,6 @@ def test_z_test_passes_for_same_distribution_and_fails_for_bias():
 def test_z_test_rejects_bad_arguments():
     a = np.zeros((2, 2))
     with pytest.raises(ValueError, match="ref_var"):
-        compare.z_test(a, a, a, np.zeros((3, 2)))
+        metrics.z_test(a, a, a, np.zeros((3, 2)))
     with pytest.raises(ValueError, match="alpha"):
-        compare.z_test(a, a, a, a, alpha=1.5)
+        metrics.z_test(a, a, a, a, alpha=1.5)

@@ -1,0 +1,14 @@
+"""How well and how fast: our renderer measured against Mitsuba 3.
+
+``metrics`` (image differences and the statistical test), ``rules`` (the golden regression
+cases as data, each with its comparison rule and thresholds), ``report`` (the side-by-side
+HTML report) and ``bench`` (the timing study as a registry of parts).
+
+``evaluation`` may import ``renderer`` and ``reference``; neither imports ``evaluation``.
+No module here imports ``mitsuba`` when it is imported: functions that need the Mitsuba peer
+reach it through ``reference`` when they run.
+"""
+from __future__ import annotations
+
+#: The thesis's three seed scenes (file stems under ``scenes/``), in its table's order.
+SEED_SCENES = ("cornell_box", "cornell_sphere", "platonic_solids")

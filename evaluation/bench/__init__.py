@@ -1,0 +1,114 @@
+"""The timing study: ours vs Mitsuba 3 on the same device, in one process.
+
+Everything is timed from Dr.Jit's kernel history (``renderer.stats.kernel_ms``: the sum of
+``execution_time`` of the kernels a step launched, median over repeats after warm-up), so
+Python tracing is reported separately and never counted as ray-tracing time.
+
+The study is a registry of parts (``PARTS``, name -> ``Part``), run in registry order, each
+a module of this package:
+
+- ``throughput`` (``throughput.py``): identical ray batches through our accelerator and
+  through Mitsuba's (OptiX on CUDA, Embree on the CPU), with the fraction of rays on which
+  the two agree.
+- ``seed`` (``seed_table.py``): the thesis's table (three seed scenes × three views at 512²,
+  primary rays only and with reflection, brute force / per-object boxes / BVH), frozen frames.
+- ``whitted`` (``whitted_frame.py``): our frozen Whitted frame vs Mitsuba rendering the same
+  scene with the reference harness's integrator, with the image difference.
+- ``effects`` (``effects.py``): the scene's specialised kernel vs the all-effects kernel.
+
+A new part is one module defining ``PART = Part(name, key, run, markdown)`` (``part.py``)
+and one entry in ``PARTS`` below.
+"""
+from __future__ import annotations
+
+import json
+import os
+import platform
+import subprocess
+import time
+from pathlib import Path
+
+from . import effects, seed_table, throughput, whitted_frame
+from .part import Context, Part, jsonable
+
+__all__ = ["PARTS", "Context", "Part", "device_info", "markdown", "run"]
+
+#: The study's parts by name, in the order they run and appear in the markdown.
+PARTS: dict[str, Part] = {p.name: p for p in (throughput.PART, seed_table.PART,
+                                               whitted_frame.PART, effects.PART)}
+
+
+def device_info(backend: str) -> dict:
+    """The machine a result was measured on: backend, versions, host, device name."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    import drjit as dr
+    info = {"backend": backend, "python": platform.python_version(), "drjit": dr.__version__,
+            "host": platform.node(), "cpu": platform.processor() or platform.machine(),
+            "cores": os.cpu_count()}
+    try:
+        info["mitsuba"] = version("mitsuba")
+    except PackageNotFoundError:
+        pass
+    if backend == "cuda":
+        try:
+            q = subprocess.run(["nvidia-smi", "--query-gpu=name,driver_version,memory.total",
+                                "--format=csv,noheader"], capture_output=True, text=True,
+                               timeout=30)
+            name, driver, mem = (s.strip() for s in q.stdout.strip().split("\n")[0].split(","))
+            info.update(device=name, driver=driver, gpu_memory=mem)
+        except Exception as e:  # noqa: BLE001 - informational only
+            info["device"] = f"unknown GPU ({e})"
+    else:
+        try:
+            with open("/proc/cpuinfo") as f:
+                model = [line.split(":", 1)[1].strip() for line in f
+                         if line.startswith("model name")]
+            info["device"] = f"{model[0]} ({os.cpu_count()} cores)" if model else "CPU"
+        except OSError:
+            info["device"] = "CPU"
+    return info
+
+
+def run(out_dir, *, backend: str = "auto", scenes_dir="scenes", quick: bool = False,
+        parts=tuple(PARTS)) -> dict:
+    """Run the parts named in ``parts`` (in ``PARTS`` order) and write
+    ``bench-<backend>.json`` and ``.md`` (``-quick`` appended to the tag when ``quick``)
+    in ``out_dir``. Returns the result: device, quick, date and each part's rows under its
+    key.
+
+    ``quick`` shrinks every size (for a smoke run on a CPU): 1920×1080 → 320×180,
+    512² → 128², 20 frozen frames → 5.
+    """
+    from renderer.device import types
+    unknown = [p for p in parts if p not in PARTS]
+    if unknown:
+        raise ValueError(f"parts: unknown {unknown}; expected some of {list(PARTS)}")
+    backend = types(backend).backend
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    ctx = Context(backend=backend, scenes_dir=Path(scenes_dir), out_dir=out, quick=quick)
+    info = device_info(backend)
+    print(f"bench on {info.get('device')} ({backend})", flush=True)
+    result = {"device": info, "quick": quick, "date": time.strftime("%Y-%m-%d %H:%M:%S")}
+    for part in PARTS.values():
+        if part.name in parts:
+            result[part.key] = part.run(ctx)
+    tag = backend + ("-quick" if quick else "")
+    (out / f"bench-{tag}.json").write_text(json.dumps(jsonable(result), indent=1))
+    (out / f"bench-{tag}.md").write_text(markdown(result))
+    print(f"wrote {out / f'bench-{tag}.json'} and .md", flush=True)
+    return result
+
+
+def markdown(result: dict) -> str:
+    """The result of ``run`` as markdown: a header, then each part's tables."""
+    dev = result["device"]
+    lines = [f"# Benchmark on {dev.get('device')} ({dev['backend']})", "",
+             f"{result['date']}; drjit {dev.get('drjit')}, mitsuba {dev.get('mitsuba')}"
+             + (f", driver {dev['driver']}" if dev.get("driver") else "")
+             + ("; QUICK smoke sizes" if result.get("quick") else ""), ""]
+    for part in PARTS.values():
+        if result.get(part.key):
+            lines += part.markdown(result[part.key])
+    return "\n".join(lines)

@@ -1,0 +1,44 @@
+"""The timing study as a registry of parts: every part has a name, a result key and its own
+markdown; the stored results render to the stored reports; a part measures what it says."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from evaluation.bench import PARTS, markdown, run
+from evaluation.bench.throughput import ray_throughput
+from renderer.scene import load_scene
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_parts_have_unique_names_and_keys_in_study_order():
+    assert list(PARTS) == ["throughput", "seed", "whitted", "effects"]
+    assert [p.key for p in PARTS.values()] == ["throughput", "seed_table", "whitted", "effects"]
+    assert all(name == p.name for name, p in PARTS.items())
+
+
+@pytest.mark.parametrize("stored", sorted(ROOT.glob("results/*/bench-*.json")),
+                         ids=lambda p: p.parent.name)
+def test_stored_results_render_to_the_stored_markdown(stored):
+    assert markdown(json.loads(stored.read_text())) == stored.with_suffix(".md").read_text()
+
+
+def test_unknown_part_is_refused_before_anything_runs(tmp_path):
+    with pytest.raises(ValueError, match="unknown.*'sed'"):
+        run(tmp_path / "out", backend="llvm", parts=("sed",))
+    assert not (tmp_path / "out").exists()
+
+
+def test_throughput_rays_agree_with_mitsuba_on_a_small_batch():
+    res = ray_throughput(load_scene(ROOT / "scenes/cornell_box.toml"), backend="llvm",
+                         width=40, height=24, repeats=1)
+    assert res["rays"] == 40 * 24
+    agree = res["primary_agreement"]
+    assert agree["hits"] > res["rays"] // 2 and agree["hit_miss_agree"] > 0.99
+    assert agree["same_triangle"] > 0.95 and agree["t_rel_1e-4"] > 0.99
+    assert res["shadow_agreement"] > 0.95
+    for k in ("ours_primary", "mitsuba_primary", "ours_shadow", "mitsuba_shadow"):
+        assert res[k]["kernel_ms"] >= 0 and res[k]["repeats"] == 1

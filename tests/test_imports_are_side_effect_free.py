@@ -1,0 +1,51 @@
+"""Importing the evaluation and reference packages picks no Mitsuba variant, registers no
+plugin and (for everything but the plugins themselves) does not even import Mitsuba;
+``reference.plugins.register()`` is the explicit, idempotent registration."""
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _python(code: str) -> str:
+    run = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True,
+                         text=True, timeout=300)
+    assert run.returncode == 0, run.stderr[-3000:]
+    return run.stdout.strip()
+
+
+def test_evaluation_and_reference_import_without_mitsuba():
+    out = _python(
+        "import sys\n"
+        "import evaluation, evaluation.metrics, evaluation.rules, evaluation.report\n"
+        "import evaluation.bench\n"
+        "import reference, reference.golden, reference.mitsuba_scene\n"
+        "print(sorted(m for m in sys.modules if m.split('.')[0] == 'mitsuba'))\n")
+    assert out == "[]"
+
+
+def test_importing_plugins_picks_no_variant_and_registers_nothing():
+    out = _python(
+        "import mitsuba as mi\n"
+        "import reference.plugins as p\n"
+        "print(mi.variant(), p._PLUGINS)\n")
+    assert out == "None {}"
+
+
+def test_register_is_explicit_and_idempotent():
+    out = _python(
+        "import mitsuba as mi\n"
+        "from reference import plugins\n"
+        "try:\n"
+        "    plugins.register()\n"
+        "except RuntimeError as e:\n"
+        "    print('refused:', 'no Mitsuba variant' in str(e))\n"
+        "mi.set_variant('llvm_ad_rgb')\n"
+        "first = plugins.register()\n"
+        "print(plugins.register() is first, sorted(first))\n"
+        "bsdf = mi.load_dict({'type': 'whitted_phong', 'kd': 0.5})\n"
+        "print(isinstance(bsdf, first['whitted_phong']))\n")
+    assert out.splitlines() == ["refused: True",
+                                "True ['whitted', 'whitted_material', 'whitted_phong']",
+                                "True"]
