@@ -54,6 +54,19 @@ def golden(name, view_name, shading):
     return read_exr(path)
 
 
+def scene_name(scene):
+    return Path(scene.path).stem if scene.path is not None else scene.name
+
+
+def at_golden_size(scene, view):
+    """``scene`` with its views resized to the golden's size where one exists (the reference
+    harness renders goldens at its own resolution, e.g. 256 rows for a 64-row scene)."""
+    g = golden(scene_name(scene), scene.cameras[view].name, scene.settings.shading)
+    if g is None or g.shape[:2] == (scene.cameras[view].height, scene.cameras[view].width):
+        return scene
+    return scene.with_size(g.shape[1], g.shape[0])
+
+
 def ours(scene, view, precision):
     """Our exact-mode LLVM render (H, W, 3)."""
     from renderer.render import render
@@ -85,9 +98,9 @@ def compare(scene, view, pixels, *, precisions=("float32",), with_golden=True,
         images[f"ours_{prec}"] = ours(scene, view, prec)[y, x]
     t2 = time.perf_counter()
     if with_golden:
-        g = golden(scene.name if scene.path is None else Path(scene.path).stem, cam.name,
-                   scene.settings.shading)
+        g = golden(scene_name(scene), cam.name, scene.settings.shading)
         if g is not None:
+            assert g.shape[:2] == (cam.height, cam.width), "use at_golden_size(scene, view)"
             images["mitsuba"] = g[y, x]
     for label, img in images.items():
         err[label] = error(img, ref)
@@ -99,6 +112,7 @@ def compare(scene, view, pixels, *, precisions=("float32",), with_golden=True,
 
 
 def row(name, scene, view, shading, n, seed, precisions):
+    scene = at_golden_size(scene, view)
     pixels = oracle.sample_pixels(scene, view, n, seed)
     c = compare(scene, view, pixels, precisions=precisions)
     within = {k: float(np.mean(e <= TOL)) for k, e in c["err"].items()}
