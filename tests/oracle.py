@@ -279,9 +279,10 @@ class Oracle:
             out = out + np.where(lit[:, None], c, 0.0)
         return out
 
-    def render(self, cam, pixels) -> tuple[np.ndarray, np.ndarray]:
-        """Radiance (N, 3) of ``pixels`` and whether each pixel's tree (camera and specular
-        rays, not shadow rays) hit a transmissive surface, bool (N,)."""
+    def render(self, cam, pixels) -> tuple[np.ndarray, dict]:
+        """Radiance (N, 3) of ``pixels`` and facts about each pixel's tree, bool (N,) each:
+        ``glass``: a camera or specular ray hit a transmissive surface; ``specular``: the
+        tree traced a reflected or refracted ray."""
         s = self.scene.settings
         physical = s.shading == "physical"
         background = np.asarray(s.background, np.float64)
@@ -292,6 +293,7 @@ class Oracle:
         # branch weights (pruning) and the factor on its radiance.
         pix = np.arange(len(pixels))
         glass = np.zeros(len(pixels), bool)
+        specular = np.zeros(len(pixels), bool)
         depth = np.zeros(len(pixels), np.int64)
         w_path = np.ones((len(pixels), 3))
         w_rad = np.ones((len(pixels), 3))
@@ -353,7 +355,8 @@ class Oracle:
             if not kids:
                 break
             o, d, pix, depth, w_path, w_rad = (np.concatenate(z) for z in zip(*kids))
-        return image, glass
+            specular[pix] = True
+        return image, dict(glass=glass, specular=specular)
 
 
 # =========================================================================================
@@ -390,7 +393,7 @@ def _oracle(scene) -> Oracle:
     return orc
 
 
-def render_pixels(scene, view, pixels, *, shading=None, epsilon=None, with_glass=False):
+def render_pixels(scene, view, pixels, *, shading=None, epsilon=None, with_info=False):
     """Radiance (N, 3) float64 of ``pixels`` ((N, 2) int, columns x, y; y = 0 the top row)
     through the pixel centres of ``view`` (index, name or Camera) of ``scene``.
 
@@ -399,13 +402,14 @@ def render_pixels(scene, view, pixels, *, shading=None, epsilon=None, with_glass
     epsilon: None (default) for the scale-free offset → 0 limit; a number for MODEL.md's
     fixed absolute offset (e.g. ``scene.ray_offset``, to take the offset rule out of a
     comparison with the renderers).
-    with_glass: also return bool (N,): the pixel's Whitted tree hit a transmissive surface.
+    with_info: also return ``Oracle.render``'s dict of per-pixel flags (``glass``,
+    ``specular``).
     """
     scene = _scene_for(scene, shading)
     orc = _oracle(scene)
-    image, glass = replace(orc, epsilon=epsilon).render(_camera(scene, view),
-                                                        np.asarray(pixels))
-    return (image, glass) if with_glass else image
+    image, info = replace(orc, epsilon=epsilon).render(_camera(scene, view),
+                                                       np.asarray(pixels))
+    return (image, info) if with_info else image
 
 
 def primary_hits(scene, view, pixels):

@@ -13,8 +13,10 @@ oracle (scale-free offsets → 0, float64) and prints, per row:
 - ``model-ε``: the same fraction for our float32 render against the oracle run with
   MODEL.md's own absolute offset (``scene.ray_offset``): what is left once the offset rule
   is the same on both sides;
-- on the sampled pixels whose Whitted tree touches glass: their count and the mean absolute
-  error (mean over pixels and RGB) of ours f32, ours f64 and Mitsuba against the oracle.
+- on the sampled pixels whose Whitted tree touches glass: their count, the mean absolute
+  error (mean over pixels and RGB) of ours f32, ours f64 and Mitsuba against the oracle,
+  and the share of them where ours f32 is closer to the oracle than Mitsuba by more than
+  1e-5, and the other way round (the issue's goal: ours closer, pixel for pixel).
 
 The helpers (``compare``, ``GOLDEN_SCENES``) are shared with ``tests/test_oracle.py``.
 """
@@ -84,13 +86,14 @@ def compare(scene, view, pixels, *, precisions=("float32",), with_golden=True,
             model_eps=True):
     """Everything the report prints for one view, as a dict (see the module docstring).
 
-    Keys: ``oracle`` (N, 3), ``glass`` (N,) bool, ``err`` {label: (N,) error per pixel} for
+    Keys: ``oracle`` (N, 3), ``glass`` and ``specular`` (N,) bool (``oracle.Oracle.render``),
+    ``images`` {label: (N, 3)}, ``err`` {label: (N,) error per pixel} for
     labels ``ours_float32``/``ours_float64``/``mitsuba``/``model_eps`` (present when asked
     and available), ``seconds`` {oracle, ours}.
     """
     cam = scene.cameras[view]
     t0 = time.perf_counter()
-    ref, glass = oracle.render_pixels(scene, view, pixels, with_glass=True)
+    ref, info = oracle.render_pixels(scene, view, pixels, with_info=True)
     t1 = time.perf_counter()
     x, y = pixels[:, 0], pixels[:, 1]
     err, images = {}, {}
@@ -107,8 +110,8 @@ def compare(scene, view, pixels, *, precisions=("float32",), with_golden=True,
     if model_eps and "ours_float32" in images:
         model = oracle.render_pixels(scene, view, pixels, epsilon=scene.ray_offset)
         err["model_eps"] = error(images["ours_float32"], model)
-    return dict(oracle=ref, glass=glass, err=err, images=images,
-                seconds=dict(oracle=t1 - t0, ours=t2 - t1))
+    return dict(oracle=ref, glass=info["glass"], specular=info["specular"], err=err,
+                images=images, seconds=dict(oracle=t1 - t0, ours=t2 - t1))
 
 
 def row(name, scene, view, shading, n, seed, precisions):
@@ -120,18 +123,26 @@ def row(name, scene, view, shading, n, seed, precisions):
     glass_mae = {k: (float(np.mean(np.abs(np.asarray(img, np.float64)[g] - c["oracle"][g])))
                      if g.any() else None)
                  for k, img in c["images"].items()}
+    closer = None
+    if "mitsuba" in c["err"] and "ours_float32" in c["err"] and g.any():
+        d = c["err"]["ours_float32"][g] - c["err"]["mitsuba"][g]
+        closer = dict(ours=float(np.mean(d < -1e-5)), mitsuba=float(np.mean(d > 1e-5)))
     return dict(scene=name, view=scene.cameras[view].name, shading=shading,
                 pixels=int(len(pixels)), within=within, glass_pixels=int(g.sum()),
-                glass_mae=glass_mae, seconds=c["seconds"])
+                glass_mae=glass_mae, glass_closer=closer, seconds=c["seconds"])
 
 
 def _f(x, fmt="{:.3f}"):
     return "-" if x is None else fmt.format(x)
 
 
+def _closer(c):
+    return "-" if c is None else f"{c['ours']:.2f}/{c['mitsuba']:.2f}"
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--pixels", type=int, default=100)
+    ap.add_argument("--pixels", type=int, default=200)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--scenes", default=",".join(ALL_SCENES))
     ap.add_argument("--shading", default=",".join(SHADINGS))
@@ -141,7 +152,7 @@ def main(argv=None):
     precisions = tuple(args.precisions.split(","))
     rows = []
     head = ("| scene | view | shading | n | ours f32 | ours f64 | Mitsuba | model-ε f32 "
-            "| glass n | glass MAE f32 | f64 | Mitsuba | oracle s |")
+            "| glass n | glass MAE f32 | f64 | Mitsuba | closer: ours/Mitsuba | oracle s |")
     print(f"Fraction of sampled pixels within {TOL:g} of the float64 oracle (offsets → 0)\n")
     print(head)
     print("|" + "---|" * (head.count("|") - 1))
@@ -158,7 +169,8 @@ def main(argv=None):
                       f"| {_f(w.get('mitsuba'))} | {_f(w.get('model_eps'))} "
                       f"| {r['glass_pixels']} | {_f(m.get('ours_float32'), '{:.2e}')} "
                       f"| {_f(m.get('ours_float64'), '{:.2e}')} "
-                      f"| {_f(m.get('mitsuba'), '{:.2e}')} | {r['seconds']['oracle']:.1f} |",
+                      f"| {_f(m.get('mitsuba'), '{:.2e}')} "
+                      f"| {_closer(r['glass_closer'])} | {r['seconds']['oracle']:.1f} |",
                       flush=True)
     print(f"\ntotal {time.perf_counter() - t_start:.0f} s")
     if args.json:

@@ -4,7 +4,7 @@ renders and the Mitsuba goldens come to it.
 The oracle's own tests need no Dr.Jit backend. The comparisons render each seed scene's
 views once on LLVM (float32, exact mode) and share them through ``_compared``.
 
-Bounds (measured on 100 sampled pixels per view, seed 0; half of them on specular objects,
+Bounds (measured on 200 sampled pixels per view; half of them on specular objects,
 so glass and mirrors are over-represented against a full image):
 
 - With MODEL.md's own offset (``epsilon=scene.ray_offset``) the oracle is the renderer's
@@ -12,10 +12,12 @@ so glass and mirrors are over-represented against a full image):
   at least 97 % within 1e-5 relative (the rest: float32 rounding amplified through glass
   and mirror bounces, and rays through shared edges).
 - With offsets → 0 (the oracle's default) ours and the Mitsuba goldens (which spawn rays
-  with our offset rule) differ from the oracle where an offset of 1e-4 × diagonal moves a
-  secondary ray: through glass, and where shadow rays start next to a touching object. The
-  fractions within 1e-3 are asserted at the measured value minus a margin
-  (``MIN_WITHIN``); off glass they are asserted higher (``MIN_WITHIN_OFF_GLASS``).
+  with our offset rule) differ from the oracle where the offset of 1e-4 × diagonal moves a
+  reflected or refracted ray: its hit point shifts by about the offset, a change of order
+  offset / distance in the radiance it brings back (1e-3 relative in bright physical
+  mirror pixels), and through glass far more. Pixels lit directly agree within 1e-3
+  (all of them, measured); the fraction within 1e-3 over all pixels is asserted at the
+  measured minimum rounded down (``MIN_WITHIN``).
 """
 from __future__ import annotations
 
@@ -29,7 +31,7 @@ import oracle
 import oracle_report as report
 
 ROOT = Path(__file__).resolve().parents[1]
-N_PIXELS = 100
+N_PIXELS = 200
 SEED = 0
 
 
@@ -164,11 +166,12 @@ def test_sample_pixels():
 
 VIEWS = [(name, shading, v) for name in report.GOLDEN_SCENES for shading in report.SHADINGS
          for v in range(3)]
-# Measured fraction within 1e-3 (ours f32 == Mitsuba to the printed digits), minus a margin.
-MIN_WITHIN = {"cornell_box": 0.97, "cornell_sphere": 0.95, "platonic_solids": 0.90,
+# Lowest fraction within 1e-3 measured over 3 seeds x 200 pixels per view (ours f32 and
+# Mitsuba alike), rounded down: cornell_box 0.995, cornell_sphere 0.930, platonic_solids
+# 0.925 (both physical, "low" and "left" views: physical radiance is larger, so the same
+# relative shift crosses 1e-3 more often).
+MIN_WITHIN = {"cornell_box": 0.99, "cornell_sphere": 0.92, "platonic_solids": 0.91,
               "analytic_quad": 1.0}
-MIN_WITHIN_OFF_GLASS = {"cornell_box": 0.97, "cornell_sphere": 0.97, "platonic_solids": 0.94,
-                        "analytic_quad": 1.0}
 
 _cache: dict = {}
 
@@ -195,10 +198,16 @@ def test_model_epsilon_oracle_matches_ours(name, shading, view):
 @pytest.mark.parametrize("source", ["ours_float32", "mitsuba"])
 @pytest.mark.parametrize("name,shading,view", VIEWS)
 def test_against_the_offset_limit(name, shading, view, source):
+    """Pixels lit directly (no reflected or refracted ray in their tree) agree with the
+    oracle within 1e-3 (measured: all of them); pixels with specular rays move with the
+    offset of 1e-4 x diagonal, and their share within 1e-3 is bounded by MIN_WITHIN."""
     c = _compared(name, shading, view)
     e = c["err"][source]
     within = e <= report.TOL
+    direct = ~c["specular"]
+    share = lambda m: f"{within[m].mean():.3f}" if m.any() else "-"
     print(f"{name} {shading} view {view} {source}: {within.mean():.3f} within 1e-3 "
-          f"({(~c['glass']).sum()} pixels off glass: {within[~c['glass']].mean():.3f})")
+          f"({direct.sum()} direct pixels: {share(direct)}; "
+          f"{c['glass'].sum()} glass pixels: {share(c['glass'])})")
+    assert within[direct].all()
     assert within.mean() >= MIN_WITHIN[name]
-    assert within[~c["glass"]].mean() >= MIN_WITHIN_OFF_GLASS[name]
