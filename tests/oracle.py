@@ -28,9 +28,12 @@ Where it departs from MODEL.md on purpose, it takes the limit the model is a sta
   get a tolerance of ``1e-12`` so that a ray through a shared edge cannot fall between the
   two triangles; the closest ``t`` wins, exact ties go to the lowest face index.
 
-One reading of MODEL.md where it is silent: in physical mode the ``η²`` radiance factor of
-a refracted branch multiplies the radiance only; the accumulated weight that ``min_weight``
-prunes on is the product of the ``w_refl``/``w_refr`` weights (``ETA2_IN_PRUNING_WEIGHT``).
+One reading of MODEL.md where it is silent: in physical mode, does the ``η²`` radiance
+factor of a refracted branch count in the accumulated weight that ``min_weight`` prunes on?
+The oracle says yes (``ETA2_IN_PRUNING_WEIGHT``), as the renderer and Mitsuba's dielectric
+(whose sampled weight carries η²) do: with MODEL.md's own offset, our float64 glass bunny in
+physical mode matches the oracle within 1e-3 on 99.7 % of 300 sampled pixels with η²
+counted and 98.0 % without (the other seed scenes do not change either way).
 """
 from __future__ import annotations
 
@@ -41,7 +44,7 @@ import numpy as np
 OFFSET_REL = 1e-10         # ε = OFFSET_REL · (1 + max|x|)
 BARY_TOL = 1e-12           # barycentric slack: no cracks between triangles sharing an edge
 CHUNK = 128                # triangles per brute-force block
-ETA2_IN_PRUNING_WEIGHT = False
+ETA2_IN_PRUNING_WEIGHT = True
 
 
 def _load(path, shading):
