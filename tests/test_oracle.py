@@ -199,8 +199,11 @@ def test_model_epsilon_oracle_matches_ours(name, shading, view):
 @pytest.mark.parametrize("name,shading,view", VIEWS)
 def test_against_the_offset_limit(name, shading, view, source):
     """Pixels lit directly (no reflected or refracted ray in their tree) agree with the
-    oracle within 1e-3 (measured: all of them); pixels with specular rays move with the
-    offset of 1e-4 x diagonal, and their share within 1e-3 is bounded by MIN_WITHIN."""
+    oracle to float32 precision: at least 97 % within 1e-5 relative and all within 1e-4
+    (measured: 100 % within 1e-5 on every view but platonic_solids/physical/left, 97.4 %
+    there, largest 1.9e-5: a Phong lobe with n = 300 multiplies float32 rounding of R·V
+    by n). Pixels with specular rays move with the offset of 1e-4 x diagonal; the share
+    of all pixels within 1e-3 is bounded by MIN_WITHIN."""
     c = _compared(name, shading, view)
     e = c["err"][source]
     within = e <= report.TOL
@@ -209,5 +212,21 @@ def test_against_the_offset_limit(name, shading, view, source):
     print(f"{name} {shading} view {view} {source}: {within.mean():.3f} within 1e-3 "
           f"({direct.sum()} direct pixels: {share(direct)}; "
           f"{c['glass'].sum()} glass pixels: {share(c['glass'])})")
-    assert within[direct].all()
+    rel = e / np.maximum(1.0, np.abs(c["oracle"]).max(1))
+    assert np.mean(rel[direct] <= 1e-5) >= 0.97 and np.all(rel[direct] <= 1e-4)
     assert within.mean() >= MIN_WITHIN[name]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("shading", report.SHADINGS)
+def test_glass_bunny_against_the_oracle(shading):
+    """The shipped Fresnel glass bunny (depth 8, no golden). With MODEL.md's offset the
+    oracle and our float32 render agree within 1e-3 on at least 95 % of sampled pixels
+    (measured 97-99 %: float32 rounding amplified along paths through glass). Against the
+    offset → 0 limit ours is where the issue says it is: measured 71 % (classic) and 73 %
+    (physical) within 1e-3; asserted ≥ 60 % so that a change for the worse shows."""
+    scene = report.load("glass_bunny", shading)
+    px = oracle.sample_pixels(scene, 0, N_PIXELS, SEED)
+    c = report.compare(scene, 0, px)
+    assert np.mean(c["err"]["model_eps"] <= report.TOL) >= 0.95
+    assert np.mean(c["err"]["ours_float32"] <= report.TOL) >= 0.60
