@@ -13,10 +13,11 @@ oracle (scale-free offsets → 0, float64) and prints, per row:
 - ``model-ε``: the same fraction for our float32 render against the oracle run with
   MODEL.md's own absolute offset (``scene.ray_offset``): what is left once the offset rule
   is the same on both sides;
-- on the sampled pixels whose Whitted tree touches glass: their count, the fraction within 1e-3 and mean absolute error (mean over pixels and RGB) of ours f32,
-  ours f64 and Mitsuba against the oracle, and the share of them where ours f32 is closer
-  to the oracle than Mitsuba by more than 1e-5, and the other way round (the issue's goal:
-  ours closer, pixel for pixel).
+- on the sampled pixels whose Whitted tree touches glass: their count, the fraction within
+  1e-3 and the mean absolute error (mean over pixels and RGB) of ours f32, ours f64 and
+  Mitsuba against the oracle, and the share of them where ours f32 is closer to the oracle
+  than Mitsuba by more than 1e-5, and the other way round (the issue's goal: ours closer,
+  pixel for pixel).
 
 The helpers (``compare``, ``GOLDEN_SCENES``) are shared with ``tests/test_oracle.py``.
 """
