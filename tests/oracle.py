@@ -2,7 +2,7 @@
 
 It renders chosen pixels of a scene in exact mode (one ray through each pixel centre) and
 is meant to be obviously correct rather than fast. It shares nothing with the renderer's
-tracing code: only the scene loader is used, for data (``_load``, the one import of
+tracing code: only the scene loader is used, for data (``load``, the one import of
 ``renderer``).
 
 Where it departs from MODEL.md on purpose, it takes the limit the model is a stand-in for:
@@ -47,7 +47,8 @@ CHUNK = 128                # triangles per brute-force block
 ETA2_IN_PRUNING_WEIGHT = True
 
 
-def _load(path, shading):
+def load(path, shading=None):
+    """The scene file at ``path`` (shading mode override as ``renderer.scene.load_scene``)."""
     from renderer.scene import load_scene  # the only use of the renderer: loading data
     return load_scene(path, shading=shading)
 
@@ -371,7 +372,7 @@ def _scene_for(scene, shading):
         return scene
     if scene.path is None:
         raise ValueError("shading override needs a scene loaded from a file (scene.path)")
-    return replace(_load(scene.path, shading), cameras=list(scene.cameras))
+    return replace(load(scene.path, shading), cameras=list(scene.cameras))
 
 
 def _camera(scene, view):

@@ -45,7 +45,7 @@ SHADINGS = ("classic", "physical")
 
 
 def load(name, shading):
-    return oracle._load(ROOT / "scenes" / f"{name}.toml", shading)
+    return oracle.load(ROOT / "scenes" / f"{name}.toml", shading)
 
 
 def golden(name, view_name, shading):
