@@ -22,11 +22,11 @@ so glass and mirrors are over-represented against a full image):
 from __future__ import annotations
 
 import types
-import numpy as np
-import pytest
 
+import numpy as np
 import oracle
 import oracle_report as report
+import pytest
 
 N_PIXELS = 200
 SEED = 0
