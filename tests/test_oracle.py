@@ -198,8 +198,8 @@ def test_against_the_offset_limit(name, shading, view, source):
     """Pixels lit directly (no reflected or refracted ray in their tree) agree with the
     oracle to float32 precision: at least 97 % within 1e-5 relative and all within 1e-4
     (measured: 100 % within 1e-5 on every view but platonic_solids/physical/left, 97.4 %
-    there, largest 1.9e-5). Pixels with specular rays move with the offset of 1e-4 x diagonal; the share
-    of all pixels within 1e-3 is bounded by MIN_WITHIN."""
+    there, largest 1.9e-5). Pixels with specular rays move with the offset of 1e-4 x
+    diagonal; the share of all pixels within 1e-3 is bounded by MIN_WITHIN."""
     c = _compared(name, shading, view)
     e = c["err"][source]
     within = e <= report.TOL
