@@ -1,0 +1,316 @@
+"""Bench part: our frozen Whitted frame against a fair Mitsuba peer (``reference.peer``).
+
+The peer is the one-kernel, frozen Whitted integrator a competent Mitsuba 3 user would
+write (``reference.peer``), over the same translated scene, at the same depth, resolution and
+exact mode (one ray per pixel centre). Both sides are timed the same way: the median over
+``frames`` frozen frames after warm-up of the wall time of a frame (launch + wait) and of the
+kernel time from Dr.Jit's kernel history.
+
+Deep trees of the peer (unrolled at trace time) may not compile in reasonable time, so each
+depth is first probed in a subprocess with a timeout (``peer_compiles``); a depth whose probe
+fails is reported as such and not timed.
+
+Entry points: ``whitted_frame_peer(scene, ...)`` (one scene, one depth, one size),
+``peer_compiles(scene, depth, timeout_s)``, ``run_part(scenes, ...)`` -> rows,
+``markdown(rows)``. Command line: ``python evaluation_peer_part.py --help``.
+"""
+from __future__ import annotations
+
+import argparse
+import gc
+import contextlib
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+# ---- project imports (one block; renamed at merge) ---------------------------------------
+from reference.bench import device_info, frozen_frame_ms, image_difference, kernel_ms
+from reference.cases import EXACT_THRESHOLDS, check_exact
+from reference.peer import load_peer
+from renderer.scene import Scene, load_scene
+# --------------------------------------------------------------------------------------------
+
+ROOT = Path(__file__).resolve().parent
+#: The scenes of goal 3: the seed scenes and the glass bunny.
+PEER_SCENES = ("cornell_box", "cornell_sphere", "platonic_solids", "glass_bunny")
+
+
+def _jit_kernels(history) -> int:
+    """Compiled kernels in a kernel history (not memcpy, aggregate or host-function entries)."""
+    import drjit as dr
+    return sum(1 for h in history if h.get("type") == dr.KernelType.JIT)
+
+
+@contextlib.contextmanager
+def _no_collection():
+    """Collect garbage now and not during the block: Python's cycle collector freeing device
+    memory while ``dr.freeze`` records a frame makes Dr.Jit abort ("enqueue_host_func():
+    this function cannot be recorded"), and Mitsuba scenes left from an earlier run are
+    such garbage."""
+    import drjit as dr
+    gc.collect()
+    dr.sync_thread()
+    was = gc.isenabled()
+    gc.disable()
+    try:
+        yield
+    finally:
+        if was:
+            gc.enable()
+
+
+def peer_frame_ms(scene: Scene, *, backend: str, frames: int = 20, warmup: int = 3) -> dict:
+    """The peer on ``scene`` (its size and ``settings.max_depth``): traced first frame
+    (trace + compile) wall ms, JIT kernels per frame, frozen frame wall/kernel ms (median of
+    ``frames`` after ``warmup``), whether the frozen frame equals the traced one, and the image."""
+    import drjit as dr
+    peer = load_peer(scene, backend=backend)
+    pos = peer.positions()
+    dr.sync_thread()
+    with dr.scoped_set_flag(dr.JitFlag.KernelHistory, True):
+        dr.kernel_history()
+        t0 = time.perf_counter()
+        img = peer.frame(pos)
+        dr.sync_thread()
+        traced_ms = (time.perf_counter() - t0) * 1e3
+        hist = dr.kernel_history()
+    traced = np.asarray(img.numpy(), np.float32)
+    run = peer.frozen()
+    timing = kernel_ms(lambda: run(pos), warmup=warmup, repeats=frames)
+    frozen = np.asarray(run(pos).numpy(), np.float32)
+    ops = [int(h["operation_count"]) for h in hist if "operation_count" in h]
+    return {"frozen_ms": timing["wall_ms"], "frozen_kernel_ms": timing["kernel_ms"],
+            "traced_ms": traced_ms, "jit_kernels": _jit_kernels(hist),
+            "launches": timing["kernels"], "operations": sum(ops),
+            "frozen_equals_traced": bool(np.array_equal(traced, frozen)), "image": traced}
+
+
+def agreement(ours: np.ndarray, peer: np.ndarray) -> dict:
+    """Peer vs ours: the bench's image difference, the fraction of pixels whose channels all
+    agree within 1e-3 (absolute), and the harness's exact-mode rule (``check_exact``, the
+    peer in the golden's place)."""
+    d = image_difference(ours, peer)
+    err = np.abs(np.asarray(ours, np.float64) - np.asarray(peer, np.float64)).max(-1)
+    d["within_1e-3"] = float(np.mean(err <= 1e-3))
+    ex = check_exact(ours, peer, EXACT_THRESHOLDS)
+    d.update(exact_ok=ex["ok"], edge_pixels=ex["edge_pixels"], hard_pixels=ex["hard_pixels"],
+             mean_rel_nonedge=ex["mean_rel"])
+    return d
+
+
+def whitted_frame_peer(scene: Scene, *, backend: str, depth: int, size: int,
+                       frames: int = 20, accel: str = "bvh") -> dict:
+    """Ours (frozen ``Renderer``, exact mode) vs the peer on ``scene`` at ``depth`` and
+    ``size``², both timed as frozen frames; plus the image difference."""
+    sc = scene.with_settings(max_depth=int(depth), exact=True).with_size(int(size))
+    with _no_collection():
+        ours = frozen_frame_ms(sc, backend=backend, accel=accel, frames=frames)
+    with _no_collection():
+        peer = peer_frame_ms(sc, backend=backend, frames=frames)
+    row = {"scene": sc.name, "size": int(size), "depth": int(depth), "backend": backend,
+           "frames": frames,
+           "ours_frozen_ms": ours["frozen_ms"], "ours_kernel_ms": ours["frozen_kernel_ms"],
+           "ours_traced_ms": ours["traced_ms"], "ours_kernels": ours["kernels"],
+           "ours_frozen_equals_traced": ours["frozen_equals_traced"],
+           "peer_frozen_ms": peer["frozen_ms"], "peer_kernel_ms": peer["frozen_kernel_ms"],
+           "peer_traced_ms": peer["traced_ms"], "peer_kernels": peer["jit_kernels"],
+           "peer_operations": peer["operations"],
+           "peer_frozen_equals_traced": peer["frozen_equals_traced"],
+           "difference": agreement(ours["image"], peer["image"])}
+    row["speedup_frozen"] = row["peer_frozen_ms"] / row["ours_frozen_ms"]
+    row["speedup_kernel"] = (row["peer_kernel_ms"] / row["ours_kernel_ms"]
+                             if row["ours_kernel_ms"] > 0 else float("nan"))
+    return row
+
+
+# ---- compile probe ---------------------------------------------------------------------------
+def peer_compiles(scene: Scene | str | Path, depth: int, timeout_s: float, *,
+                  backend: str = "llvm", size: int = 64, cold_cache: bool = True) -> dict:
+    """Whether the peer at ``depth`` traces, compiles and renders one ``size``² frame within
+    ``timeout_s`` seconds, run in a subprocess (killed at the timeout, so a hang or a
+    runaway compile cannot stop the bench). ``cold_cache``: the subprocess gets an empty
+    Dr.Jit kernel cache (``$HOME/.drjit``), so the time is a real compile.
+    Returns {"depth", "compiles", "seconds" (first frame, or the timeout), "error"}."""
+    path = scene if isinstance(scene, (str, Path)) else scene.path
+    if path is None:
+        raise ValueError("peer_compiles: the scene needs a file path (scene.path)")
+    cmd = [sys.executable, str(Path(__file__).resolve()), "--probe", str(path),
+           "--probe-depth", str(int(depth)), "--backend", backend, "--probe-size", str(int(size))]
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(ROOT), env.get("PYTHONPATH")]))
+    with tempfile.TemporaryDirectory(prefix="peer-probe-") as home:
+        if cold_cache:
+            env["HOME"] = home
+        t0 = time.perf_counter()
+        try:
+            p = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=timeout_s)
+        except subprocess.TimeoutExpired:
+            return {"depth": int(depth), "compiles": False, "seconds": float(timeout_s),
+                    "error": f"timeout after {timeout_s:g} s"}
+        wall = time.perf_counter() - t0
+    if p.returncode != 0:
+        return {"depth": int(depth), "compiles": False, "seconds": wall,
+                "error": (p.stderr.strip().splitlines() or ["exit %d" % p.returncode])[-1]}
+    out = json.loads(p.stdout.strip().splitlines()[-1])
+    return {"depth": int(depth), "compiles": True, "seconds": out["first_frame_s"],
+            "process_s": wall, "operations": out["operations"], "error": None}
+
+
+def _probe_main(path: str, depth: int, backend: str, size: int) -> None:
+    """Subprocess side of ``peer_compiles``: one traced peer frame; prints one JSON line."""
+    import drjit as dr
+    sc = load_scene(path).with_settings(max_depth=depth, exact=True).with_size(size)
+    peer = load_peer(sc, backend=backend)
+    pos = peer.positions()
+    with dr.scoped_set_flag(dr.JitFlag.KernelHistory, True):
+        dr.kernel_history()
+        t0 = time.perf_counter()
+        peer.frame(pos)
+        dr.sync_thread()
+        first = time.perf_counter() - t0
+        ops = sum(int(h.get("operation_count", 0)) for h in dr.kernel_history())
+    print(json.dumps({"first_frame_s": first, "operations": ops}), flush=True)
+
+
+def peer_depth_limit(scene, depths, timeout_s: float, **kw) -> list[dict]:
+    """``peer_compiles`` for ``depths`` in increasing order, stopping at the first depth
+    that does not compile (a deeper tree only grows)."""
+    probes = []
+    for d in sorted(depths):
+        probes.append(peer_compiles(scene, d, timeout_s, **kw))
+        if not probes[-1]["compiles"]:
+            break
+    return probes
+
+
+# ---- the part ------------------------------------------------------------------------------------
+def _scene(s) -> Scene:
+    if isinstance(s, Scene):
+        return s
+    p = Path(s)
+    if not p.suffix:
+        p = ROOT / "scenes" / f"{s}.toml"
+    return load_scene(p)
+
+
+def run_part(scenes, *, backend: str, sizes=(512, 1024), depths=(2, 5), frames: int = 20,
+             probe_depths=None, probe_timeout_s: float = 120.0, log=print) -> list[dict]:
+    """For each scene (Scene, name or path) and depth: probe the peer's compile (depths
+    above 2 only, or ``probe_depths`` if given, which are probed whatever ``depths`` is),
+    then time ours vs the peer at each size where it compiles. Returns one row per
+    (scene, depth, size), plus one per probe that failed (``"compiles": False``)."""
+    rows = []
+    for s in scenes:
+        sc = _scene(s)
+        to_probe = sorted(set(probe_depths if probe_depths is not None
+                              else [d for d in depths if d > 2]))
+        probes = {p["depth"]: p for p in peer_depth_limit(sc, to_probe, probe_timeout_s,
+                                                          backend=backend)} if to_probe else {}
+        limit = min((d for d, p in probes.items() if not p["compiles"]), default=None)
+        for d, p in sorted(probes.items()):
+            log(f"  probe {sc.name:16s} depth {d}: "
+                + (f"compiles, first frame {p['seconds']:.1f} s" if p["compiles"]
+                   else f"does not compile ({p['error']})"))
+        for depth in depths:
+            if limit is not None and depth >= limit:
+                rows.append({"scene": sc.name, "depth": int(depth), "backend": backend,
+                             "compiles": False, "probe": probes.get(limit)})
+                continue
+            for size in sizes:
+                r = whitted_frame_peer(sc, backend=backend, depth=depth, size=size,
+                                       frames=frames)
+                r["compiles"] = True
+                r["probe"] = probes.get(depth)
+                rows.append(r)
+                d = r["difference"]
+                log(f"  peer {sc.name:16s} d{depth} {size}²  ours {r['ours_frozen_ms']:.3f} ms "
+                    f"(kernel {r['ours_kernel_ms']:.3f})  peer {r['peer_frozen_ms']:.3f} ms "
+                    f"(kernel {r['peer_kernel_ms']:.3f})  x{r['speedup_frozen']:.2f}  "
+                    f"rmse {d['rmse']:.1e}  within 1e-3 {d['within_1e-3']:.4f}")
+    return rows
+
+
+def markdown(rows: list[dict], device: dict | None = None) -> str:
+    """The rows of ``run_part`` as a markdown table."""
+    lines = []
+    if device:
+        lines += [f"## Whitted frame: ours vs a fair Mitsuba peer on {device.get('device')} "
+                  f"({device.get('backend')})", ""]
+    lines += ["Both frozen (`dr.freeze`), exact mode, same scene, depth and size; ms = median "
+              "frame wall time (launch + wait), kernel ms from Dr.Jit's kernel history.", "",
+              "| scene | depth | size | ours ms | ours kernel ms | peer ms | peer kernel ms | "
+              "speed-up (frame) | speed-up (kernel) | peer kernels | peer compile s | RMSE | "
+              "px within 1e-3 | exact rule |",
+              "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: "
+              "| ---: | --- |"]
+    for r in rows:
+        if not r.get("compiles", True):
+            p = r.get("probe") or {}
+            lines.append(f"| {r['scene']} | {r['depth']} | — | — | — | does not compile "
+                         f"({p.get('error', '')}) | — | — | — | — | — | — | — | — |")
+            continue
+        d, p = r["difference"], r.get("probe")
+        comp = f"{p['seconds']:.1f}" if p else f"{r['peer_traced_ms'] / 1e3:.1f}"
+        rule = ("pass" if d["exact_ok"] else "fail") + f" ({d['edge_pixels']} edge px)"
+        lines.append(f"| {r['scene']} | {r['depth']} | {r['size']}² | {r['ours_frozen_ms']:.3f} | "
+                     f"{r['ours_kernel_ms']:.3f} | {r['peer_frozen_ms']:.3f} | "
+                     f"{r['peer_kernel_ms']:.3f} | {r['speedup_frozen']:.2f}× | "
+                     f"{r['speedup_kernel']:.2f}× | {r['peer_kernels']} | {comp} | "
+                     f"{d['rmse']:.1e} | {d['within_1e-3']:.4f} | {rule} |")
+    lines.append("")
+    return "\n".join(lines)
+
+
+def _jsonable(x):
+    if isinstance(x, dict):
+        return {k: _jsonable(v) for k, v in x.items() if k != "image"}
+    if isinstance(x, (list, tuple)):
+        return [_jsonable(v) for v in x]
+    if isinstance(x, np.generic):
+        return x.item()
+    return x
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--backend", default="llvm", choices=("llvm", "cuda"))
+    ap.add_argument("--scenes", nargs="+", default=list(PEER_SCENES))
+    ap.add_argument("--sizes", nargs="+", type=int, default=[512, 1024])
+    ap.add_argument("--depths", nargs="+", type=int, default=[2, 5])
+    ap.add_argument("--probe-depths", nargs="*", type=int, default=None,
+                    help="depths to probe for compiling (default: the depths above 2)")
+    ap.add_argument("--probe-timeout", type=float, default=120.0)
+    ap.add_argument("--frames", type=int, default=20)
+    ap.add_argument("--out", default=None, help="folder for peer-<backend>.json and .md")
+    ap.add_argument("--probe", default=None, help=argparse.SUPPRESS)
+    ap.add_argument("--probe-depth", type=int, default=2, help=argparse.SUPPRESS)
+    ap.add_argument("--probe-size", type=int, default=64, help=argparse.SUPPRESS)
+    a = ap.parse_args(argv)
+    if a.probe:
+        _probe_main(a.probe, a.probe_depth, a.backend, a.probe_size)
+        return 0
+    info = device_info(a.backend)
+    print(f"peer bench on {info.get('device')} ({a.backend})", flush=True)
+    rows = run_part(a.scenes, backend=a.backend, sizes=a.sizes, depths=a.depths,
+                    frames=a.frames, probe_depths=a.probe_depths,
+                    probe_timeout_s=a.probe_timeout)
+    md = markdown(rows, info)
+    print(md)
+    if a.out:
+        out = Path(a.out)
+        out.mkdir(parents=True, exist_ok=True)
+        (out / f"peer-{a.backend}.json").write_text(json.dumps(
+            _jsonable({"device": info, "date": time.strftime("%Y-%m-%d %H:%M:%S"),
+                       "rows": rows}), indent=1))
+        (out / f"peer-{a.backend}.md").write_text(md)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
