@@ -243,14 +243,23 @@ class Peer:
         return img
 
     def frozen(self):
-        """``run(pos) -> TensorXf``: the frame function under ``dr.freeze`` (evaluated)."""
+        """``run(pos) -> TensorXf``: the frame function under ``dr.freeze`` (evaluated).
+        Python's cycle collector is held off during each call: freeing device memory while
+        a frame is being recorded makes Dr.Jit abort ("this function cannot be recorded")."""
+        import gc
         import drjit as dr
         fn = dr.freeze(self.frame_fn())
         scene, tables = self.scene, self.tables
 
         def run(pos):
-            img = fn(scene, tables, pos)
-            dr.eval(img)
+            was = gc.isenabled()
+            gc.disable()
+            try:
+                img = fn(scene, tables, pos)
+                dr.eval(img)
+            finally:
+                if was:
+                    gc.enable()
             return img
         return run
 
