@@ -130,36 +130,81 @@ def whitted_frame_peer(scene: Scene, *, backend: str, depth: int, size: int,
 
 
 # ---- compile probe ---------------------------------------------------------------------------
-def peer_compiles(scene: Scene | str | Path, depth: int, timeout_s: float, *,
-                  backend: str = "llvm", size: int = 64, cold_cache: bool = True) -> dict:
-    """Whether the peer at ``depth`` traces, compiles and renders one ``size``² frame within
-    ``timeout_s`` seconds, run in a subprocess (killed at the timeout, so a hang or a
-    runaway compile cannot stop the bench). ``cold_cache``: the subprocess gets an empty
-    Dr.Jit kernel cache (``$HOME/.drjit``), so the time is a real compile.
-    Returns {"depth", "compiles", "seconds" (first frame, or the timeout), "error"}."""
+def _probe_cmd(scene, depth: int, backend: str, size: int) -> list[str]:
     path = scene if isinstance(scene, (str, Path)) else scene.path
     if path is None:
         raise ValueError("peer_compiles: the scene needs a file path (scene.path)")
-    cmd = [sys.executable, str(Path(__file__).resolve()), "--probe", str(path),
-           "--probe-depth", str(int(depth)), "--backend", backend, "--probe-size", str(int(size))]
+    return [sys.executable, str(Path(__file__).resolve()), "--probe", str(path),
+            "--probe-depth", str(int(depth)), "--backend", backend,
+            "--probe-size", str(int(size))]
+
+
+def probe_many(items, timeout_s: float, *, backend: str = "llvm", size: int = 64,
+               cold_cache: bool = True, jobs: int = 1) -> list[dict]:
+    """``peer_compiles`` for each ``(scene, depth)`` of ``items``, ``jobs`` subprocesses at
+    a time, each killed ``timeout_s`` seconds after it started. Results in the order of
+    ``items``."""
     env = dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(ROOT), env.get("PYTHONPATH")]))
-    with tempfile.TemporaryDirectory(prefix="peer-probe-") as home:
-        if cold_cache:
-            env["HOME"] = home
-        t0 = time.perf_counter()
-        try:
-            p = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=timeout_s)
-        except subprocess.TimeoutExpired:
-            return {"depth": int(depth), "compiles": False, "seconds": float(timeout_s),
-                    "error": f"timeout after {timeout_s:g} s"}
-        wall = time.perf_counter() - t0
-    if p.returncode != 0:
-        return {"depth": int(depth), "compiles": False, "seconds": wall,
-                "error": (p.stderr.strip().splitlines() or ["exit %d" % p.returncode])[-1]}
-    out = json.loads(p.stdout.strip().splitlines()[-1])
-    return {"depth": int(depth), "compiles": True, "seconds": out["first_frame_s"],
-            "process_s": wall, "operations": out["operations"], "error": None}
+    items = list(items)
+    results: list[dict | None] = [None] * len(items)
+    running: dict[int, tuple] = {}
+    todo = list(range(len(items)))
+    with tempfile.TemporaryDirectory(prefix="peer-probe-") as tmp:
+        while todo or running:
+            while todo and len(running) < max(1, jobs):
+                i = todo.pop(0)
+                scene, depth = items[i]
+                e = dict(env)
+                if cold_cache:                 # an empty kernel cache per probe
+                    e["HOME"] = os.path.join(tmp, str(i))
+                    os.makedirs(e["HOME"])
+                out = open(os.path.join(tmp, f"{i}.out"), "w+")
+                err = open(os.path.join(tmp, f"{i}.err"), "w+")
+                proc = subprocess.Popen(_probe_cmd(scene, depth, backend, size), env=e,
+                                        stdout=out, stderr=err, text=True)
+                running[i] = (proc, time.perf_counter(), out, err)
+            time.sleep(0.05)
+            for i, (proc, t0, out, err) in list(running.items()):
+                depth = int(items[i][1])
+                wall = time.perf_counter() - t0
+                if proc.poll() is None:
+                    if wall < timeout_s:
+                        continue
+                    proc.kill()
+                    proc.wait()
+                    results[i] = {"depth": depth, "compiles": False, "seconds": float(timeout_s),
+                                  "error": f"timeout after {timeout_s:g} s"}
+                else:
+                    out.seek(0)
+                    err.seek(0)
+                    lines = out.read().strip().splitlines()
+                    if proc.returncode != 0 or not lines:
+                        tail = err.read().strip().splitlines() or [f"exit {proc.returncode}"]
+                        results[i] = {"depth": depth, "compiles": False, "seconds": wall,
+                                      "error": tail[-1]}
+                    else:
+                        o = json.loads(lines[-1])
+                        results[i] = {"depth": depth, "compiles": True,
+                                      "seconds": o["first_frame_s"], "process_s": wall,
+                                      "operations": o["operations"], "error": None}
+                out.close()
+                err.close()
+                del running[i]
+    return results
+
+
+def peer_compiles(scene: Scene | str | Path, depth: int, timeout_s: float, *,
+                  backend: str = "llvm", size: int = 64, cold_cache: bool = True) -> dict:
+    """Whether the peer at ``depth`` traces, compiles and renders one ``size``² frame within
+    ``timeout_s`` seconds (process start and scene load included), run in a subprocess that
+    is killed at the timeout, so a hang or a runaway compile cannot stop the bench.
+    ``cold_cache``: the subprocess gets an empty kernel cache (``$HOME``, where Dr.Jit and the
+    driver keep theirs), so the time is a real compile. The scene is read from its file
+    (``scene.path``, or a path). Returns {"depth", "compiles", "seconds" (trace + compile +
+    first frame, or the timeout), "process_s", "operations", "error"}."""
+    return probe_many([(scene, depth)], timeout_s, backend=backend, size=size,
+                      cold_cache=cold_cache)[0]
 
 
 def _probe_main(path: str, depth: int, backend: str, size: int) -> None:
@@ -175,14 +220,18 @@ def _probe_main(path: str, depth: int, backend: str, size: int) -> None:
         dr.sync_thread()
         first = time.perf_counter() - t0
         ops = sum(int(h.get("operation_count", 0)) for h in dr.kernel_history())
-    print(json.dumps({"first_frame_s": first, "operations": ops}), flush=True)
+    print(json.dumps({"first_frame_s": first, "operations": ops}))
 
 
-def peer_depth_limit(scene, depths, timeout_s: float, **kw) -> list[dict]:
-    """``peer_compiles`` for ``depths`` in increasing order, stopping at the first depth
-    that does not compile (a deeper tree only grows)."""
+def peer_depth_limit(scene, depths, timeout_s: float, *, jobs: int = 1, **kw) -> list[dict]:
+    """``peer_compiles`` for ``depths`` in increasing order; with ``jobs == 1`` it stops at
+    the first depth that does not compile (a deeper tree only grows), with more it probes
+    them all at once."""
+    depths = sorted(depths)
+    if jobs > 1:
+        return probe_many([(scene, d) for d in depths], timeout_s, jobs=jobs, **kw)
     probes = []
-    for d in sorted(depths):
+    for d in depths:
         probes.append(peer_compiles(scene, d, timeout_s, **kw))
         if not probes[-1]["compiles"]:
             break
@@ -200,33 +249,46 @@ def _scene(s) -> Scene:
 
 
 def run_part(scenes, *, backend: str, sizes=(512, 1024), depths=(2, 5), frames: int = 20,
-             probe_depths=None, probe_timeout_s: float = 120.0, log=print) -> list[dict]:
-    """For each scene (Scene, name or path) and depth: probe the peer's compile (depths
-    above 2 only, or ``probe_depths`` if given, which are probed whatever ``depths`` is),
-    then time ours vs the peer at each size where it compiles. Returns one row per
-    (scene, depth, size), plus one per probe that failed (``"compiles": False``)."""
+             probe_depths=None, probe_timeout_s: float = 120.0, probe_jobs: int = 1,
+             log=None) -> list[dict]:
+    """Probe, then time. Probes: for each scene (Scene, name or path) the peer's compile at
+    ``probe_depths`` (default: the ``depths`` above 2), ``probe_jobs`` subprocesses at a
+    time, each bounded by ``probe_timeout_s``; one row per probe (``"kind": "probe"``).
+    Frames: ours vs the peer at each depth of ``depths`` and size of ``sizes``, skipped (a
+    row with ``"compiles": False``) where a probe at that depth or below failed; one row per
+    (scene, depth, size) (``"kind": "frame"``)."""
+    log = log or (lambda msg: print(msg, flush=True))
+    scs = [_scene(s) for s in scenes]
+    to_probe = sorted(set(probe_depths if probe_depths is not None
+                          else [d for d in depths if d > 2]))
+    if probe_jobs > 1:       # every (scene, depth) at once
+        flat = probe_many([(sc, d) for sc in scs for d in to_probe], probe_timeout_s,
+                          backend=backend, jobs=probe_jobs)
+        per_scene = [flat[i * len(to_probe):(i + 1) * len(to_probe)] for i in range(len(scs))]
+    else:                    # one at a time, each scene up to its first failing depth
+        per_scene = [peer_depth_limit(sc, to_probe, probe_timeout_s, backend=backend)
+                     if to_probe else [] for sc in scs]
     rows = []
-    for s in scenes:
-        sc = _scene(s)
-        to_probe = sorted(set(probe_depths if probe_depths is not None
-                              else [d for d in depths if d > 2]))
-        probes = {p["depth"]: p for p in peer_depth_limit(sc, to_probe, probe_timeout_s,
-                                                          backend=backend)} if to_probe else {}
-        limit = min((d for d, p in probes.items() if not p["compiles"]), default=None)
-        for d, p in sorted(probes.items()):
-            log(f"  probe {sc.name:16s} depth {d}: "
+    for sc, probes in zip(scs, per_scene):
+        for p in probes:
+            rows.append(dict(p, kind="probe", scene=sc.name, backend=backend))
+            log(f"  probe {sc.name:16s} depth {p['depth']}: "
                 + (f"compiles, first frame {p['seconds']:.1f} s" if p["compiles"]
                    else f"does not compile ({p['error']})"))
+    for sc in scs:
+        mine = [r for r in rows if r["kind"] == "probe" and r["scene"] == sc.name]
+        limit = min((r["depth"] for r in mine if not r["compiles"]), default=None)
         for depth in depths:
             if limit is not None and depth >= limit:
-                rows.append({"scene": sc.name, "depth": int(depth), "backend": backend,
-                             "compiles": False, "probe": probes.get(limit)})
+                rows.append({"kind": "frame", "scene": sc.name, "depth": int(depth),
+                             "backend": backend, "compiles": False,
+                             "probe": next(r for r in mine if r["depth"] == limit)})
                 continue
             for size in sizes:
                 r = whitted_frame_peer(sc, backend=backend, depth=depth, size=size,
                                        frames=frames)
-                r["compiles"] = True
-                r["probe"] = probes.get(depth)
+                r.update(kind="frame", compiles=True,
+                         probe=next((p for p in mine if p["depth"] == depth), None))
                 rows.append(r)
                 d = r["difference"]
                 log(f"  peer {sc.name:16s} d{depth} {size}²  ours {r['ours_frozen_ms']:.3f} ms "
@@ -237,32 +299,44 @@ def run_part(scenes, *, backend: str, sizes=(512, 1024), depths=(2, 5), frames: 
 
 
 def markdown(rows: list[dict], device: dict | None = None) -> str:
-    """The rows of ``run_part`` as a markdown table."""
+    """The rows of ``run_part`` as markdown: the frame table, then the compile probes."""
     lines = []
     if device:
         lines += [f"## Whitted frame: ours vs a fair Mitsuba peer on {device.get('device')} "
                   f"({device.get('backend')})", ""]
     lines += ["Both frozen (`dr.freeze`), exact mode, same scene, depth and size; ms = median "
-              "frame wall time (launch + wait), kernel ms from Dr.Jit's kernel history.", "",
+              "frame wall time (launch + wait), kernel ms = median kernel time from Dr.Jit's "
+              "kernel history, warm-up excluded. Difference = peer vs ours.", "",
               "| scene | depth | size | ours ms | ours kernel ms | peer ms | peer kernel ms | "
-              "speed-up (frame) | speed-up (kernel) | peer kernels | peer compile s | RMSE | "
+              "speed-up (frame) | speed-up (kernel) | peer kernels | RMSE | "
               "px within 1e-3 | exact rule |",
-              "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: "
+              "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: "
               "| ---: | --- |"]
     for r in rows:
+        if r.get("kind") == "probe":
+            continue
         if not r.get("compiles", True):
             p = r.get("probe") or {}
-            lines.append(f"| {r['scene']} | {r['depth']} | — | — | — | does not compile "
-                         f"({p.get('error', '')}) | — | — | — | — | — | — | — | — |")
+            lines.append(f"| {r['scene']} | {r['depth']} | — | — | — | peer does not compile "
+                         f"({p.get('error', '')}) | — | — | — | — | — | — | — |")
             continue
-        d, p = r["difference"], r.get("probe")
-        comp = f"{p['seconds']:.1f}" if p else f"{r['peer_traced_ms'] / 1e3:.1f}"
+        d = r["difference"]
         rule = ("pass" if d["exact_ok"] else "fail") + f" ({d['edge_pixels']} edge px)"
         lines.append(f"| {r['scene']} | {r['depth']} | {r['size']}² | {r['ours_frozen_ms']:.3f} | "
                      f"{r['ours_kernel_ms']:.3f} | {r['peer_frozen_ms']:.3f} | "
                      f"{r['peer_kernel_ms']:.3f} | {r['speedup_frozen']:.2f}× | "
-                     f"{r['speedup_kernel']:.2f}× | {r['peer_kernels']} | {comp} | "
+                     f"{r['speedup_kernel']:.2f}× | {r['peer_kernels']} | "
                      f"{d['rmse']:.1e} | {d['within_1e-3']:.4f} | {rule} |")
+    probes = [r for r in rows if r.get("kind") == "probe"]
+    if probes:
+        lines += ["", "Peer compile probes (a subprocess per depth, empty kernel cache, 64² "
+                  "frame; seconds = trace + compile + first frame):", "",
+                  "| scene | depth | compiles | seconds | IR operations |",
+                  "| --- | ---: | --- | ---: | ---: |"]
+        for p in probes:
+            lines.append(f"| {p['scene']} | {p['depth']} | "
+                         f"{'yes' if p['compiles'] else 'no: ' + str(p['error'])} | "
+                         f"{p['seconds']:.1f} | {p.get('operations', '—')} |")
     lines.append("")
     return "\n".join(lines)
 
@@ -286,6 +360,8 @@ def main(argv=None) -> int:
     ap.add_argument("--probe-depths", nargs="*", type=int, default=None,
                     help="depths to probe for compiling (default: the depths above 2)")
     ap.add_argument("--probe-timeout", type=float, default=120.0)
+    ap.add_argument("--probe-jobs", type=int, default=1,
+                    help="probe subprocesses at a time (>1: every scene and depth at once)")
     ap.add_argument("--frames", type=int, default=20)
     ap.add_argument("--out", default=None, help="folder for peer-<backend>.json and .md")
     ap.add_argument("--probe", default=None, help=argparse.SUPPRESS)
@@ -296,10 +372,10 @@ def main(argv=None) -> int:
         _probe_main(a.probe, a.probe_depth, a.backend, a.probe_size)
         return 0
     info = device_info(a.backend)
-    print(f"peer bench on {info.get('device')} ({a.backend})", flush=True)
+    print(f"peer bench on {info.get('device')} ({a.backend})")
     rows = run_part(a.scenes, backend=a.backend, sizes=a.sizes, depths=a.depths,
                     frames=a.frames, probe_depths=a.probe_depths,
-                    probe_timeout_s=a.probe_timeout)
+                    probe_timeout_s=a.probe_timeout, probe_jobs=a.probe_jobs)
     md = markdown(rows, info)
     print(md)
     if a.out:
