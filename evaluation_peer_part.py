@@ -156,9 +156,10 @@ def probe_many(items, timeout_s: float, *, backend: str = "llvm", size: int = 64
                 i = todo.pop(0)
                 scene, depth = items[i]
                 e = dict(env)
-                if cold_cache:                 # an empty kernel cache per probe
+                if cold_cache:                 # empty kernel caches per probe
                     e["HOME"] = os.path.join(tmp, str(i))
                     os.makedirs(e["HOME"])
+                    e["OPTIX_CACHE_MAXSIZE"] = "0"     # OptiX keeps its own, outside $HOME
                 out = open(os.path.join(tmp, f"{i}.out"), "w+")
                 err = open(os.path.join(tmp, f"{i}.err"), "w+")
                 proc = subprocess.Popen(_probe_cmd(scene, depth, backend, size), env=e,
@@ -199,8 +200,8 @@ def peer_compiles(scene: Scene | str | Path, depth: int, timeout_s: float, *,
     """Whether the peer at ``depth`` traces, compiles and renders one ``size``² frame within
     ``timeout_s`` seconds (process start and scene load included), run in a subprocess that
     is killed at the timeout, so a hang or a runaway compile cannot stop the bench.
-    ``cold_cache``: the subprocess gets an empty kernel cache (``$HOME``, where Dr.Jit and the
-    driver keep theirs), so the time is a real compile. The scene is read from its file
+    ``cold_cache``: the subprocess gets empty kernel caches (a fresh ``$HOME``, where Dr.Jit
+    and the CUDA driver keep theirs, and OptiX's cache off), so the time is a real compile. The scene is read from its file
     (``scene.path``, or a path). Returns {"depth", "compiles", "seconds" (trace + compile +
     first frame, or the timeout), "process_s", "operations", "error"}."""
     return probe_many([(scene, depth)], timeout_s, backend=backend, size=size,
