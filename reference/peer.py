@@ -26,7 +26,7 @@ The unrolled tree has up to ``2^(depth+1) - 1`` nodes with refraction (``depth +
 without), which is why deep trees stop compiling in reasonable time.
 
 Entry points: ``Peer(mi_scene)`` (tables from a scene loaded in exact mode by
-``reference.mitsuba_scene.load``), ``Peer.frame(film_xy)`` (traced), ``Peer.frozen()``,
+``reference.mitsuba_scene.load``), ``Peer.frame(pos)`` (traced), ``Peer.frozen()``,
 ``render_peer(scene, ...)`` (float32 (H, W, 3)).
 """
 from __future__ import annotations
