@@ -251,13 +251,14 @@ def _scene(s) -> Scene:
 
 def run_part(scenes, *, backend: str, sizes=(512, 1024), depths=(2, 5), frames: int = 20,
              probe_depths=None, probe_timeout_s: float = 120.0, probe_jobs: int = 1,
-             log=None) -> list[dict]:
+             log=None, on_row=None) -> list[dict]:
     """Probe, then time. Probes: for each scene (Scene, name or path) the peer's compile at
     ``probe_depths`` (default: the ``depths`` above 2), ``probe_jobs`` subprocesses at a
     time, each bounded by ``probe_timeout_s``; one row per probe (``"kind": "probe"``).
     Frames: ours vs the peer at each depth of ``depths`` and size of ``sizes``, skipped (a
     row with ``"compiles": False``) where a probe at that depth or below failed; one row per
-    (scene, depth, size) (``"kind": "frame"``)."""
+    (scene, depth, size) (``"kind": "frame"``). ``on_row(rows)`` is called after each
+    frame row (the command line writes its files there, so a run cut short keeps its rows)."""
     log = log or (lambda msg: print(msg, flush=True))
     scs = [_scene(s) for s in scenes]
     to_probe = sorted(set(probe_depths if probe_depths is not None
@@ -284,6 +285,8 @@ def run_part(scenes, *, backend: str, sizes=(512, 1024), depths=(2, 5), frames: 
                 rows.append({"kind": "frame", "scene": sc.name, "depth": int(depth),
                              "backend": backend, "compiles": False,
                              "probe": next(r for r in mine if r["depth"] == limit)})
+                if on_row:
+                    on_row(rows)
                 continue
             for size in sizes:
                 r = whitted_frame_peer(sc, backend=backend, depth=depth, size=size,
@@ -291,6 +294,8 @@ def run_part(scenes, *, backend: str, sizes=(512, 1024), depths=(2, 5), frames: 
                 r.update(kind="frame", compiles=True,
                          probe=next((p for p in mine if p["depth"] == depth), None))
                 rows.append(r)
+                if on_row:
+                    on_row(rows)
                 d = r["difference"]
                 log(f"  peer {sc.name:16s} d{depth} {size}²  ours {r['ours_frozen_ms']:.3f} ms "
                     f"(kernel {r['ours_kernel_ms']:.3f})  peer {r['peer_frozen_ms']:.3f} ms "
@@ -373,19 +378,24 @@ def main(argv=None) -> int:
         _probe_main(a.probe, a.probe_depth, a.backend, a.probe_size)
         return 0
     info = device_info(a.backend)
-    print(f"peer bench on {info.get('device')} ({a.backend})")
-    rows = run_part(a.scenes, backend=a.backend, sizes=a.sizes, depths=a.depths,
-                    frames=a.frames, probe_depths=a.probe_depths,
-                    probe_timeout_s=a.probe_timeout, probe_jobs=a.probe_jobs)
-    md = markdown(rows, info)
-    print(md)
-    if a.out:
+    print(f"peer bench on {info.get('device')} ({a.backend})", flush=True)
+    date = time.strftime("%Y-%m-%d %H:%M:%S")
+
+    def write(rows):
+        if not a.out:
+            return
         out = Path(a.out)
         out.mkdir(parents=True, exist_ok=True)
         (out / f"peer-{a.backend}.json").write_text(json.dumps(
-            _jsonable({"device": info, "date": time.strftime("%Y-%m-%d %H:%M:%S"),
-                       "rows": rows}), indent=1))
-        (out / f"peer-{a.backend}.md").write_text(md)
+            _jsonable({"device": info, "date": date, "argv": sys.argv[1:], "rows": rows}),
+            indent=1))
+        (out / f"peer-{a.backend}.md").write_text(markdown(rows, info))
+
+    rows = run_part(a.scenes, backend=a.backend, sizes=a.sizes, depths=a.depths,
+                    frames=a.frames, probe_depths=a.probe_depths,
+                    probe_timeout_s=a.probe_timeout, probe_jobs=a.probe_jobs, on_row=write)
+    write(rows)
+    print(markdown(rows, info))
     return 0
 
 
