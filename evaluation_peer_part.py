@@ -310,14 +310,15 @@ def markdown(rows: list[dict], device: dict | None = None) -> str:
     if device:
         lines += [f"## Whitted frame: ours vs a fair Mitsuba peer on {device.get('device')} "
                   f"({device.get('backend')})", ""]
-    lines += ["Both frozen (`dr.freeze`), exact mode, same scene, depth and size; ms = median "
-              "frame wall time (launch + wait), kernel ms = median kernel time from Dr.Jit's "
-              "kernel history, warm-up excluded. Difference = peer vs ours.", "",
-              "| scene | depth | size | ours ms | ours kernel ms | peer ms | peer kernel ms | "
-              "speed-up (frame) | speed-up (kernel) | peer kernels | RMSE | "
-              "px within 1e-3 | exact rule |",
-              "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: "
-              "| ---: | --- |"]
+    if any(r.get("kind") != "probe" for r in rows):
+        lines += ["Both frozen (`dr.freeze`), exact mode, same scene, depth and size; ms = median "
+                  "frame wall time (launch + wait), kernel ms = median kernel time from Dr.Jit's "
+                  "kernel history, warm-up excluded. Difference = peer vs ours.", "",
+                  "| scene | depth | size | ours ms | ours kernel ms | peer ms | peer kernel ms | "
+                  "ours faster (frame, peer/ours) | ours faster (kernel) | peer kernels | RMSE | "
+                  "px within 1e-3 | exact rule |",
+                  "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: "
+                  "| ---: | --- |"]
     for r in rows:
         if r.get("kind") == "probe":
             continue
@@ -369,6 +370,8 @@ def main(argv=None) -> int:
     ap.add_argument("--probe-jobs", type=int, default=1,
                     help="probe subprocesses at a time (>1: every scene and depth at once)")
     ap.add_argument("--frames", type=int, default=20)
+    ap.add_argument("--probe-only", action="store_true",
+                    help="only the compile probes, no frames (file suffix -probes)")
     ap.add_argument("--out", default=None, help="folder for peer-<backend>.json and .md")
     ap.add_argument("--probe", default=None, help=argparse.SUPPRESS)
     ap.add_argument("--probe-depth", type=int, default=2, help=argparse.SUPPRESS)
@@ -386,12 +389,14 @@ def main(argv=None) -> int:
             return
         out = Path(a.out)
         out.mkdir(parents=True, exist_ok=True)
-        (out / f"peer-{a.backend}.json").write_text(json.dumps(
+        tag = a.backend + ("-probes" if a.probe_only else "")
+        (out / f"peer-{tag}.json").write_text(json.dumps(
             _jsonable({"device": info, "date": date, "argv": sys.argv[1:], "rows": rows}),
             indent=1))
-        (out / f"peer-{a.backend}.md").write_text(markdown(rows, info))
+        (out / f"peer-{tag}.md").write_text(markdown(rows, info))
 
-    rows = run_part(a.scenes, backend=a.backend, sizes=a.sizes, depths=a.depths,
+    rows = run_part(a.scenes, backend=a.backend, sizes=a.sizes,
+                    depths=[] if a.probe_only else a.depths,
                     frames=a.frames, probe_depths=a.probe_depths,
                     probe_timeout_s=a.probe_timeout, probe_jobs=a.probe_jobs, on_row=write)
     write(rows)
