@@ -17,8 +17,8 @@ Entry points: ``whitted_frame_peer(scene, ...)`` (one scene, one depth, one size
 from __future__ import annotations
 
 import argparse
-import gc
 import contextlib
+import gc
 import json
 import os
 import subprocess
