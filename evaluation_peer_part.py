@@ -30,10 +30,14 @@ from pathlib import Path
 import numpy as np
 
 # ---- project imports (one block; renamed at merge) ---------------------------------------
-from reference.bench import device_info, frozen_frame_ms, image_difference, kernel_ms
-from reference.cases import EXACT_THRESHOLDS, check_exact
+from evaluation.bench import device_info
+from evaluation.bench.frames import frozen_frame_ms
+from evaluation.metrics import image_difference
+from evaluation.rules import EXACT_THRESHOLDS, check_exact
 from reference.peer import load_peer
 from renderer.scene import Scene, load_scene
+from renderer.stats import kernel_ms
+
 # --------------------------------------------------------------------------------------------
 
 ROOT = Path(__file__).resolve().parent

@@ -35,7 +35,9 @@ import numpy as np
 
 # ---- project imports (one block; renamed at merge) ---------------------------------------
 from reference import mitsuba_variant
-from reference.mitsuba_scene import film_positions, load as load_mitsuba
+from reference.mitsuba_scene import film_positions
+from reference.mitsuba_scene import load as load_mitsuba
+
 # --------------------------------------------------------------------------------------------
 
 
@@ -247,6 +249,7 @@ class Peer:
         Python's cycle collector is held off during each call: freeing device memory while
         a frame is being recorded makes Dr.Jit abort ("this function cannot be recorded")."""
         import gc
+
         import drjit as dr
         fn = dr.freeze(self.frame_fn())
         scene, tables = self.scene, self.tables
