@@ -119,7 +119,7 @@ PROFILES = {
     # The GPU run: the full study.
     "gpu": Profile(),
     # The 2-core CPU run: same factors, the grid stops at 64 spp, fewer repeats.
-    "cpu": Profile(grid_spp=(1, 4, 16), ref_spp=1024, warmup=0, repeats=3,
+    "cpu": Profile(grid_spp=(1, 4, 16), ref_spp=256, warmup=0, repeats=3,
                    brute_max_faces=2000),
     # CI: tiny images, three spp values, a short depth range.
     "tiny": Profile(spp=(1, 4, 16), grid_spp=(1, 4), depths=(0, 1, 2, 6), default_spp=4,
@@ -457,7 +457,8 @@ def run_point(item) -> dict:
         errors[name] = {m: summarize([p[m] for p in per]) for m in METRICS}
     timing = {k: facts.pop(k) for k in list(facts) if k in (
         "first_frame_ms", "compile_ms", "trace_ms", "freeze_record_ms", "kernel_ms",
-        "kernel_ms_min", "frozen_wall_ms", "repeats", "warmup")}
+        "kernel_ms_min", "frozen_wall_ms", "repeats", "warmup", "cache_hits", "kernels",
+        "operations")}
     settings = {k: spec[k] for k in SETTING_KEYS}
     return {"key": spec["key"], "scene": spec["label"], "settings": settings,
             "seeds": list(spec["seeds"]), "size": spec["size"], "errors": errors,
