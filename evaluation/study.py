@@ -80,6 +80,9 @@ METRICS = ("rmse", "relmse", "relmse_trim", "flip_mean", "flip_p95", "de2000_mea
 REFS = ("golden", "own")
 FACTORS = ("spp", "max_depth", "min_weight", "precision", "combination", "intersection",
            "accel", "effects")
+#: Order in which factor lines are measured (a run stopped by its budget has the first ones).
+PRIORITY = ("spp", "accel", "precision", "effects", "min_weight", "combination", "max_depth",
+            "intersection")
 #: Factors that change what is rendered (the model), not how well: off the Pareto front.
 MODEL_FACTORS = ("combination",)
 SEED_SCENES = ("scenes/cornell_box.toml", "scenes/cornell_sphere.toml",
@@ -117,7 +120,7 @@ class Profile:
 
 PROFILES = {
     # The GPU run: the full study.
-    "gpu": Profile(),
+    "gpu": Profile(brute_max_faces=5000),
     # The 2-core CPU run: same factors, the grid stops at 64 spp, fewer repeats.
     "cpu": Profile(grid_spp=(1, 4, 16), ref_spp=256, warmup=0, repeats=3,
                    brute_max_faces=2000),
@@ -237,7 +240,7 @@ def build_sweep(scene_args, profile: Profile, *, backend: str = "llvm",
     for info in scenes.values():
         add(info)
     deferred = []
-    for f in profile.factors:
+    for f in sorted(profile.factors, key=PRIORITY.index):
         for info in scenes.values():
             for v in values[f]:
                 if f == "accel" and v == "brute" and info["faces"] > profile.brute_max_faces:
@@ -459,6 +462,8 @@ def run_point(item) -> dict:
         "first_frame_ms", "compile_ms", "trace_ms", "freeze_record_ms", "kernel_ms",
         "kernel_ms_min", "frozen_wall_ms", "repeats", "warmup", "cache_hits", "kernels",
         "operations")}
+    if hasattr(os, "getloadavg"):
+        timing["loadavg_1m"] = os.getloadavg()[0]      # other work on the machine
     settings = {k: spec[k] for k in SETTING_KEYS}
     return {"key": spec["key"], "scene": spec["label"], "settings": settings,
             "seeds": list(spec["seeds"]), "size": spec["size"], "errors": errors,
@@ -539,6 +544,9 @@ def run_study(scene_args, out, *, profile: Profile | str = "cpu", backend: str =
                 scenes[label].setdefault("ref_info", {})[comb] = {
                     "spp": prof.ref_spp, "seconds": res["seconds"],
                     "device": res["device"]["device"]}
+                if budget_s is not None and time.perf_counter() - t_start > budget_s:
+                    raise SystemExit("study: budget spent on the own references; run again "
+                                     "to resume (finished references are cached)")
         for label, info in scenes.items():
             old = data["scenes"].get(label, {})
             info["ref_info"] = {**old.get("ref_info", {}), **info.get("ref_info", {})}
@@ -728,7 +736,7 @@ def factor_sentences(data: dict, label: str) -> dict:
                              f"at {t:.2f}× time")
         out["spp"] = ("4× spp (vs own reference) " + "; ".join(parts) + ".") if parts else None
     line = factor_line(data, label, "max_depth")
-    if line:
+    if len(line) > 1:
         same = [p["settings"]["max_depth"] for p in line
                 if p["image_sha256"] == base["image_sha256"]]
         first_same = min(same) if same else None
@@ -740,9 +748,9 @@ def factor_sentences(data: dict, label: str) -> dict:
             s += (f"; from depth {first_same} on the image is bitwise the default's "
                   f"(deeper costs {_fmt(_ratio(time_of(line[-1]), time_of(base)))}× time "
                   f"for nothing)")
-        out["max_depth"] = s + "."
+        out["max_depth"] = s.lstrip("; ") + "."
     line = factor_line(data, label, "min_weight")
-    if line:
+    if len(line) > 1:
         parts = []
         for p in line:
             if p is base:
@@ -785,6 +793,63 @@ def factor_sentences(data: dict, label: str) -> dict:
     return out
 
 
+def _median(xs):
+    xs = [x for x in xs if x is not None and math.isfinite(x)]
+    return statistics.median(xs) if xs else None
+
+
+def summary_sentences(data: dict) -> list[str]:
+    """What each factor costs, one sentence per factor: the median over scenes of the error
+    and time ratios of one step away from the default (the README's section)."""
+    rows = {}
+
+    def step(name, factor, value_of, metric="rmse", ref="own"):
+        for label, info in data["scenes"].items():
+            d = info.get("default")
+            if not d:
+                continue
+            line = factor_line(data, label, factor)
+            base = _find(line, factor, d[factor])
+            other = _find(line, factor, value_of(d))
+            if base is None or other is None or other is base:
+                continue
+            r = "golden" if ref == "golden" and base["errors"].get("golden") else "own"
+            rows.setdefault(name, []).append(
+                (_ratio(err_of(other, r, metric), err_of(base, r, metric)),
+                 _ratio(time_of(other), time_of(base)),
+                 other["image_sha256"] == base["image_sha256"], r))
+
+    step("4× spp", "spp", lambda d: d["spp"] * 4)
+    step("¼ spp", "spp", lambda d: d["spp"] // 4)
+    step("one bounce less (max depth − 1)", "max_depth", lambda d: d["max_depth"] - 1,
+         "relmse", "golden")
+    step("no secondary rays (max depth 0)", "max_depth", lambda d: 0, "relmse", "golden")
+    step("cut-off 0 (trace every branch)", "min_weight", lambda d: 0.0, "relmse")
+    step("cut-off 0.1", "min_weight", lambda d: 0.1, "relmse")
+    step("float64", "precision", lambda d: "float64", "rmse", "golden")
+    step("brute force instead of the BVH", "accel", lambda d: "brute")
+    step("per-object boxes instead of the BVH", "accel", lambda d: "boxes")
+    step("the all-effects kernel", "effects", lambda d: "all")
+    out = []
+    for name, rs in rows.items():
+        e = _median([r[0] for r in rs])
+        t = _median([r[1] for r in rs])
+        same = all(r[2] for r in rs)
+        metric = "relMSE" if "depth" in name or "cut-off" in name else "RMSE"
+        ref = rs[0][3]
+        if same:
+            what = "the same image (bitwise)"
+        elif e is None:
+            what = "error n/a"
+        elif e < 1:
+            what = f"{metric} vs {ref} ÷{1 / e:.2f}"
+        else:
+            what = f"{metric} vs {ref} ×{e:.2f}"
+        out.append(f"{name}: {what} at {_fmt(t)}× time (median of {len(rs)} scene"
+                   f"{'s' if len(rs) > 1 else ''})")
+    return out
+
+
 # =========================================================================================
 # Outputs: markdown, plots, HTML
 # =========================================================================================
@@ -809,6 +874,13 @@ def markdown(data: dict) -> str:
         out.append(f"Runs: " + "; ".join(f"{r['date']} {r['points']} points in {r['wall_s']} s"
                                          + (" (stopped by budget)" if r.get('stopped_by_budget')
                                             else "") for r in runs) + ".")
+    lines = summary_sentences(data)
+    if lines:
+        out += ["", "## What each factor costs", "",
+                "One step away from each scene's default; ratios are the median over scenes of "
+                "(error, kernel time) relative to the default.", ""]
+        out += [f"- {x}." for x in lines]
+        out.append("")
     if meta.get("missing"):
         out.append(f"**{len(meta['missing'])} points of the sweep not measured yet** "
                    "(resume the run to add them).")
