@@ -421,8 +421,13 @@ def render_seeds(spec: dict, seeds=None, *, timing: bool = False) -> tuple[list,
         dr.eval(out)
         dr.sync_thread()
         facts["freeze_record_ms"] = (time.perf_counter() - t0) * 1e3
+        cpu0 = time.process_time()
         tm = kernel_ms(lambda: dr.eval(frozen(ca, r.arrays, W, H)),
                        warmup=int(spec.get("warmup", 1)), repeats=int(spec.get("repeats", 3)))
+        # CPU time of this process per frame (all threads): on a CPU backend shared with other
+        # work it does not grow while the process waits for a core, unlike the kernel time.
+        facts["frozen_cpu_ms"] = ((time.process_time() - cpu0) * 1e3
+                                  / (int(spec.get("warmup", 1)) + int(spec.get("repeats", 3))))
         facts.update(kernel_ms=float(tm["kernel_ms"]), kernel_ms_min=float(tm["kernel_ms_min"]),
                      frozen_wall_ms=float(tm["wall_ms"]), repeats=int(tm["repeats"]),
                      warmup=int(spec.get("warmup", 1)))
@@ -460,7 +465,8 @@ def run_point(item) -> dict:
         errors[name] = {m: summarize([p[m] for p in per]) for m in METRICS}
     timing = {k: facts.pop(k) for k in list(facts) if k in (
         "first_frame_ms", "compile_ms", "trace_ms", "freeze_record_ms", "kernel_ms",
-        "kernel_ms_min", "frozen_wall_ms", "repeats", "warmup", "cache_hits", "kernels",
+        "kernel_ms_min", "frozen_wall_ms", "frozen_cpu_ms", "repeats", "warmup", "cache_hits",
+        "kernels",
         "operations")}
     if hasattr(os, "getloadavg"):
         timing["loadavg_1m"] = os.getloadavg()[0]      # other work on the machine
@@ -559,8 +565,9 @@ def run_study(scene_args, out, *, profile: Profile | str = "cpu", backend: str =
         todo = [s for s in specs if s["key"] not in data["points"]]
         if max_points is not None:
             todo = todo[:max_points]
-        log(f"study: {len(specs)} points, {len(specs) - len(todo)} already measured, "
-            f"{len(todo)} to run ({ex.describe()['executor']})")
+        have = sum(s["key"] in data["points"] for s in specs)
+        log(f"study: {len(specs)} points, {have} already measured, "
+            f"{len(todo)} to run now ({ex.describe()['executor']})")
         items = [(s, goldens[s["label"]], owns[(s["label"], s["combination"])]) for s in todo]
         done = 0
         stopped = False
@@ -873,13 +880,24 @@ def markdown(data: dict) -> str:
     if runs:
         out.append(f"Runs: " + "; ".join(f"{r['date']} {r['points']} points in {r['wall_s']} s"
                                          + (" (stopped by budget)" if r.get('stopped_by_budget')
-                                            else "") for r in runs) + ".")
+                                            else "") + (f" ({r['note']})" if r.get("note") else "")
+                                         for r in runs) + ".")
     lines = summary_sentences(data)
     if lines:
         out += ["", "## What each factor costs", "",
                 "One step away from each scene's default; ratios are the median over scenes of "
                 "(error, kernel time) relative to the default.", ""]
         out += [f"- {x}." for x in lines]
+        out.append("")
+    loads = [p["timing"].get("loadavg_1m") for p in data["points"].values()]
+    loads = [x for x in loads if x is not None]
+    cores = dev.get("cores") or 1
+    if loads and max(loads) > cores:
+        out.append(f"**Measured under load**: the 1-minute load average was {min(loads):.1f}–"
+                   f"{max(loads):.1f} on {cores} cores while points were timed (other work on "
+                   "the machine), so kernel times include waiting for a core and time ratios "
+                   "between points are uncertain by a factor of a few; the errors are not "
+                   "affected (renders are deterministic).")
         out.append("")
     if meta.get("missing"):
         out.append(f"**{len(meta['missing'])} points of the sweep not measured yet** "
