@@ -795,8 +795,10 @@ def factor_sentences(data: dict, label: str) -> dict:
     line = factor_line(data, label, "combination")
     if len(line) > 1:
         out["combination"] = "model change: " + "; ".join(
-            f"{p['settings']['combination']}: relMSE vs golden {_fmt(err_of(p, 'golden'))}, "
-            f"{_fmt(time_of(p))} ms" for p in line) + "."
+            f"{p['settings']['combination']}: relMSE vs {ref} {_fmt(err_of(p, ref))}, "
+            f"{_fmt(time_of(p))} ms" for p in line) + "." + (
+            "" if ref == "golden" else " (no golden: each model is compared with its own "
+            "high-spp render, so this is sampling error, not the model difference)")
     return out
 
 
@@ -977,6 +979,7 @@ def plot_scene(data: dict, label: str, out: Path, metric: str = "relmse") -> lis
     the grid as grey dots, the Pareto front in black), and the model change apart."""
     import matplotlib
     matplotlib.use("Agg")
+    matplotlib.rcParams["svg.hashsalt"] = "whitted-study"     # same plot, same file
     import matplotlib.pyplot as plt
     pts = scene_points(data, label)
     refs = [r for r in REFS if any(p["errors"].get(r) for p in pts)]
@@ -1043,7 +1046,7 @@ def plot_scene(data: dict, label: str, out: Path, metric: str = "relmse") -> lis
     paths = []
     for ext in ("png", "svg"):
         p = Path(out) / f"{label}.{ext}"
-        fig.savefig(p, dpi=110)
+        fig.savefig(p, dpi=110, metadata={"Date": None} if ext == "svg" else None)
         paths.append(p)
     plt.close(fig)
     return paths
