@@ -53,20 +53,19 @@ import platform
 import statistics
 import sys
 import time
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
 # ---- project imports (the one block to rename at merge) ------------------------------------
-from reference.bench import kernel_ms               # -> renderer.stats.kernel_ms
-from reference.compare import delta_e2000, flip_error  # -> evaluation.metrics
+from evaluation.metrics import delta_e2000, flip_error
 from reference.golden import GoldenError, load_golden
+from renderer.accel import ACCELERATORS, ROUTINES
 from renderer.effects import EffectSet
-from renderer.intersect import ACCELERATORS         # -> renderer.accel
 from renderer.render import Renderer, make_frame_fn
-from renderer.scene import Scene, load_scene        # -> renderer.scene (package)
-from renderer.triangle import ROUTINES              # -> renderer.accel
+from renderer.scene import Scene, load_scene
+from renderer.stats import kernel_ms
 
 from .executor import make_executor, progress
 
@@ -384,7 +383,7 @@ def render_seeds(spec: dict, seeds=None, *, timing: bool = False) -> tuple[list,
     cam = sc.cameras[0]
     W, H = cam.width, cam.height
     ca = r.camera(0)
-    u64 = getattr(__import__(f"drjit.{r.t.backend}", fromlist=["UInt64"]), "UInt64")
+    u64 = __import__(f"drjit.{r.t.backend}", fromlist=["UInt64"]).UInt64
     fn0 = None
     images, facts = [], {"effects": str(r.effects), "reachable_depth": int(r.effects.depth),
                          "upload_s": float(r.upload_seconds), "rays_per_frame": W * H * r.spp}
@@ -422,7 +421,7 @@ def render_seeds(spec: dict, seeds=None, *, timing: bool = False) -> tuple[list,
         dr.sync_thread()
         facts["freeze_record_ms"] = (time.perf_counter() - t0) * 1e3
         cpu0 = time.process_time()
-        tm = kernel_ms(lambda: dr.eval(frozen(ca, r.arrays, W, H)),
+        tm = kernel_ms(lambda arrays=r.arrays: dr.eval(frozen(ca, arrays, W, H)),
                        warmup=int(spec.get("warmup", 1)), repeats=int(spec.get("repeats", 3)))
         # CPU time of this process per frame (all threads): on a CPU backend shared with other
         # work it does not grow while the process waits for a core, unlike the kernel time.
@@ -880,7 +879,7 @@ def markdown(data: dict) -> str:
                f"{prof.get('warmup')} warm-up). Executor: {meta.get('executor')}.")
     runs = meta.get("runs", [])
     if runs:
-        out.append(f"Runs: " + "; ".join(f"{r['date']} {r['points']} points in {r['wall_s']} s"
+        out.append("Runs: " + "; ".join(f"{r['date']} {r['points']} points in {r['wall_s']} s"
                                          + (" (stopped by budget)" if r.get('stopped_by_budget')
                                             else "") + (f" ({r['note']})" if r.get("note") else "")
                                          for r in runs) + ".")
@@ -1128,4 +1127,4 @@ def strip_timings(data: dict) -> dict:
 
 
 if __name__ == "__main__":  # pragma: no cover
-    sys.exit("run the study with `whitted study` or `python -m whitted.cli_study`")
+    sys.exit("run the study with `whitted study` or `python -m whitted.study`")

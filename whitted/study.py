@@ -6,7 +6,7 @@
     whitted study --scheduler tcp://host:8786 ...
     whitted study --report-only --out DIR    # re-write markdown, plots, HTML from DIR/study.json
 
-Also runnable without the CLI as ``python -m whitted.cli_study ...``. A SCENE is a path, a
+Also runnable without the CLI as ``python -m whitted.study ...``. A SCENE is a path, a
 name under ``scenes/`` or ``PATH@OFFSET`` (the scene translated far from the origin).
 """
 from __future__ import annotations
