@@ -15,8 +15,9 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def test_parts_have_unique_names_and_keys_in_study_order():
-    assert list(PARTS) == ["throughput", "seed", "whitted", "effects"]
-    assert [p.key for p in PARTS.values()] == ["throughput", "seed_table", "whitted", "effects"]
+    assert list(PARTS) == ["throughput", "seed", "whitted", "peer", "effects"]
+    assert [p.key for p in PARTS.values()] == ["throughput", "seed_table", "whitted", "peer",
+                                               "effects"]
     assert all(name == p.name for name, p in PARTS.items())
 
 

@@ -7,8 +7,8 @@ from pathlib import Path
 import drjit as dr
 import numpy as np
 
+from evaluation.bench.peer import whitted_frame_peer
 from evaluation.rules import EXACT_THRESHOLDS, check_exact
-from evaluation_peer_part import whitted_frame_peer
 from reference import mitsuba_variant
 from reference.mitsuba_scene import render_exact
 from reference.peer import load_peer
