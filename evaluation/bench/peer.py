@@ -14,9 +14,9 @@ then times, per scene (``plan`` gives the sizes, depths and timeouts per backend
 
 1. ours vs the peer at depth 2, at 512² and 1024² (quick: 128² and 256²);
 2. ours alone at the scene's own ``max_depth`` (5; 8 for the glass bunny) where the peer
-   does not compile there, at the larger size;
+   did not compile there, at 1024² (quick: 128²);
 3. ours vs the peer at the deepest depth the peer compiled (capped at the scene's depth),
-   at the larger size.
+   at 1024² (quick: 128²).
 
 Rows are saved after each one (``Context.save_rows``), so a run cut short keeps them.
 
@@ -57,26 +57,29 @@ BASE_DEPTH = 2
 @dataclass(frozen=True)
 class Plan:
     """What the part measures: frame sizes (sides, px), depths probed above ``BASE_DEPTH``,
-    the probe timeout (s), probe subprocesses at a time, frozen frames per timing."""
+    the probe timeout (s), probe subprocesses at a time, frozen frames per timing, and the
+    size of the rows beyond ``BASE_DEPTH``."""
 
     sizes: tuple[int, ...]
     probe_depths: tuple[int, ...]
     probe_timeout_s: float
     probe_jobs: int
     frames: int
+    deep_size: int
 
 
 def plan(ctx: Context, n_scenes: int = len(PEER_SCENES)) -> Plan:
     """The part's plan on ``ctx``'s backend. CUDA: probes at depths 3-5, 45 s each, all at
     once (the whole part fits in ~5 minutes on an H200); LLVM: 3-6, 120 s each, as many at
-    once as there are cores; quick: depth 3 only, 60 s, and 128²/256² frames."""
+    once as there are cores; quick: depth 3 only, 60 s, 128²/256² frames at depth 2 and
+    128² beyond. Full runs time the deeper rows at 1024²."""
     cores = os.cpu_count() or 1
     if ctx.quick:
-        return Plan((ctx.frame_size, 2 * ctx.frame_size), (3,), 60.0,
-                    max(1, min(cores, n_scenes)), ctx.frames)
+        s = ctx.frame_size
+        return Plan((s, 2 * s), (3,), 60.0, max(1, min(cores, n_scenes)), ctx.frames, s)
     if ctx.backend == "cuda":
-        return Plan((512, 1024), (3, 4, 5), 45.0, 3 * n_scenes, ctx.frames)
-    return Plan((512, 1024), (3, 4, 5, 6), 120.0, cores, ctx.frames)
+        return Plan((512, 1024), (3, 4, 5), 45.0, 3 * n_scenes, ctx.frames, 1024)
+    return Plan((512, 1024), (3, 4, 5, 6), 120.0, cores, ctx.frames, 1024)
 
 
 # ---- timing ------------------------------------------------------------------------------
@@ -329,33 +332,42 @@ def run(ctx: Context) -> list[dict]:
                                    frames=p.frames)
         else:
             r = ours_frame(sc, backend=ctx.backend, depth=depth, size=size, frames=p.frames)
-            r["peer_limit"] = deepest(probes[sc.name])
+            r["peer_note"] = peer_note(probes[sc.name])
         add(dict(r, kind="frame"))
         line = f"  peer {sc.name:16s} d{depth} {size}²  ours {r['ours_frozen_ms']:.3f} ms"
         if with_peer:
             line += (f"  peer {r['peer_frozen_ms']:.3f} ms  x{r['speedup_frozen']:.2f}  "
                      f"within 1e-3 {r['difference']['within_1e-3']:.4f}")
         else:
-            line += f"  (peer compiles only up to depth {r['peer_limit']})"
+            line += f"  (peer {r['peer_note']})"
         print(line, flush=True)
 
-    big = max(p.sizes)
     for sc in scenes:                       # 1. the common depth, every size
         for size in p.sizes:
             timed(sc, BASE_DEPTH, size, True)
     for sc in scenes:                       # 2. ours at the scene's own depth
         if sc.settings.max_depth > deepest(probes[sc.name]):
-            timed(sc, sc.settings.max_depth, big, False)
+            timed(sc, sc.settings.max_depth, p.deep_size, False)
     for sc in scenes:                       # 3. the peer's deepest compiling depth
         deep = min(deepest(probes[sc.name]), sc.settings.max_depth)
         if deep > BASE_DEPTH:
-            timed(sc, deep, big, True)
+            timed(sc, deep, p.deep_size, True)
     return rows
+
+
+def peer_note(probes: list[dict]) -> str:
+    """Why the peer is not timed beyond ``deepest(probes)``: the first failing probe, or
+    that no deeper depth was probed."""
+    bad = next((p for p in sorted(probes, key=lambda p: p["depth"]) if not p["compiles"]),
+               None)
+    if bad is not None:
+        return f"does not compile at depth {bad['depth']} ({bad['error']})"
+    return f"not probed above depth {deepest(probes)}"
 
 
 def _peer_cells(r: dict) -> list[str]:
     if "peer_frozen_ms" not in r:
-        return ["—", "—", f"does not compile (≤ {r['peer_limit']})", "—", "—", "—", "—"]
+        return [r.get("peer_note", "not timed"), "—", "—", "—", "—", "—", "—"]
     d = r["difference"]
     rule = ("pass" if d["exact_ok"] else "fail") + f" ({d['edge_pixels']} edge px)"
     return [f"{r['peer_frozen_ms']:.3f}", f"{r['peer_kernel_ms']:.3f}",
@@ -364,7 +376,9 @@ def _peer_cells(r: dict) -> list[str]:
 
 
 def markdown(rows: list[dict]) -> list[str]:
-    frames = [r for r in rows if r.get("kind") == "frame"]
+    order = {n: i for i, n in enumerate(dict.fromkeys(r["scene"] for r in rows))}
+    frames = sorted((r for r in rows if r.get("kind") == "frame"),
+                    key=lambda r: (order[r["scene"]], r["depth"], r["size"]))
     probes = [r for r in rows if r.get("kind") == "probe"]
     lines = []
     if frames:
@@ -378,9 +392,9 @@ def markdown(rows: list[dict]) -> list[str]:
                         + _peer_cells(r) for r in frames])
         lines[-1:-1] = ["", "ms: median frozen-frame wall time (launch + wait); kernel ms: "
                         "median kernel time (Dr.Jit's kernel history); ours faster = peer / "
-                        "ours. Rows without the peer: ours at the scene's own depth, where "
-                        "the peer's unrolled tree did not compile (≤ n: its deepest "
-                        "compiling depth); RMSE etc.: peer vs ours."]
+                        "ours; RMSE etc.: peer vs ours. Rows without the peer: ours at the "
+                        "scene's own depth, beyond the deepest depth the peer compiled "
+                        "in the probes below."]
     if probes:
         lines += table("Peer compile probes (a subprocess per depth, empty kernel caches, "
                        "64² frame; seconds = trace + compile + first frame)",
