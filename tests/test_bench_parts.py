@@ -46,13 +46,16 @@ def test_throughput_rays_agree_with_mitsuba_on_a_small_batch():
 
 
 def test_interrupted_run_keeps_the_rows_saved_so_far(tmp_path, monkeypatch):
-    """A part that saves a row and is then cut off (Ctrl-C, ``timeout -s INT``): the result
-    files hold the saved row and say where the run was interrupted."""
+    """A part that saves a row and is then cut off (Ctrl-C, ``timeout -s INT``): the row is
+    on disk as soon as it is saved (a run killed outright keeps it), and the result files
+    hold it and say where the run was interrupted."""
     import evaluation.bench as bench
     from evaluation.bench.part import Part
 
     def cut_off(ctx):
         ctx.save_rows([{"n": 1}])
+        on_disk = json.loads((tmp_path / "bench-llvm.json").read_text())
+        assert on_disk["fake"] == [{"n": 1}] and "interrupted" not in on_disk
         raise KeyboardInterrupt
 
     fake = Part(name="fake", key="fake", run=cut_off,
