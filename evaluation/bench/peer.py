@@ -12,13 +12,14 @@ The peer's tree is unrolled at trace time, so deep trees may not compile in reas
 probed in a subprocess with a timeout (``peer_compiles``, several at once), and the part
 then times, per scene (``plan`` gives the sizes, depths and timeouts per backend):
 
-1. ours vs the peer at depth 2, at 512² and 1024² (quick: 128² and 256²);
+1. ours vs the peer at depth 2, at 1024² and then 512² (quick: 256², 128²);
 2. ours alone at the scene's own ``max_depth`` (5; 8 for the glass bunny) where the peer
    did not compile there, at 1024² (quick: 128²);
 3. ours vs the peer at the deepest depth the peer compiled (capped at the scene's depth),
    at 1024² (quick: 128²).
 
-Rows are saved after each one (``Context.save_rows``), so a run cut short keeps them.
+Rows are saved after each one (``Context.save_rows``), so a run cut short keeps them; the
+order above puts what matters most first.
 
 Entry points: ``whitted_frame_peer(scene, ...)`` (one scene, depth, size),
 ``ours_frame(scene, ...)``, ``peer_compiles(scene, depth, timeout_s)``, ``probe_many``,
@@ -342,8 +343,8 @@ def run(ctx: Context) -> list[dict]:
             line += f"  (peer {r['peer_note']})"
         print(line, flush=True)
 
-    for sc in scenes:                       # 1. the common depth, every size
-        for size in p.sizes:
+    for size in sorted(p.sizes, reverse=True):   # 1. the common depth, largest size first
+        for sc in scenes:
             timed(sc, BASE_DEPTH, size, True)
     for sc in scenes:                       # 2. ours at the scene's own depth
         if sc.settings.max_depth > deepest(probes[sc.name]):
