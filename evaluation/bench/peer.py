@@ -12,14 +12,16 @@ The peer's tree is unrolled at trace time, so deep trees may not compile in reas
 probed in a subprocess with a timeout (``peer_compiles``, several at once), and the part
 then times, per scene (``plan`` gives the sizes, depths and timeouts per backend):
 
-1. ours vs the peer at depth 2, at 1024² and then 512² (quick: 256², 128²);
+1. ours vs the peer at depth 2 at 1024² (quick: 256²);
 2. ours alone at the scene's own ``max_depth`` (5; 8 for the glass bunny) where the peer
    did not compile there, at 1024² (quick: 128²);
-3. ours vs the peer at the deepest depth the peer compiled (capped at the scene's depth),
+3. ours vs the peer at depth 2 at 512² (quick: 128²);
+4. ours vs the peer at the deepest depth the peer compiled (capped at the scene's depth),
    at 1024² (quick: 128²).
 
 Rows are saved after each one (``Context.save_rows``), so a run cut short keeps them; the
-order above puts what matters most first.
+order above puts what matters most and costs least first (each peer row pays a compile:
+on LLVM the same scene and depth at a second size missed Dr.Jit's kernel cache).
 
 Entry points: ``whitted_frame_peer(scene, ...)`` (one scene, depth, size),
 ``ours_frame(scene, ...)``, ``peer_compiles(scene, depth, timeout_s)``, ``probe_many``,
@@ -343,13 +345,16 @@ def run(ctx: Context) -> list[dict]:
             line += f"  (peer {r['peer_note']})"
         print(line, flush=True)
 
-    for size in sorted(p.sizes, reverse=True):   # 1. the common depth, largest size first
-        for sc in scenes:
-            timed(sc, BASE_DEPTH, size, True)
-    for sc in scenes:                       # 2. ours at the scene's own depth
+    first, *rest = sorted(p.sizes, reverse=True)
+    for sc in scenes:                       # 1. the common depth, the largest size
+        timed(sc, BASE_DEPTH, first, True)
+    for sc in scenes:                       # 2. ours at the scene's own depth (no peer)
         if sc.settings.max_depth > deepest(probes[sc.name]):
             timed(sc, sc.settings.max_depth, p.deep_size, False)
-    for sc in scenes:                       # 3. the peer's deepest compiling depth
+    for size in rest:                       # 3. the common depth, the other sizes
+        for sc in scenes:
+            timed(sc, BASE_DEPTH, size, True)
+    for sc in scenes:                       # 4. the peer's deepest compiling depth
         deep = min(deepest(probes[sc.name]), sc.settings.max_depth)
         if deep > BASE_DEPTH:
             timed(sc, deep, p.deep_size, True)
