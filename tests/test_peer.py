@@ -7,7 +7,7 @@ from pathlib import Path
 import drjit as dr
 import numpy as np
 
-from evaluation.bench.peer import deepest, peer_compiles, peer_note, whitted_frame_peer
+from evaluation.bench.peer import deepest, peer_compiles, peer_note, plan, whitted_frame_peer
 from evaluation.bench.peer import markdown as peer_markdown
 from evaluation.rules import EXACT_THRESHOLDS, check_exact
 from reference import mitsuba_variant
@@ -110,3 +110,14 @@ def test_peer_markdown_shows_ours_alone_where_the_peer_does_not_compile():
     text = "\n".join(peer_markdown([ours_only, probe]))
     assert "| cornell_box | 5 | 64² | 1.000 | 0.500 | does not compile at depth 4" in text
     assert "| cornell_box | 4 | no: timeout after 45 s | 45.0 | — |" in text
+
+
+def test_plan_caps_the_compile_probes_on_cuda():
+    """On CUDA (OptiX does not compile depth 5 within 8 minutes) the probes are depths 3-5,
+    45 s each, all at once, so the part fits a 5-minute GPU job; quick runs probe depth 3."""
+    from evaluation.bench.part import Context
+    cuda = plan(Context("cuda", ROOT / "scenes", ROOT), 4)
+    assert (cuda.sizes, cuda.probe_depths, cuda.probe_timeout_s) == ((512, 1024), (3, 4, 5), 45)
+    assert cuda.probe_jobs >= 12 and cuda.deep_size == 1024
+    quick = plan(Context("llvm", ROOT / "scenes", ROOT, quick=True), 4)
+    assert quick.sizes == (128, 256) and quick.probe_depths == (3,) and quick.frames == 5
