@@ -100,7 +100,8 @@ class Peer:
             const_glass[sid] = m.transmissive and m.combination == "constant"
             spec_id[sid] = _ptr_id(mi, m.specular)
             if m.specular is not None:
-                w_refl_max = max(w_refl_max, float(np.max(m.k_refl + (m.k_refr if m.transmissive else 0))))
+                k = m.k_refl + (m.k_refr if m.transmissive else 0)
+                w_refl_max = max(w_refl_max, float(np.max(k)))
             if m.transmissive:
                 scale = max(m.ior, 1 / m.ior) ** 2 if self.physical else 1.0
                 w_refr_max = max(w_refr_max, float(np.max(m.k_refr)) * scale)
@@ -279,7 +280,8 @@ def load_peer(scene, *, backend: str = "llvm", view: int = 0) -> Peer:
     return Peer(load_mitsuba(scene, view=view, mode="exact", spp=1))
 
 
-def render_peer(scene, *, backend: str = "llvm", view: int = 0, freeze: bool = False) -> np.ndarray:
+def render_peer(scene, *, backend: str = "llvm", view: int = 0,
+                freeze: bool = False) -> np.ndarray:
     """``scene`` rendered by the peer in exact mode: float32 (H, W, 3) linear RGB."""
     peer = load_peer(scene, backend=backend, view=view)
     img = peer.frozen()(peer.positions()) if freeze else peer.frame()

@@ -7,8 +7,9 @@ from pathlib import Path
 import drjit as dr
 import numpy as np
 
+from evaluation.bench.peer import deepest, peer_compiles, peer_note, plan, whitted_frame_peer
+from evaluation.bench.peer import markdown as peer_markdown
 from evaluation.rules import EXACT_THRESHOLDS, check_exact
-from evaluation_peer_part import whitted_frame_peer
 from reference import mitsuba_variant
 from reference.mitsuba_scene import render_exact
 from reference.peer import load_peer
@@ -78,3 +79,45 @@ def test_whitted_frame_peer_row():
                            backend=BACKEND, depth=1, size=16, frames=2)
     assert r["peer_kernels"] == 1 and r["peer_frozen_equals_traced"]
     assert r["difference"]["exact_ok"] and r["ours_frozen_ms"] > 0 and r["peer_frozen_ms"] > 0
+
+
+def test_compile_probe_reports_a_compile_and_a_timeout():
+    """The probe subprocess renders a peer frame and reports it; one that runs past its
+    timeout is killed and reported as not compiling."""
+    path = ROOT / "scenes" / "cornell_box.toml"
+    ok = peer_compiles(path, 1, 300.0, backend=BACKEND, size=8)
+    assert ok["compiles"] and ok["error"] is None and ok["operations"] > 0, ok
+    late = peer_compiles(path, 1, 0.2, backend=BACKEND, size=8)
+    assert not late["compiles"] and late["error"] == "timeout after 0.2 s"
+
+
+def test_deepest_compiling_depth_and_the_note_beside_ours():
+    probes = [{"depth": 3, "compiles": True}, {"depth": 5, "compiles": False,
+                                                "error": "timeout after 45 s"},
+              {"depth": 4, "compiles": True}]
+    assert deepest(probes) == 4
+    assert peer_note(probes) == "does not compile at depth 5 (timeout after 45 s)"
+    assert deepest(probes[:1]) == 3 and peer_note(probes[:1]) == "not probed above depth 3"
+    assert deepest([dict(probes[1], depth=3)]) == 2
+
+
+def test_peer_markdown_shows_ours_alone_where_the_peer_does_not_compile():
+    ours_only = {"kind": "frame", "scene": "cornell_box", "depth": 5, "size": 64,
+                 "ours_frozen_ms": 1.0, "ours_kernel_ms": 0.5,
+                 "peer_note": "does not compile at depth 4 (timeout after 45 s)"}
+    probe = {"kind": "probe", "scene": "cornell_box", "depth": 4, "compiles": False,
+             "seconds": 45.0, "error": "timeout after 45 s"}
+    text = "\n".join(peer_markdown([ours_only, probe]))
+    assert "| cornell_box | 5 | 64² | 1.000 | 0.500 | does not compile at depth 4" in text
+    assert "| cornell_box | 4 | no: timeout after 45 s | 45.0 | — |" in text
+
+
+def test_plan_caps_the_compile_probes_on_cuda():
+    """On CUDA (OptiX does not compile depth 5 within 8 minutes) the probes are depths 3-5,
+    45 s each, all at once, so the part fits a 5-minute GPU job; quick runs probe depth 3."""
+    from evaluation.bench.part import Context
+    cuda = plan(Context("cuda", ROOT / "scenes", ROOT), 4)
+    assert (cuda.sizes, cuda.probe_depths, cuda.probe_timeout_s) == ((512, 1024), (3, 4, 5), 45)
+    assert cuda.probe_jobs >= 12 and cuda.deep_size == 1024
+    quick = plan(Context("llvm", ROOT / "scenes", ROOT, quick=True), 4)
+    assert quick.sizes == (128, 256) and quick.probe_depths == (3,) and quick.frames == 5

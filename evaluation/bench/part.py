@@ -6,6 +6,7 @@ part's ``key`` in ``bench-<backend>.json`` and the lines in ``bench-<backend>.md
 """
 from __future__ import annotations
 
+import os
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -18,13 +19,21 @@ class Context:
     """What every part is given.
 
     backend: "cuda" | "llvm" (resolved, never "auto"); scenes_dir: the folder holding the
-    scene files; out_dir: the output folder (exists when a part runs); quick: smoke sizes.
+    scene files; out_dir: the output folder (exists when a part runs); quick: smoke sizes;
+    checkpoint: ``checkpoint(rows)`` saves a part's rows so far (``save_rows``).
     """
 
     backend: str
     scenes_dir: Path
     out_dir: Path
     quick: bool = False
+    checkpoint: Callable[[list[dict]], None] | None = None
+
+    def save_rows(self, rows: list[dict]) -> None:
+        """Write the running part's rows so far with the result (a long part calls this
+        after each row, so a run cut short keeps them); nothing without a checkpoint."""
+        if self.checkpoint is not None:
+            self.checkpoint(rows)
 
     @property
     def frames(self) -> int:
@@ -69,6 +78,14 @@ def jsonable(x):
     if isinstance(x, (int, float, str, bool)) or x is None:
         return x
     return str(x)
+
+
+def write_atomic(path: Path, text: str) -> None:
+    """Write ``text`` to ``path`` through a temporary file in the same folder and a rename,
+    so a reader (or a run cut off mid-write) never sees half a file."""
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    tmp.write_text(text)
+    os.replace(tmp, path)
 
 
 def table(title: str, columns: list[str], align: str, rows: list[list[str]]) -> list[str]:
