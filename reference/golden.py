@@ -325,8 +325,9 @@ def find_golden(scene: Scene, *, view: int, shading: str, mode: str, stores) -> 
         return Lookup("stale", path=side.with_suffix(".exr"), changes=changes, command=cmd,
                       message=f"golden {exr} is stale ({', '.join(changes)} changed since "
                               f"it was rendered); re-render it with `{cmd}`")
-    target = stores[0] if stores else BUNDLED_STORE
-    cmd = regenerate_command(scene.path, target)
+    users = [s for s in stores if not is_bundled(s)]
+    cmd = (f"whitted reference --goldens {_display(users[0]) if users else 'DIR'} "
+           f"{_display(Path(scene.path))}")
     where = " or ".join(_display(s) for s in stores) or "no store"
     return Lookup("missing", command=cmd,
                   message=f"no golden of {scene.name}/{name.stem} in {where}; render it with "
