@@ -507,13 +507,14 @@ def sidecar(scene: Scene, inputs: dict, *, resolution, spp: int, batch_spp: int,
 
 
 # ---- developer harness: the bundled store -------------------------------------------------
-def rekey(scene_paths, *, root: Path = BUNDLED_STORE, verify: bool = True,
+def rekey(scene_paths, *, root: Path = BUNDLED_STORE, verify=MODES,
           report=print) -> list[Path]:
     """Give the existing goldens of ``scene_paths`` in ``root`` the keys of the current code
-    (e.g. after a harness change that does not change a pixel), keeping their EXRs. With
-    ``verify`` each exact golden is first re-rendered and must be bit-identical, and each
-    converged one is re-rendered with its seeds and must match to float32 rounding (1e-6
-    relative); otherwise it is left stale and reported. Returns the sidecars rewritten."""
+    (e.g. after a harness change that does not change a pixel), keeping their EXRs.
+    verify: the modes whose goldens are first re-rendered: an exact golden must come out
+    bit-identical, a converged one (re-rendered with its seeds) within 1e-6 relative;
+    otherwise it is left stale and reported. The sidecar's ``rekeyed`` says whether it was
+    verified. Returns the sidecars rewritten."""
     import mitsuba as mi
 
     from . import mitsuba_variant
@@ -534,7 +535,8 @@ def rekey(scene_paths, *, root: Path = BUNDLED_STORE, verify: bool = True,
                     w, h = meta["resolution"]
                     scene = base.with_size(w, h)
                     g = _load(exr, meta)
-                    if verify:
+                    checked = mode in verify
+                    if checked:
                         if mode == "exact":
                             img = render_mitsuba(scene, view=v, mode="exact")
                             same = np.array_equal(img, g.image)
@@ -552,7 +554,7 @@ def rekey(scene_paths, *, root: Path = BUNDLED_STORE, verify: bool = True,
                                   batch_spp=meta["batch_spp"], batches=meta["batches"],
                                   variant=meta["variant"], date=meta["date"])
                     new["rekeyed"] = datetime.datetime.now(datetime.timezone.utc).isoformat(
-                        timespec="seconds") + (" (re-render verified identical)" if verify
+                        timespec="seconds") + (" (re-render verified identical)" if checked
                                                else " (not verified)")
                     _atomic_write_text(side, json.dumps(new, indent=1) + "\n")
                     report(f"rekeyed: {_display(side)}")
@@ -575,7 +577,9 @@ def main(argv=None) -> int:
     p.add_argument("--rekey", action="store_true",
                    help="re-key existing goldens to the current code after verifying that a "
                         "re-render gives the same pixels")
-    p.add_argument("--no-verify", action="store_true", help="with --rekey: skip the re-render")
+    p.add_argument("--verify", nargs="*", choices=MODES, default=list(MODES),
+                   help="with --rekey: the modes whose goldens are re-rendered and compared "
+                        "first (default both; converged re-renders are slow)")
     p.add_argument("--size", type=int, default=DEFAULT_SIZE)
     p.add_argument("--converged-size", type=int, default=CONVERGED_SIZE)
     p.add_argument("--modes", nargs="+", default=list(MODES), choices=MODES)
@@ -583,7 +587,7 @@ def main(argv=None) -> int:
     args = p.parse_args(argv)
     try:
         if args.rekey:
-            rekey(args.scenes, verify=not args.no_verify)
+            rekey(args.scenes, verify=tuple(args.verify))
         else:
             render_goldens(args.scenes, force=args.force, size=args.size,
                            converged_size=args.converged_size, modes=tuple(args.modes),
