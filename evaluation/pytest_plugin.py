@@ -19,8 +19,9 @@ store falls back to ``$WHITTED_GOLDENS`` / ``[tool.whitted] goldens``; the bundl
 always searched last.
 
 From test code, a test that takes ``whitted_case`` is run once per case of the scenes named by
-its ``@pytest.mark.whitted(scenes=[...], goldens=..., modes=..., shadings=...)`` marker (or of
-the configured folder); ``whitted_case.verdict()`` returns the ``Verdict`` and
+its ``@pytest.mark.whitted(scenes=[...], goldens=..., modes=..., shadings=..., xfail={stem:
+reason})`` marker (or of the configured folder; ``xfail`` marks a scene's cases as expected,
+strictly, to fail); ``whitted_case.verdict()`` returns the ``Verdict`` and
 ``whitted_case.check()`` fails the test unless it is PASS or WARN.
 """
 from __future__ import annotations
@@ -139,6 +140,7 @@ def pytest_generate_tests(metafunc):
     marker = metafunc.definition.get_closest_marker("whitted")
     kw = dict(marker.kwargs) if marker else {}
     scenes = kw.pop("scenes", None)
+    xfail = kw.pop("xfail", {})
     goldens = kw.pop("goldens", None) or _option(config, "goldens")
     backend = kw.pop("backend", None) or _option(config, "backend") or "auto"
     if scenes is None:
@@ -147,7 +149,9 @@ def pytest_generate_tests(metafunc):
     cases = []
     for s in scenes:
         cases += cases_of(s, goldens=goldens, backend=backend, **kw)
-    metafunc.parametrize("whitted_case", cases, ids=[c.id for c in cases])
+    params = [pytest.param(c, marks=[pytest.mark.xfail(strict=True, reason=xfail[c.scene.stem])]
+                           if c.scene.stem in xfail else [], id=c.id) for c in cases]
+    metafunc.parametrize("whitted_case", params)
 
 
 # ---- collecting a folder of scenes ----------------------------------------------------------

@@ -45,8 +45,17 @@ def _ours_converged(scene, view, golden, **kw):
                   exact=False, spp=spp, **kw).image
 
 
+#: Cases known to fail the exact rule, with the measurement: a strict xfail, so a fix shows.
+KNOWN_FAILURES = {
+    "glass_bunny": "refraction through the 69K-triangle bunny: 43 / 36 tie pixels (classic / "
+                   "physical, 1.05 % / 0.88 % of 64x64) exceed edge_fraction 0.5 %; at 128 px "
+                   "163 / 161 and at 256 px 625 / 577 tie pixels plus 2-7 hard pixels (measured "
+                   "with whitted check on LLVM); see issue 11's tie detection by tracing",
+}
+
+
 @pytest.mark.whitted(scenes=[ROOT / s for s in GOLDEN_SCENES], modes=["exact"],
-                     shadings=["classic", "physical"], backend="llvm")
+                     shadings=["classic", "physical"], backend="llvm", xfail=KNOWN_FAILURES)
 def test_exact_matches_golden(whitted_case):
     print(whitted_case.check())
 
