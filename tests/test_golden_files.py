@@ -1,6 +1,6 @@
-"""Golden files: a missing or stale golden is refused with the command that regenerates it,
-an existing one is never silently replaced, and the committed converged goldens carry their
-variance layer."""
+"""Golden files: a missing or stale golden is refused with the command that renders it, an
+up-to-date one is not rendered again, a stale one is replaced only with force, and the
+committed converged goldens carry their variance layer."""
 from __future__ import annotations
 
 import json
@@ -21,7 +21,8 @@ def test_missing_and_stale_goldens_name_the_command(tmp_path):
     shutil.copy("scenes/analytic_quad.toml", path)
     root = tmp_path / "goldens"
     scene = load_scene(path)
-    with pytest.raises(GoldenError, match=r"whitted reference --force .*analytic_quad\.toml"):
+    with pytest.raises(GoldenError,
+                       match=r"no golden.*whitted reference --goldens .*analytic_quad\.toml"):
         load_golden(scene, view=0, shading="classic", mode="exact", root=root)
     render_goldens([path], size=16, modes=("exact",), shadings=("classic",), root=root,
                    progress=False)
