@@ -143,8 +143,11 @@ def golden_path(scene_name: str, view_name: str, shading: str, mode: str,
 
 
 def _display(p: Path) -> str:
-    """``p`` relative to the working folder or the project when inside them (for messages)."""
+    """``p`` relative to the working folder or the project when inside them (for messages);
+    the bundled store by that name."""
     p = Path(p)
+    if is_bundled(p):
+        return "the bundled store"
     for base in (Path.cwd(), ROOT):
         try:
             return str(p.resolve().relative_to(base.resolve()))
