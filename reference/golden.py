@@ -486,7 +486,7 @@ def render_goldens(scene_paths, *, force: bool = False, spp: int = CONVERGED_SPP
         out.parent.mkdir(parents=True, exist_ok=True)
         _atomic_write_exr(out, img, None if var is None else {"var": var})
         _atomic_write_text(out.with_suffix(".json"), json.dumps(meta, indent=1) + "\n")
-        if report:
+        if report and not progress:         # with a progress bar, the bar names each file
             report(f"{'replaced' if found.status == 'stale' else 'wrote'}: {_display(out)}")
         written.append(out)
     return written
