@@ -275,3 +275,19 @@ def test_check_table_thresholds_reach_the_verdict_and_bad_ones_are_named(user, t
     bad.write_text(text + '\n[check]\nmodes = ["fast"]\n')
     with pytest.raises(SceneError, match=r"bad\.toml: check\.modes\[0\]: expected one of"):
         load_scene(bad)
+
+
+def test_warn_level_exceeded_exits_1_and_json_goes_to_stdout(user, tmp_path, capsys):
+    _, scene, store = user
+    warn = tmp_path / "quad.toml"
+    warn.write_text(scene.read_text() + '\n[check]\nshadings = ["classic"]\n'
+                                        "[check.warn]\nmean_rel = 1e-12\n")
+    assert _check(warn, "--goldens", store, "--view", "top", "--json", "-") == 1
+    captured = capsys.readouterr()
+    data = json.loads(captured.out)                  # stdout holds only the JSON
+    assert data["exit_code"] == 1 and data["verdicts"][0]["status"] == "WARN"
+    assert "mean_rel" in data["verdicts"][0]["reason"] and "WARN" in captured.err
+    typo = tmp_path / "typo.toml"
+    typo.write_text(scene.read_text() + "\n[check.warn]\nmean_rell = 1\n")
+    assert _check(typo, "--goldens", store, "--view", "top") == 4
+    assert "check.warn.mean_rell" in capsys.readouterr().out
