@@ -169,6 +169,17 @@ def _sha(data: bytes) -> str:
     return hashlib.sha256(data).hexdigest()
 
 
+def file_hash(path: Path) -> str:
+    """sha256 of a file's bytes (cached while its size and modification time stay)."""
+    st = Path(path).stat()
+    return _file_hash(str(path), st.st_mtime_ns, st.st_size)
+
+
+@functools.lru_cache(maxsize=64)
+def _file_hash(path: str, mtime_ns: int, size: int) -> str:
+    return _sha(Path(path).read_bytes())
+
+
 def code_hash(path: Path) -> str:
     st = Path(path).stat()
     return _code_hash(str(path), st.st_mtime_ns, st.st_size)
@@ -225,7 +236,7 @@ def golden_inputs(scene: Scene, *, view: int, shading: str, mode: str,
     files = [Path(f) for f in scene.source_files] or [Path(scene.path)]
     return {
         "scene": scene_content_hash(scene.path),
-        "meshes": [_sha(f.read_bytes()) for f in files[1:]],
+        "meshes": [file_hash(f) for f in files[1:]],
         "view": view, "view_name": scene.cameras[view].name,
         "shading": shading, "mode": mode,
         "code": harness_hashes(),
