@@ -291,3 +291,30 @@ def test_warn_level_exceeded_exits_1_and_json_goes_to_stdout(user, tmp_path, cap
     typo.write_text(scene.read_text() + "\n[check.warn]\nmean_rell = 1\n")
     assert _check(typo, "--goldens", store, "--view", "top") == 4
     assert "check.warn.mean_rell" in capsys.readouterr().out
+
+
+def test_outputs_are_checked_before_rendering(user, tmp_path, monkeypatch, capsys):
+    _, scene, store = user
+    from renderer.render import Renderer
+
+    def no_render(self, view=0):
+        raise AssertionError("rendered before the outputs were checked")
+    monkeypatch.setattr(Renderer, "render", no_render)
+    (tmp_path / "rep").mkdir()
+    (tmp_path / "rep" / "index.html").write_text("x")
+    assert _check(scene, "--goldens", store, "--report", tmp_path / "rep") == 4
+    assert "pass --force" in capsys.readouterr().err
+    (tmp_path / "file").write_text("")
+    assert _check(scene, "--goldens", store, "--junit", tmp_path / "file" / "out.xml") == 4
+    assert "--junit" in capsys.readouterr().err
+
+
+def test_mitsuba_version_is_part_of_the_key_when_installed(user, monkeypatch):
+    _, scene, store = user
+    s = load_scene(scene)
+    monkeypatch.setattr(golden, "mitsuba_version", lambda: "3.99.0")
+    found = golden.find_golden(s, view=0, shading="classic", mode="exact", stores=[store])
+    assert found.status == "stale" and found.changes[-1].endswith("-> 3.99.0")
+    monkeypatch.setattr(golden, "mitsuba_version", lambda: None)   # not installed: not checked
+    assert golden.find_golden(s, view=0, shading="classic", mode="exact",
+                              stores=[store]).status == "ok"

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 from pathlib import Path
 
@@ -84,13 +85,28 @@ def stores_for(args) -> list[Path]:
     return golden_store.search_stores(args.goldens)
 
 
-def write_outputs(args, verdicts, title: str) -> None:
-    """``--json``, ``--junit`` and ``--report`` of ``verdicts``; raises OSError,
-    FileExistsError."""
+def check_outputs(args) -> None:
+    """Before any rendering: ``--report`` must not hold a report unless ``--force``, and the
+    folders of ``--json`` / ``--junit`` must be writable. Raises OSError."""
     if args.report is not None:
         out = args.report
         if out.exists() and (not out.is_dir() or any(out.iterdir())) and not args.force:
             raise FileExistsError(f"--report {out}: exists; pass --force to replace it")
+    for flag, value in (("--json", args.json), ("--junit", args.junit)):
+        if value is None or value == "-":
+            continue
+        path = Path(value)
+        if path.is_dir():
+            raise IsADirectoryError(f"{flag} {path}: is a folder, expected a file name")
+        folder = path.parent
+        while not folder.exists() and folder != folder.parent:
+            folder = folder.parent
+        if not folder.is_dir() or not os.access(folder, os.W_OK):
+            raise PermissionError(f"{flag} {path}: {folder} is not a writable folder")
+
+
+def write_outputs(args, verdicts, title: str) -> None:
+    """``--json``, ``--junit`` and ``--report`` of ``verdicts``; raises OSError."""
     if args.json == "-":
         print(json.dumps(vd.to_json(verdicts), indent=1, default=str))
     elif args.json:
@@ -111,7 +127,8 @@ def cmd_check(args: argparse.Namespace) -> int:
     out = sys.stderr if args.json == "-" else sys.stdout
     try:
         stores = stores_for(args)
-    except golden_store.GoldenError as e:
+        check_outputs(args)
+    except (golden_store.GoldenError, OSError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 4
     if not args.quiet:
@@ -128,7 +145,7 @@ def cmd_check(args: argparse.Namespace) -> int:
     print(vd.summary_line(verdicts), file=out)
     try:
         write_outputs(args, verdicts, title="whitted check: ours vs Mitsuba 3 goldens")
-    except (OSError, FileExistsError) as e:
+    except OSError as e:
         print(f"error: {e}", file=sys.stderr)
         return 4
     return vd.exit_code(verdicts)
