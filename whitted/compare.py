@@ -135,11 +135,11 @@ def cmd_compare(args: argparse.Namespace) -> int:
             (verdict.status, verdict.reason, verdict.excused,
              verdict.result) = vd.judge(res.image, golden.Golden(ref, None, {}, Path()),
                                         "exact", th, scene.check.get("warn"), scene)
+            print(vd.format_line(verdict))
         else:
-            verdict.status = "PASS"
-            verdict.reason = ("no verdict: a converged --live render has no variance to "
-                              "test against")
-        print(vd.format_line(verdict))
+            verdicts.remove(verdict)
+            print(f"{scene.name}/{cam.name}: no verdict (a converged --live render has no "
+                  "variance to test against; use `whitted check --modes converged`)")
         info = {
             "ours: kernel time": f"{ks['kernel_ms']:.2f} ms (sum of kernel execution "
                                  "times; the wall time above includes tracing and compilation)",
@@ -164,5 +164,6 @@ def cmd_compare(args: argparse.Namespace) -> int:
     if entries:
         print(format_metrics_table(entries))
     print(f"report: {index}")
-    print(vd.summary_line(verdicts))
-    return vd.exit_code(verdicts)
+    if verdicts:
+        print(vd.summary_line(verdicts))
+    return vd.exit_code(verdicts) if verdicts else 0
