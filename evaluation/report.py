@@ -49,6 +49,9 @@ class ReportEntry:
     info: further (label, text) rows for the run table (settings, golden file, ...).
     metrics: ``evaluation.metrics.metrics`` of (ours, ref); computed and stored by
         ``write_report`` when None.
+    verdict: the regression gate's status (PASS, WARN, FAIL, ...; ``evaluation.verdict``)
+        or None when the entry was not judged; verdict_reason: its one-line reason.
+    thresholds: the rule's thresholds used, name -> (value, why).
     """
 
     name: str
@@ -60,6 +63,9 @@ class ReportEntry:
     operations: str = ""
     info: dict[str, str] = field(default_factory=dict)
     metrics: dict | None = None
+    verdict: str | None = None
+    verdict_reason: str = ""
+    thresholds: dict[str, tuple] = field(default_factory=dict)
 
 
 # ---- formatting ---------------------------------------------------------------------------
@@ -204,6 +210,11 @@ table.summary td, table.summary th { padding-right:18px; }
 table.summary td.v { text-align:right; }
 a { color:var(--accent); text-decoration:none; }
 .hint { color:var(--muted); font-size:12.5px; margin:14px 0 10px; }
+.verdict { font-weight:700; padding:1px 7px; border-radius:4px; color:#fff; }
+.v-PASS { background:#15803d; } .v-WARN { background:#b45309; }
+.v-FAIL, .v-SIZE { background:#b91c1c; }
+.v-MISSING, .v-STALE, .v-ERROR { background:#6b21a8; }
+p.reason { margin:0 0 10px; }
 """
 
 _JS = """
@@ -242,6 +253,22 @@ def _map_figure(src: str, label: str, cmap: str, lo: str, hi: str) -> str:
             f'</figcaption></figure>')
 
 
+def _badge(status: str | None) -> str:
+    if not status:
+        return ""
+    s = html.escape(status)
+    return f'<span class="verdict v-{s}">{s}</span> '
+
+
+def _thresholds_html(th: dict) -> str:
+    if not th:
+        return ""
+    esc = html.escape
+    rows = "".join(f'<tr><th>{esc(k)}</th><td class="v">{esc(_num(v))}</td>'
+                   f'<td class="note">{esc(why)}</td></tr>' for k, (v, why) in th.items())
+    return f'<table class="thresholds"><tr><th colspan="3">thresholds</th></tr>{rows}</table>'
+
+
 def _entry_html(e: ReportEntry, slug: str, scale: float) -> str:
     esc = html.escape
     h, w, _ = e.ours.shape
@@ -256,45 +283,63 @@ def _entry_html(e: ReportEntry, slug: str, scale: float) -> str:
                           f'<td class="note">{esc(n)}</td></tr>'
                           for k, v, n in _metric_rows(e.metrics))
     run_rows = "".join(f"<tr><th>{esc(k)}</th><td>{esc(v)}</td></tr>" for k, v in _run_rows(e))
-    return (f'<section class="entry" id="{esc(slug)}"><h2>{esc(e.name)} '
+    reason = (f'<p class="reason">{_badge(e.verdict)}{esc(e.verdict_reason)}</p>'
+              if e.verdict else "")
+    return (f'<section class="entry" id="{esc(slug)}"><h2>{_badge(e.verdict)}{esc(e.name)} '
             f'<span class="note">{w}×{h} · <a href="{esc(slug)}/strip.png">strip.png</a> · '
             f'<a href="{esc(slug)}/metrics.json">metrics.json</a> · '
             f'<a href="{esc(slug)}/ours.exr">ours.exr</a> · '
             f'<a href="{esc(slug)}/mitsuba.exr">mitsuba.exr</a></span></h2>'
-            f'<div class="strip">{strip}</div>'
-            f'<div class="tables"><table>{metric_rows}</table><table>{run_rows}</table></div>'
+            f'{reason}<div class="strip">{strip}</div>'
+            f'<div class="tables"><table>{metric_rows}</table><div><table>{run_rows}</table>'
+            f'{_thresholds_html(e.thresholds)}</div></div>'
             f'</section>')
 
 
 def _summary_html(entries: list[ReportEntry], slugs: list[str]) -> str:
     esc = html.escape
-    head = ("entry", "RMSE", "max abs", "outliers", "mean FLIP", "ΔE mean", "ΔE p99", "ours",
-            "Mitsuba")
+    judged = any(e.verdict for e in entries)
+    head = (("verdict",) if judged else ()) + (
+        "entry", "RMSE", "max abs", "outliers", "mean FLIP", "ΔE mean", "ΔE p99", "ours",
+        "Mitsuba")
     rows = []
     for e, s in zip(entries, slugs):
         m = e.metrics
+        first = f"<td>{_badge(e.verdict)}</td>" if judged else ""
         cells = [_num(m["rmse"]), _num(m["max_abs"]), f"{m['outliers']:,}", _num(m["flip_mean"]),
                  _num(m["de2000_mean"]), _num(m["de2000_p99"]), _seconds(e.ours_seconds),
                  _seconds(e.ref_seconds)]
-        rows.append(f'<tr><td><a href="#{esc(s)}">{esc(e.name)}</a></td>'
+        rows.append(f'<tr>{first}<td><a href="#{esc(s)}">{esc(e.name)}</a></td>'
                     + "".join(f'<td class="v">{esc(c)}</td>' for c in cells) + "</tr>")
     return ('<table class="summary"><tr>' + "".join(f"<th>{esc(h)}</th>" for h in head)
             + "</tr>" + "".join(rows) + "</table>")
 
 
+def _notes_html(notes) -> str:
+    if not notes:
+        return ""
+    esc = html.escape
+    rows = "".join(f"<tr><td>{_badge(status)}</td><td>{esc(name)}</td>"
+                   f'<td class="note">{esc(reason)}</td></tr>' for status, name, reason in notes)
+    return ('<table class="summary"><tr><th>verdict</th><th>entry</th><th>reason</th></tr>'
+            f"{rows}</table>")
+
+
 def write_report(out_dir: str | Path, entries: list[ReportEntry], *, title: str,
-                 overwrite: bool = False) -> Path:
+                 overwrite: bool = False, notes=()) -> Path:
     """Write the HTML report and per-entry PNGs into ``out_dir``; return the page's path.
 
     entries: the comparisons, in page order; an entry without metrics gets them computed
         (``evaluation.metrics.metrics``) and stored on it, so the caller can print them afterwards.
     overwrite: replace the files of an existing, non-empty ``out_dir``; otherwise that is a
         ``FileExistsError``.
+    notes: (status, name, reason) of verdicts without images (a missing or stale golden),
+        listed first.
     """
     out = Path(out_dir)
     if out.exists() and any(out.iterdir()) and not overwrite:
         raise FileExistsError(f"report folder {out} already exists and is not empty")
-    if not entries:
+    if not entries and not notes:
         raise ValueError("entries: expected at least one comparison")
     out.mkdir(parents=True, exist_ok=True)
 
@@ -338,7 +383,8 @@ def write_report(out_dir: str | Path, entries: list[ReportEntry], *, title: str,
         f"<header><h1>{esc(title)}</h1><p>{len(entries)} comparison(s) · {stamp} · images are "
         "sRGB-encoded, clipped to [0, 1]; metrics are on the linear images"
         "</p></header><main>"
-        f"{_summary_html(entries, slugs) if len(entries) > 1 else ''}"
+        f"{_notes_html(notes)}"
+        f"{_summary_html(entries, slugs) if len(entries) > 1 or notes else ''}"
         '<p class="hint">Hover over ours or Mitsuba to see the other image in its place; '
         "click to pin the swap.</p>"
         + "".join(sections)

@@ -19,12 +19,14 @@ from . import SEED_SCENES
 from .metrics import z_test
 
 ROOT = Path(__file__).resolve().parent.parent
-#: Scenes with committed goldens (repo-relative): the seed scenes and the analytic quad.
-GOLDEN_SCENES = tuple(f"scenes/{name}.toml" for name in SEED_SCENES) + (
+#: Scenes whose converged goldens are rendered and committed (repo-relative): the seed scenes
+#: and the analytic quad.
+CONVERGED_SCENES = tuple(f"scenes/{name}.toml" for name in SEED_SCENES) + (
     "scenes/analytic_quad.toml",)
-#: Scenes whose converged goldens are rendered and committed (all of them today; a new scene
-#: joins once `whitted reference --modes converged <scene>` has rendered them).
-CONVERGED_SCENES = GOLDEN_SCENES
+#: Scenes with committed exact goldens: those, and the larger scenes at a size CI can afford
+#: (64 px high, exact mode only).
+GOLDEN_SCENES = CONVERGED_SCENES + (
+    "scenes/bunny.toml", "scenes/glass_bunny.toml", "scenes/conference.toml")
 
 
 class Threshold(NamedTuple):

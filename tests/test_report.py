@@ -151,9 +151,7 @@ def test_compare_cli_writes_report_and_never_overwrites(tmp_path, capsys):
     assert main(argv + ["--force"]) == 0
 
 
-def test_compare_cli_takes_mitsuba_image_from_golden(tmp_path, monkeypatch, capsys):
-    import functools
-
+def test_compare_cli_takes_mitsuba_image_from_golden(tmp_path, capsys):
     from reference import golden
     from renderer.film import read_exr
     from renderer.scene import load_scene
@@ -163,16 +161,17 @@ def test_compare_cli_takes_mitsuba_image_from_golden(tmp_path, monkeypatch, caps
     root = tmp_path / "goldens"
     golden.render_goldens([scene_path], size=16, modes=("exact",), shadings=("classic",),
                           progress=False, root=root)
-    monkeypatch.setattr(golden, "load_golden", functools.partial(golden.load_golden, root=root))
     out = tmp_path / "cmp"
     assert main(["compare", str(scene_path), "--view", "top", "--size", "16x16",
-                 "--accel", "brute", "--out", str(out)]) == 0
+                 "--accel", "brute", "--out", str(out), "--goldens", str(root)]) == 0
     assert "golden" in (out / "index.html").read_text()
     (folder,) = [p for p in out.iterdir() if p.is_dir()]
     stored = golden.load_golden(load_scene(scene_path),
                                 view=0, shading="classic", mode="exact", root=root)
     assert np.array_equal(read_exr(folder / "mitsuba.exr"), stored.image)
-    # a golden of another size is refused, not compared
-    with pytest.raises(SystemExit, match="Mitsuba's image is 16x16"):
-        main(["compare", str(scene_path), "--view", "top", "--size", "8x8", "--accel", "brute",
-              "--out", str(tmp_path / "cmp8")])
+    # a golden of another size is refused, not compared: verdict SIZE, exit code 3
+    capsys.readouterr()
+    assert main(["compare", str(scene_path), "--view", "top", "--size", "8x8", "--accel",
+                 "brute", "--out", str(tmp_path / "cmp8"), "--goldens", str(root)]) == 3
+    assert "SIZE" in capsys.readouterr().out and "image is 16x16, ours 8x8" in \
+        (tmp_path / "cmp8" / "index.html").read_text()

@@ -1,21 +1,24 @@
 """``whitted``: one entry point, one subcommand per job.
 
     whitted render  SCENE.toml   render with the Dr.Jit tracer → EXR + PNG
-    whitted compare SCENE.toml   ours vs Mitsuba's golden → HTML side-by-side report
+    whitted compare SCENE.toml   ours vs Mitsuba's golden → verdict, HTML side-by-side report
+    whitted check   SCENE...     regression gate: one verdict per view, idiff exit codes
     whitted reference SCENE...   (re)render Mitsuba golden images
     whitted export  --mitsuba-xml OUT.xml SCENE.toml
     whitted bench   ...          timing study (kernel times, frozen frames, vs Mitsuba)
     whitted study   ...          accuracy-vs-time study (error vs time, Pareto front)
 
 Each subcommand lives in its own module (``whitted/render.py``, ``compare.py``,
-``reference.py``, ``bench.py``, ``study.py``) with ``register(subparsers)``, which sets
-``func``; the options they share are in ``whitted/options.py``. Mitsuba is imported only
-by the subcommands that run it, when they run, so ``render`` works with only the core
+``check.py``, ``reference.py``, ``bench.py``, ``study.py``) with ``register(subparsers)``,
+which sets ``func``; the options they share are in ``whitted/options.py``. Mitsuba is imported
+only by the subcommands that run it, when they run, so ``render`` works with only the core
 dependencies installed.
 
 Errors: a bad scene file or override (``SceneError``) and an output that exists
 (``FileExistsError``) print one ``error:`` line and return 2; a bad request on the command
-line ends through argparse (status 2) or ``options.CliError`` (status 1).
+line ends through argparse (status 2) or ``options.CliError`` (status 1). ``check`` and
+``compare`` exit with their verdict's code (``evaluation.verdict.EXIT_CODES``: 0 pass, 1 warn,
+2 fail, 3 size mismatch, 4 missing/stale golden or file error).
 """
 from __future__ import annotations
 
@@ -24,10 +27,10 @@ import sys
 
 from renderer.scene import SceneError
 
-from . import bench, compare, reference, render, study
+from . import bench, check, compare, reference, render, study
 
 #: Modules that add subcommands, in the order ``--help`` lists them.
-COMMANDS = (render, compare, reference, bench, study)
+COMMANDS = (render, compare, check, reference, bench, study)
 
 
 def build_parser() -> argparse.ArgumentParser:

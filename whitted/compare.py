@@ -1,12 +1,17 @@
-"""``whitted compare SCENE.toml``: our render against Mitsuba's, as an HTML report.
+"""``whitted compare SCENE.toml``: our render against Mitsuba's: a verdict per view and an
+HTML report.
 
     whitted compare SCENE.toml [--view N|NAME|all] [--shading classic|physical]
-                               [--out DIR] [--golden | --live] [--force]
+                               [--out DIR] [--golden | --live] [--goldens DIR] [--force]
 
-Mitsuba's image comes from the stored golden (``--golden``, the default; exact mode) or is
-rendered now through the reference harness (``--live``, needs Mitsuba). The report folder
-(default ``out/compare/<scene>_<shading>``) is never replaced unless ``--force`` is given.
-Prints the effect set, the metrics table and the report's path.
+Mitsuba's image comes from the stored golden (``--golden``, the default; exact mode; looked
+up by content in ``--goldens DIR`` or the configured store, then the bundled one) or is
+rendered now through the reference harness (``--live``, needs Mitsuba). Each view gets the
+verdict of ``whitted check`` (the exact rule with the scene's thresholds) and the command
+exits with its code (0 pass, 1 warn, 2 fail, 3 size mismatch, 4 missing or stale golden); a
+converged ``--live`` render has no variance to test against and gets no verdict. The report
+folder (default ``out/compare/<scene>_<shading>``) is never replaced unless ``--force`` is
+given. Prints the effect set, the verdicts, the metrics table and the report's path.
 """
 from __future__ import annotations
 
@@ -16,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from evaluation import verdict as vd
 from evaluation.report import ReportEntry, format_metrics_table, write_report
 from reference import golden
 from reference.mitsuba_scene import render_mitsuba
@@ -38,6 +44,9 @@ def register(subparsers) -> None:
                         help="take Mitsuba's image from the stored golden (default)")
     source.add_argument("--live", dest="source", action="store_const", const="live",
                         help="render Mitsuba's image now with the reference harness")
+    p.add_argument("--goldens", type=Path, metavar="DIR",
+                   help="golden store searched before the bundled one (default "
+                        "$WHITTED_GOLDENS or [tool.whitted] goldens in pyproject.toml)")
     p.add_argument("--force", action="store_true", help="replace an existing report folder")
     p.set_defaults(source="golden", func=cmd_compare)
 
@@ -55,21 +64,20 @@ def mitsuba_live(scene, view: int) -> tuple[np.ndarray, float, dict]:
     return np.asarray(img, np.float32), seconds, {"Mitsuba image": f"rendered live ({mode})"}
 
 
-def mitsuba_golden(scene, view: int) -> tuple[np.ndarray, float | None, dict]:
+def mitsuba_golden(scene, view: int, stores=None) -> tuple[np.ndarray, float | None, dict]:
     """Mitsuba's stored exact-mode golden of ``scene.cameras[view]`` in the scene's shading
-    mode (``reference.golden.load_golden``).
+    mode, looked up by content in ``stores`` (default: the bundled store).
 
     Returns (float32 (H, W, 3) linear RGB, render seconds if the sidecar records them else
-    None, info rows). A missing or stale golden ends the command with the golden module's
-    message, which names the command that regenerates it."""
-    try:
-        g = golden.load_golden(scene, view=view, shading=scene.settings.shading, mode="exact")
-    except golden.GoldenError as e:
-        raise CliError(f"{e} (or use --live)") from e
+    None, info rows). Raises ``reference.golden.GoldenError`` for a missing or stale golden,
+    with the message that names the command that renders it."""
+    g = golden.load_golden(scene, view=view, shading=scene.settings.shading, mode="exact",
+                           stores=stores)
     meta = g.meta
     made = ", ".join(str(meta[k]) for k in ("mitsuba_version", "variant", "date") if k in meta)
     return (np.asarray(g.image, np.float32), meta.get("seconds"),
-            {"Mitsuba image": f"golden {g.path}" + (f" ({made})" if made else "")})
+            {"Mitsuba image": f"golden {golden._display(g.path)}"
+             + (f" ({made})" if made else "")})
 
 
 # ---- the command ---------------------------------------------------------------------------------
@@ -95,16 +103,43 @@ def cmd_compare(args: argparse.Namespace) -> int:
     # one upload / accelerator build for every view
     renderer = Renderer(scene, backend=args.backend, precision=args.precision,
                         accel=args.accel, intersection=args.intersection, effects=effects)
-    mitsuba_image = mitsuba_golden if args.source == "golden" else mitsuba_live
-    entries = []
+    stores = golden.search_stores(args.goldens)
+    th = vd.thresholds_for(scene, "exact")
+    entries, verdicts = [], []
     for v in views:
         cam = scene.cameras[v]
+        verdict = vd.Verdict(scene.name, str(args.scene), v, cam.name, s.shading,
+                             "exact" if s.exact else "converged", "ERROR", "")
+        verdicts.append(verdict)
+        if args.source == "golden":
+            try:
+                ref, ref_seconds, ref_info = mitsuba_golden(scene, v, stores)
+            except golden.GoldenError as e:
+                found = golden.find_golden(scene, view=v, shading=s.shading, mode="exact",
+                                           stores=stores)
+                verdict.status = found.status.upper() if found.status != "ok" else "ERROR"
+                verdict.reason = f"{e} (or use --live)"
+                print(vd.format_line(verdict))
+                continue
+        else:
+            ref, ref_seconds, ref_info = mitsuba_live(scene, v)
         ks = kernel_operations(lambda v=v: renderer.render(v))
         res = ks["result"]
-        ref, ref_seconds, ref_info = mitsuba_image(scene, v)
         if ref.shape != res.image.shape:
-            raise CliError(f"view {cam.name!r}: Mitsuba's image is {ref.shape[1]}x"
-                           f"{ref.shape[0]}, ours {cam.width}x{cam.height}")
+            verdict.status = "SIZE"
+            verdict.reason = (f"Mitsuba's image is {ref.shape[1]}x{ref.shape[0]}, ours "
+                              f"{cam.width}x{cam.height}")
+            print(vd.format_line(verdict))
+            continue
+        if s.exact:
+            (verdict.status, verdict.reason, verdict.excused,
+             verdict.result) = vd.judge(res.image, golden.Golden(ref, None, {}, Path()),
+                                        "exact", th, scene.check.get("warn"), scene)
+            print(vd.format_line(verdict))
+        else:
+            verdicts.remove(verdict)
+            print(f"{scene.name}/{cam.name}: no verdict (a converged --live render has no "
+                  "variance to test against; use `whitted check --modes converged`)")
         info = {
             "ours: kernel time": f"{ks['kernel_ms']:.2f} ms (sum of kernel execution "
                                  "times; the wall time above includes tracing and compilation)",
@@ -117,10 +152,18 @@ def cmd_compare(args: argparse.Namespace) -> int:
         entries.append(ReportEntry(
             name=f"{scene.name} / {cam.name} ({s.shading})", ours=res.image, ref=ref,
             ours_seconds=res.seconds, ref_seconds=ref_seconds, effects=str(effects),
-            operations=format_operations(ks), info=info))
+            operations=format_operations(ks), info=info,
+            verdict=verdict.status if s.exact else None, verdict_reason=verdict.reason,
+            thresholds={k: (t.value, t.why) for k, t in th.items()} if s.exact else {}))
 
+    notes = [(x.status, x.name, x.reason) for x in verdicts
+             if x.status in ("MISSING", "STALE", "ERROR", "SIZE")]
+    entries.sort(key=lambda e: -vd.EXIT_CODES.get(e.verdict or "PASS", 0))
     index = write_report(out, entries, title=f"{scene.name}: ours vs Mitsuba 3 ({s.shading})",
-                         overwrite=args.force)
-    print(format_metrics_table(entries))
+                         overwrite=args.force, notes=notes)
+    if entries:
+        print(format_metrics_table(entries))
     print(f"report: {index}")
-    return 0
+    if verdicts:
+        print(vd.summary_line(verdicts))
+    return vd.exit_code(verdicts) if verdicts else 0

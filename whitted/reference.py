@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 from reference import golden
@@ -12,11 +13,21 @@ from renderer.scene import SHADING_MODES, load_scene
 
 def register(subparsers) -> None:
     """Add the ``reference`` and ``export`` subcommands to the main CLI's subparsers."""
-    p = subparsers.add_parser("reference", help="render golden images with Mitsuba 3",
-                              description="Render every view x shading mode x mode of each "
-                              "scene with Mitsuba into reference/goldens/.")
+    p = subparsers.add_parser(
+        "reference", help="render golden images with Mitsuba 3 into a golden store",
+        description="Render the goldens of every view x shading mode x mode of each scene "
+        "with Mitsuba into a golden store (--goldens DIR, else $WHITTED_GOLDENS, else "
+        "[tool.whitted] goldens in the nearest pyproject.toml). Only what is missing or "
+        "stale there is rendered; a stale golden is replaced only with --force. The bundled "
+        "store is read-only here (its developers use `python -m reference.golden "
+        "--bundled`). Modes and shadings default to the scene's [check] table, else exact "
+        "mode in both shadings.")
     p.add_argument("scenes", nargs="+", type=Path, help="scene .toml files")
-    p.add_argument("--force", action="store_true", help="overwrite existing goldens")
+    p.add_argument("--goldens", type=Path, metavar="DIR", help="the golden store to write")
+    p.add_argument("--update", action="store_true",
+                   help="render what is missing or stale, keep what is up to date (the "
+                        "default; stale files still need --force)")
+    p.add_argument("--force", action="store_true", help="replace stale goldens")
     p.add_argument("--spp", type=int, default=golden.CONVERGED_SPP,
                    help=f"converged samples per pixel (default {golden.CONVERGED_SPP})")
     p.add_argument("--batches", type=int, default=golden.CONVERGED_BATCHES,
@@ -26,9 +37,10 @@ def register(subparsers) -> None:
                    help=f"image height in pixels (default {golden.DEFAULT_SIZE})")
     p.add_argument("--converged-size", type=int, default=golden.CONVERGED_SIZE,
                    help=f"image height of converged goldens (default {golden.CONVERGED_SIZE})")
-    p.add_argument("--modes", nargs="+", default=list(golden.MODES), choices=golden.MODES)
-    p.add_argument("--shadings", nargs="+", default=list(SHADING_MODES),
-                   choices=SHADING_MODES)
+    p.add_argument("--modes", nargs="+", choices=golden.MODES,
+                   help="default: the scene's [check] modes, else exact")
+    p.add_argument("--shadings", nargs="+", choices=SHADING_MODES,
+                   help="default: the scene's [check] shadings, else both")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_reference)
 
@@ -44,11 +56,28 @@ def register(subparsers) -> None:
 
 
 def cmd_reference(args: argparse.Namespace) -> int:
-    paths = golden.render_goldens(
-        args.scenes, force=args.force, spp=args.spp, batches=args.batches, size=args.size,
-        converged_size=args.converged_size, modes=tuple(args.modes),
-        shadings=tuple(args.shadings), progress=not args.quiet)
-    print(f"wrote {len(paths)} golden images")
+    from evaluation.verdict import plan_for
+
+    store, source = (args.goldens, "--goldens") if args.goldens else \
+        golden.configured_store()
+    if store is None:
+        print("error: no golden store to write: pass --goldens DIR, set $WHITTED_GOLDENS or "
+              "add `goldens = \"DIR\"` to [tool.whitted] in pyproject.toml (the bundled store "
+              "is read-only)", file=sys.stderr)
+        return 4
+    written = 0
+    try:
+        for path in args.scenes:
+            modes, shadings = plan_for(load_scene(path), args.modes, args.shadings)
+            written += len(golden.render_goldens(
+                [path], force=args.force, spp=args.spp, batches=args.batches, size=args.size,
+                converged_size=args.converged_size, modes=modes, shadings=shadings,
+                progress=not args.quiet, root=store, report=None if args.quiet else print))
+    except golden.GoldenError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 4
+    print(f"wrote {written} golden images into {store}" + (f" (from {source})"
+                                                          if source != "--goldens" else ""))
     return 0
 
 

@@ -3,8 +3,10 @@
 ``load_scene`` reads the file, then one reader per table: ``[render]`` and ``[physical]``
 (settings, ambient, background), ``[camera]`` / ``[[views]]``, ``[[lights]]``,
 ``[materials.<name>]`` and ``[[objects]]`` (meshes and shapes, transformed and assembled
-into the flat triangle arrays). Every error is a ``SceneError`` that names the file and the
-dotted field and says what was expected; unknown keys get the closest valid one suggested.
+into the flat triangle arrays), and ``[check]`` (what the regression gate checks and its
+thresholds: data for ``evaluation``, which the renderer ignores). Every error is a
+``SceneError`` that names the file and the dotted field and says what was expected; unknown
+keys get the closest valid one suggested.
 """
 from __future__ import annotations
 
@@ -34,7 +36,7 @@ from .model import (
 from .subdivide import subdivide_midpoint
 
 _TOP_KEYS = ("description", "camera", "views", "render", "ambient", "lights", "materials",
-             "objects", "physical")
+             "objects", "physical", "check")
 _VIEW_KEYS = ("name", "position", "target", "up", "fov_y", "resolution")
 _RENDER_KEYS = ("max_depth", "spp", "exact", "shading", "background", "min_weight",
                 "ray_epsilon", "seed")
@@ -43,6 +45,10 @@ _MATERIAL_KEYS = ("ka", "kd", "ks", "n", "k_refl", "k_refr", "ior", "combination
 _OBJECT_KEYS = ("name", "material", "mesh", "shape", "translate", "rotate", "scale",
                 "matrix", "smooth", "flip_normals", "subdivide")
 _PHYSICAL_KEYS = ("light_scale", "ambient", "background")
+_CHECK_KEYS = ("modes", "shadings", "exact", "converged", "warn", "reason")
+#: Comparison modes a ``[check]`` table may name (``reference.MODES``; the renderer cannot
+#: import it).
+_CHECK_MODES = ("exact", "converged")
 _VIEW_DEFAULTS = {"up": [0.0, 1.0, 0.0], "fov_y": 40.0, "resolution": [256, 256]}
 
 
@@ -167,8 +173,10 @@ def load_scene(path, *, shading: str | None = None) -> Scene:
     lights = _read_lights(r, data, settings.shading, look.light_scale)
     materials = _read_materials(r, data)
     objects, sources = _read_objects(r, data, {m.name: i for i, m in enumerate(materials)})
-    return _assemble(r, objects, cameras, settings, lights, materials, look.ambient,
-                     [path.resolve(), *sources])
+    check = _read_check(r, data)
+    scene = _assemble(r, objects, cameras, settings, lights, materials, look.ambient,
+                      [path.resolve(), *sources])
+    return replace(scene, check=check)
 
 
 def _read_toml(path: Path) -> dict:
@@ -308,6 +316,33 @@ def _read_materials(r: _Reader, data: dict) -> list[Material]:
                                  COMBINATIONS),
         ))
     return materials
+
+
+# ---- [check] ---------------------------------------------------------------------------------
+def _read_check(r: _Reader, data: dict) -> dict:
+    """The ``[check]`` table as plain data: ``modes`` and ``shadings`` (lists of names), the
+    threshold overrides ``exact`` / ``converged`` and the ``warn`` levels (tables of name ->
+    number; ``evaluation.rules`` checks the names), and ``reason`` (why they differ from the
+    defaults). Absent keys are absent from the result."""
+    ct = r.table(data.get("check", {}), "check")
+    r.keys(ct, _CHECK_KEYS, "check")
+    out: dict = {}
+    for key, choices in (("modes", _CHECK_MODES), ("shadings", SHADING_MODES)):
+        if key in ct:
+            values = ct[key]
+            if not isinstance(values, list) or not values:
+                raise r.error(f"check.{key}", f"expected a non-empty array of names from "
+                                              f"{', '.join(map(repr, choices))}, got "
+                                              f"{_describe(values)}")
+            out[key] = [r.string(v, f"check.{key}[{i}]", choices) for i, v in enumerate(values)]
+    for key in ("exact", "converged", "warn"):
+        if key in ct:
+            table = r.table(ct[key], f"check.{key}")
+            out[key] = {name: r.number(v, f"check.{key}.{name}", lo=0.0)
+                        for name, v in table.items()}
+    if "reason" in ct:
+        out["reason"] = r.string(ct["reason"], "check.reason")
+    return out
 
 
 # ---- [[objects]] -----------------------------------------------------------------------------

@@ -206,6 +206,9 @@ class Scene:
     path: Path | None = None
     # Files the scene was built from (scene file + meshes), for golden-image hashes.
     source_files: list[Path] = field(default_factory=list)
+    # The file's [check] table (what the regression gate checks, thresholds): evaluation's
+    # data, ignored by the renderer.
+    check: dict = field(default_factory=dict)
 
     # ---- derived facts -----------------------------------------------------------------------
     @property
