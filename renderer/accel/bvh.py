@@ -131,13 +131,18 @@ class BVH:
         return dict(self.info)
 
     def intersect(self, ray: Ray, active=True) -> ClosestHit:
-        return self._traverse(ray, active, False)
+        return self._traverse(ray, active, False, False)
 
     def intersect_p(self, ray: Ray, active=True):
-        return self._traverse(ray, active, True)
+        return self._traverse(ray, active, True, False)
+
+    def counts(self, ray: Ray, active=True, any_hit: bool = False):
+        """The instrumented traversal (profiling): ``(node_steps, triangle_steps,
+        iterations)`` UInt32 per ray, the same traversal as the query with counters."""
+        return self._traverse(ray, active, any_hit, True)
 
     @dr.syntax
-    def _traverse(self, ray: Ray, active, any_hit: bool):
+    def _traverse(self, ray: Ray, active, any_hit: bool, counting: bool):
         t = self.types
         routine = triangle_routine(self.intersection)
         robust = robust_scale(t)
@@ -150,12 +155,19 @@ class BVH:
         first = dr.zeros(t.UInt32, n)                           # pending leaf triangles
         end = dr.zeros(t.UInt32, n)                             # [first, end)
         rec = Closest.empty(t, t_max, n)                        # closest hit so far
+        n_node = dr.zeros(t.UInt32, n)                          # counters (``counts``)
+        n_tri = dr.zeros(t.UInt32, n)
+        n_iter = dr.zeros(t.UInt32, n)
 
         while dr.hint(active, max_iterations=-1,
                       label="bvh_llvm" if t.backend == "llvm" else "bvh",
-                      exclude=[self, t, routine, robust, any_hit]):
+                      exclude=[self, t, routine, robust, any_hit, counting]):
             # ---- node step: only when no leaf triangles are pending ---------------------
             is_leaf, is_inner, first, end = enter_leaf(cur, first, end)
+            if dr.hint(counting, mode="scalar"):
+                n_node += dr.select(is_inner, 1, 0)
+                n_tri += dr.select(first < end, 1, 0)
+                n_iter += 1
             sp, cur, to_pop = masked_step(
                 t, is_inner,
                 lambda sp, cur, to_pop, on, best_t=rec.t: node_step(
@@ -176,6 +188,8 @@ class BVH:
 
             active &= (first < end) | (cur != DONE)
 
+        if dr.hint(counting, mode="scalar"):
+            return n_node, n_tri, n_iter
         if dr.hint(any_hit, mode="scalar"):
             return rec.found
         return rec.result()
