@@ -29,7 +29,7 @@ import drjit as dr
 import numpy as np
 
 from ..device import Types, types
-from .base import ClosestHit, DeviceTriangles, Ray, gather_floats
+from .base import ClosestHit, DeviceTriangles, Ray, array_type, gather_floats
 from .bvh_build import BINS, LEAF_SIZE, BVHArrays, build_bvh
 from .traverse import (
     DONE,
@@ -117,6 +117,8 @@ def collapse(a: BVHArrays, width: int = 4, stack_size: int = STACK_SIZE) -> Wide
         boxes = np.full((M, width, 6), np.nan, np.float32)
         refs[:, :2] = ch[frontier]
         boxes[:, :2] = bx[frontier]
+        # a box at infinity (the binary tree's never-hit child of a single-leaf root)
+        refs[~np.all(np.isfinite(boxes), axis=2)] = DONE
         count = np.full(M, 2, np.int64)
         rows = np.arange(M)
         for _ in range(width - 2):
@@ -157,6 +159,56 @@ def collapse(a: BVHArrays, width: int = 4, stack_size: int = STACK_SIZE) -> Wide
                       max_stack, time.perf_counter() - t0)
 
 
+def quantize(w: WideArrays) -> np.ndarray:
+    """The child boxes of ``w`` quantised to 8 bits per coordinate (CWBVH, Ylitie et al.
+    2017), conservatively: uint32 (N, 6 + 6 width / 4) words per node, ``origin xyz`` and
+    ``scale xyz`` (float32 bits; scales are powers of two), then the bytes ``q`` of lo.x,
+    lo.y, lo.z, hi.x, hi.y, hi.z of every child, four children per word (child ``k`` in
+    bits ``8 (k % 4)``). The device decodes ``origin + q * scale``; ``q`` is rounded
+    down for lo and up for hi and then checked against the decoded value in float32 AND
+    exactly (float64 traversals decode exactly), so a decoded box always contains the
+    float box: it can only cost box tests, never a hit."""
+    W = w.width
+    N = w.node_count
+    bx = w.boxes.astype(np.float64)                      # (N, 6, W)
+    real = (w.refs != DONE)[:, None, :] & np.isfinite(bx)
+    lo, hi = bx[:, 0:3], bx[:, 3:6]                      # (N, 3, W)
+    rl = real[:, 0:3]
+    org = np.where(rl, lo, np.inf).min(axis=2)           # (N, 3)
+    top = np.where(rl, hi, -np.inf).max(axis=2)
+    org = np.where(np.isfinite(org), org, 0.0).astype(np.float32)
+    ext = np.maximum(np.where(np.isfinite(top), top, 0.0) - org, 0.0)
+    e = np.ceil(np.log2(np.maximum(ext / 254.0, 2.0 ** -120)))
+    scale = np.exp2(e).astype(np.float32)                # (N, 3)
+    o3, s3 = org.astype(np.float64)[..., None], scale.astype(np.float64)[..., None]
+
+    def decoded(q):
+        exact = o3 + q * s3
+        f32 = (org[..., None] + (q * s3).astype(np.float32)).astype(np.float64)
+        return exact, f32
+
+    with np.errstate(invalid="ignore"):
+        qlo = np.clip(np.floor((np.where(rl, lo, o3) - o3) / s3), 0, 255)
+        qhi = np.clip(np.ceil((np.where(rl, hi, o3) - o3) / s3), 0, 255)
+    for _ in range(4):
+        ex, f = decoded(qlo)
+        bad = rl & ((ex > lo) | (f > lo)) & (qlo > 0)
+        qlo = np.where(bad, qlo - 1, qlo)
+        ex, f = decoded(qhi)
+        bad = rl & ((ex < hi) | (f < hi)) & (qhi < 255)
+        qhi = np.where(bad, qhi + 1, qhi)
+    for q, ref, below in ((qlo, lo, True), (qhi, hi, False)):
+        ex, f = decoded(q)
+        ok = (ex <= ref) & (f <= ref) if below else (ex >= ref) & (f >= ref)
+        if not np.all(ok | ~rl):
+            raise AssertionError("quantize: a decoded box does not contain its float box")
+    q = np.concatenate([qlo, qhi], axis=1).astype(np.uint32)        # (N, 6, W)
+    words = (q.reshape(N, 6, W // 4, 4) << np.array([0, 8, 16, 24], np.uint32)).sum(
+        axis=3, dtype=np.uint32)                                    # (N, 6, W/4)
+    return np.concatenate([org.view(np.uint32), scale.view(np.uint32),
+                           words.reshape(N, -1)], axis=1)
+
+
 def check_wide(w: WideArrays, a: BVHArrays) -> None:
     """Validate a collapse (tests): every binary leaf appears exactly once, every wide node
     but the root is referenced once, the stack bound holds. Raises AssertionError."""
@@ -166,7 +218,8 @@ def check_wide(w: WideArrays, a: BVHArrays) -> None:
     inner = ref[real & ~leaf]
     assert np.array_equal(np.sort(inner), np.arange(1, w.node_count))
     b = a.children.astype(np.int64).reshape(-1)
-    assert np.array_equal(np.sort(ref[leaf]), np.sort(b[(b & LEAF_BIT) != 0]))
+    finite = np.all(np.isfinite(a.boxes.reshape(-1, 6)), axis=1)
+    assert np.array_equal(np.sort(ref[leaf]), np.sort(b[((b & LEAF_BIT) != 0) & finite]))
     assert w.max_stack <= STACK_SIZE
 
 
@@ -177,11 +230,10 @@ def wide_node_step(t: Types, width: int, nodes, refs, o, inv, t_max, robust, sta
     to near (any-hit: in slot order). Returns ``(sp, cur, to_pop)``, ``to_pop`` grown by
     the lanes where no child was hit."""
     W = width
-    f = gather_floats(t, nodes, cur, 6 * W, 6 * W, active)
+    boxes = child_boxes(t, W, nodes, cur, active)
     key, ref = [], []
     for k in range(W):
-        lo = t.Array3f(f[k], f[W + k], f[2 * W + k])
-        hi = t.Array3f(f[3 * W + k], f[4 * W + k], f[5 * W + k])
+        lo, hi = boxes[k]
         r = dr.gather(t.UInt32, refs, cur * W + k, active)
         hit, tn = slab(t, o, inv, lo, hi, t_max, robust)
         hit &= r != DONE
@@ -215,6 +267,28 @@ def wide_node_step(t: Types, width: int, nodes, refs, o, inv, t_max, robust, sta
     return sp, dr.select(missed, cur, nxt), to_pop | missed
 
 
+def child_boxes(t: Types, W: int, nodes, cur, active=True) -> list:
+    """``[(lo, hi)]`` (Array3f) of the ``W`` children of node(s) ``cur``: ``nodes`` is
+    a Float of SoA float boxes (``6 W`` per node) or a UInt32 of quantised records
+    (``quantize``: ``6 + 6 W / 4`` words per node, decoded as ``origin + q * scale``)."""
+    if dr.type_v(nodes) != dr.VarType.UInt32:
+        f = gather_floats(t, nodes, cur, 6 * W, 6 * W, active)
+        return [(t.Array3f(f[k], f[W + k], f[2 * W + k]),
+                 t.Array3f(f[3 * W + k], f[4 * W + k], f[5 * W + k])) for k in range(W)]
+    stride = 6 + 6 * W // 4
+    base = cur * stride
+    F32 = array_type(t, "Float32")
+    head = [t.Float(dr.reinterpret_array(F32, dr.gather(t.UInt32, nodes, base + k, active)))
+            for k in range(6)]
+    org, scale = head[0:3], head[3:6]
+    words = [dr.gather(t.UInt32, nodes, base + 6 + k, active) for k in range(6 * W // 4)]
+    q = [[t.Float((words[c * (W // 4) + k // 4] >> (8 * (k % 4))) & 255) for c in range(6)]
+         for k in range(W)]
+    return [(t.Array3f(*(dr.fma(q[k][a], scale[a], org[a]) for a in range(3))),
+             t.Array3f(*(dr.fma(q[k][3 + a], scale[a], org[a]) for a in range(3))))
+            for k in range(W)]
+
+
 def _network(n: int) -> list[tuple[int, int]]:
     """Compare-exchange pairs of an ascending sorting network on ``n`` in (4, 8) keys
     (optimal networks: 5 and 19 comparators)."""
@@ -244,30 +318,43 @@ class WideBVH:
     info: dict = field(default_factory=dict, repr=False)
 
     @classmethod
-    def build(cls, scene, t: Types, *, width: int = 4, intersection: str = "moller_trumbore",
-              leaf_size: int = LEAF_SIZE, bins: int = BINS, **build_options) -> "WideBVH":
+    def build(cls, scene, t: Types, *, width: int = 4, quantized: bool = True,
+              intersection: str = "moller_trumbore", leaf_size: int = LEAF_SIZE,
+              bins: int = BINS, binary: BVHArrays | None = None,
+              **build_options) -> "WideBVH":
+        """``binary``: a binary build of ``scene`` to convert (else one is built with
+        ``leaf_size``, ``bins`` and ``build_options``); ``quantized``: 8-bit child boxes
+        (``quantize``), else float32 SoA boxes."""
         triangle_routine(intersection)
-        a = build_bvh(scene.vertices, scene.faces, leaf_size=leaf_size, bins=bins,
-                      **build_options)
+        a = binary if binary is not None else build_bvh(
+            scene.vertices, scene.faces, leaf_size=leaf_size, bins=bins, **build_options)
         w = collapse(a, width)
+        tq = time.perf_counter()
+        if quantized:
+            qwords = quantize(w)
+        quantize_seconds = time.perf_counter() - tq if quantized else 0.0
         t0 = time.perf_counter()
         tri_data, tris = upload_triangles(scene, t, order=a.order)
         fdt = np.float64 if t.is_double else np.float32
-        nodes = t.Float(w.boxes.astype(fdt).reshape(-1))
+        nodes = (t.UInt32(qwords.reshape(-1)) if quantized
+                 else t.Float(w.boxes.astype(fdt).reshape(-1)))
         refs = t.UInt32(w.refs.reshape(-1))
         dr.eval(nodes, refs, tri_data, tris)
         fsize = 8 if t.is_double else 4
         F = max(scene.face_count, 1)
         info = {
             "accel": f"bvh{width}", "intersection": intersection,
-            "build_seconds": a.build_seconds + w.convert_seconds,
-            "binary_build_seconds": a.build_seconds, "convert_seconds": w.convert_seconds,
+            "build_seconds": a.build_seconds + w.convert_seconds + quantize_seconds,
+            "binary_build_seconds": a.build_seconds,
+            "convert_seconds": w.convert_seconds + quantize_seconds, "quantized": quantized,
             "upload_seconds": time.perf_counter() - t0, "triangles": scene.face_count,
             "nodes": w.node_count, "binary_nodes": a.node_count, "leaves": a.leaf_count,
             "levels": w.levels, "binary_levels": a.levels, "max_stack": w.max_stack,
             "sah_cost": a.sah_cost, "leaf_size": leaf_size, "bins": bins, "width": width,
             "fill": float(np.mean(w.refs != DONE)),
-            "node_bytes_per_triangle": w.node_count * width * (6 * fsize + 4) / F,
+            "node_bytes_per_triangle": w.node_count * (
+                (4 * (6 + 6 * width // 4) if quantized else 6 * fsize * width)
+                + 4 * width) / F,
             "traversal_triangle_bytes_per_triangle": STRIDE * fsize,
         }
         return cls(nodes, refs, tri_data, tris, width=width, backend=t.backend,
