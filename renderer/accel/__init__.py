@@ -23,9 +23,9 @@ ACCELERATORS = {"brute": BruteForce, "boxes": ObjectBoxes, "bvh": BVH, "bvh4": B
 DEFAULT_ACCEL = "bvh"
 DEFAULT_ROUTINE = "moller_trumbore"
 
-__all__ = ["ACCELERATORS", "BVH", "BVH4", "BVH8", "DEFAULT_ACCEL", "DEFAULT_ROUTINE", "ROUTINES", "Accelerator",
-           "BruteForce", "ClosestHit", "DeviceTriangles", "ObjectBoxes", "Ray", "build_accelerator",
-           "triangle_routine", "WideBVH"]
+__all__ = ["ACCELERATORS", "BVH", "BVH4", "BVH8", "DEFAULT_ACCEL", "DEFAULT_ROUTINE", "ROUTINES",
+           "Accelerator", "BruteForce", "ClosestHit", "DeviceTriangles", "ObjectBoxes", "Ray",
+           "WideBVH", "build_accelerator", "triangle_routine"]
 
 
 def build_accelerator(name: str, scene, t: Types, *,

@@ -23,7 +23,7 @@ import numpy as np
 
 from ..device import Types, types
 from .base import ClosestHit, DeviceTriangles, Ray, array_type, gather_floats
-from .bvh_build import BINS, LEAF_SIZE, build_bvh
+from .bvh_build import BINS, LEAF_SIZE, BVHArrays, build_bvh
 from .traverse import (
     DONE,
     STACK_SIZE,
@@ -97,12 +97,13 @@ class BVH:
 
     @classmethod
     def build(cls, scene, t: Types, *, intersection: str = "moller_trumbore",
-              leaf_size: int = LEAF_SIZE, bins: int = BINS, **build_options) -> "BVH":
+              leaf_size: int = LEAF_SIZE, bins: int = BINS, binary: BVHArrays | None = None,
+              **build_options) -> "BVH":
         """``build_options`` go to ``build_bvh`` (root_bins, all_axes, sah_leaves,
-        depth_first, sample)."""
+        depth_first, sample); ``binary``: an existing build of ``scene`` to upload instead."""
         triangle_routine(intersection)
-        a = build_bvh(scene.vertices, scene.faces, leaf_size=leaf_size, bins=bins,
-                      **build_options)
+        a = binary if binary is not None else build_bvh(
+            scene.vertices, scene.faces, leaf_size=leaf_size, bins=bins, **build_options)
         t0 = time.perf_counter()
         tri_data, tris = upload_triangles(scene, t, order=a.order)
         fdt = np.float64 if t.is_double else np.float32
