@@ -73,8 +73,8 @@ class WideArrays:
 
 def _half_area(box):
     """Half surface area of boxes (..., 6) (lo xyz, hi xyz); 0 for non-finite boxes."""
-    d = box[..., 3:6].astype(np.float64) - box[..., 0:3]
     with np.errstate(invalid="ignore"):
+        d = box[..., 3:6].astype(np.float64) - box[..., 0:3]
         a = d[..., 0] * d[..., 1] + d[..., 1] * d[..., 2] + d[..., 2] * d[..., 0]
     return np.where(np.isfinite(a), a, 0.0)
 
