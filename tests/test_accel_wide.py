@@ -109,7 +109,8 @@ def test_quantised_boxes_contain_the_float_boxes(width):
     N, W = w.node_count, width
     org, scale = q[:, 0:3].view(np.float32), q[:, 3:6].view(np.float32)
     assert np.all(np.log2(scale) == np.round(np.log2(scale)))      # powers of two
-    b = ((q[:, 6:].reshape(N, 6, W // 4, 1) >> np.array([0, 8, 16, 24], np.uint32)) & 255)
+    shifts = np.array([0, 8, 16, 24], np.uint32)
+    b = (q[:, 6:6 + 6 * W // 4].reshape(N, 6, W // 4, 1) >> shifts) & 255
     b = b.reshape(N, 6, W).astype(np.float32)
     for axis in range(3):
         dec_lo = org[:, axis, None] + b[:, axis] * scale[:, axis, None]
