@@ -133,9 +133,9 @@ def collapse(a: BVHArrays, width: int = 4, stack_size: int = STACK_SIZE) -> Wide
             inner = is_inner(refs)
             r = np.where(inner, refs, 0)
             slot_need = np.where(inner, need[r], 0)
-            # the most levels any other slot still needs, for each slot j
-            others = np.stack([np.max(np.delete(slot_need, j, axis=1), axis=1)
-                               for j in range(width)], axis=1)
+            # the most levels any other slot still needs, for each slot j (top two)
+            top = np.sort(slot_need, axis=1)
+            others = np.where(slot_need == top[:, -1:], top[:, -2:-1], top[:, -1:])
             new_max = np.maximum(others, slot_need - 1)
             ok = inner & ((count[:, None] + new_max) <= budget[:, None])
             score = np.where(ok, _half_area(boxes), -1.0)
@@ -169,10 +169,10 @@ def collapse(a: BVHArrays, width: int = 4, stack_size: int = STACK_SIZE) -> Wide
 
 def quantize(w: WideArrays) -> np.ndarray:
     """The child boxes of ``w`` quantised to 8 bits per coordinate (CWBVH, Ylitie et al.
-    2017), conservatively: uint32 (N, ``record_words(width)``) words per node, ``origin xyz`` and
-    ``scale xyz`` (float32 bits; scales are powers of two), then the bytes ``q`` of lo.x,
-    lo.y, lo.z, hi.x, hi.y, hi.z of every child, four children per word (child ``k`` in
-    bits ``8 (k % 4)``). The device decodes ``origin + q * scale``; ``q`` is rounded
+    2017), conservatively: uint32 (N, ``record_words(width)``) words per node,
+    ``origin xyz`` and ``scale xyz`` (float32 bits; scales are powers of two), then the
+    bytes ``q`` of lo.x, lo.y, lo.z, hi.x, hi.y, hi.z of every child, four children per
+    word (child ``k`` in bits ``8 (k % 4)``). The device decodes ``origin + q * scale``; ``q`` is rounded
     down for lo and up for hi and then checked against the decoded value in float32 AND
     exactly (float64 traversals decode exactly), so a decoded box always contains the
     float box: it can only cost box tests, never a hit."""
@@ -188,28 +188,13 @@ def quantize(w: WideArrays) -> np.ndarray:
     ext = np.maximum(np.where(np.isfinite(top), top, 0.0) - org, 0.0)
     e = np.ceil(np.log2(np.maximum(ext / 254.0, 2.0 ** -120)))
     scale = np.exp2(e).astype(np.float32)                # (N, 3)
-    o3, s3 = org.astype(np.float64)[..., None], scale.astype(np.float64)[..., None]
-
-    def decoded(q):
-        exact = o3 + q * s3
-        f32 = (org[..., None] + (q * s3).astype(np.float32)).astype(np.float64)
-        return exact, f32
-
+    o3 = np.broadcast_to(org[..., None], lo.shape)                  # float32 (N, 3, W)
+    s3 = np.broadcast_to(scale[..., None], lo.shape)
     with np.errstate(invalid="ignore"):
         qlo = np.clip(np.floor((np.where(rl, lo, o3) - o3) / s3), 0, 255)
         qhi = np.clip(np.ceil((np.where(rl, hi, o3) - o3) / s3), 0, 255)
-    for _ in range(4):
-        ex, f = decoded(qlo)
-        bad = rl & ((ex > lo) | (f > lo)) & (qlo > 0)
-        qlo = np.where(bad, qlo - 1, qlo)
-        ex, f = decoded(qhi)
-        bad = rl & ((ex < hi) | (f < hi)) & (qhi < 255)
-        qhi = np.where(bad, qhi + 1, qhi)
-    for q, ref, below in ((qlo, lo, True), (qhi, hi, False)):
-        ex, f = decoded(q)
-        ok = (ex <= ref) & (f <= ref) if below else (ex >= ref) & (f >= ref)
-        if not np.all(ok | ~rl):
-            raise AssertionError("quantize: a decoded box does not contain its float box")
+    qlo = _outward(qlo, o3, s3, lo, rl, -1)
+    qhi = _outward(qhi, o3, s3, hi, rl, +1)
     q = np.concatenate([qlo, qhi], axis=1).astype(np.uint32)        # (N, 6, W)
     words = (q.reshape(N, 6, W // 4, 4) << np.array([0, 8, 16, 24], np.uint32)).sum(
         axis=3, dtype=np.uint32)                                    # (N, 6, W/4)
@@ -217,6 +202,30 @@ def quantize(w: WideArrays) -> np.ndarray:
                          axis=1)
     pad = record_words(W) - rec.shape[1]
     return np.concatenate([rec, np.zeros((N, pad), np.uint32)], axis=1) if pad else rec
+
+
+def _decoded(q, o, s):
+    """``o + q s`` (q float64 integers, o and s float32) as the device computes it: exactly
+    (float64 traversals) and rounded once to float32. Returns both, float64."""
+    exact = o.astype(np.float64) + q * s.astype(np.float64)
+    return exact, exact.astype(np.float32).astype(np.float64)
+
+
+def _outward(q, o, s, bound, real, step: int):
+    """``q`` moved by ``step`` (-1 for lo, +1 for hi) where the decoded value does not yet
+    lie outside ``bound`` (both decodings); raises if one is left inside after 4 moves."""
+    q = q.copy()
+    idx = np.nonzero(real)
+    for _ in range(5):
+        ex, f = _decoded(q[idx], o[idx], s[idx])
+        b = bound[idx]
+        bad = (ex > b) | (f > b) if step < 0 else (ex < b) | (f < b)
+        if not bad.any():
+            return q
+        sel = tuple(i[bad] for i in idx)
+        q[sel] = np.clip(q[sel] + step, 0, 255)
+        idx = sel
+    raise AssertionError("quantize: a decoded box does not contain its float box")
 
 
 def record_words(width: int) -> int:
