@@ -172,10 +172,11 @@ def quantize(w: WideArrays) -> np.ndarray:
     2017), conservatively: uint32 (N, ``record_words(width)``) words per node,
     ``origin xyz`` and ``scale xyz`` (float32 bits; scales are powers of two), then the
     bytes ``q`` of lo.x, lo.y, lo.z, hi.x, hi.y, hi.z of every child, four children per
-    word (child ``k`` in bits ``8 (k % 4)``). The device decodes ``origin + q * scale``; ``q`` is rounded
-    down for lo and up for hi and then checked against the decoded value in float32 AND
-    exactly (float64 traversals decode exactly), so a decoded box always contains the
-    float box: it can only cost box tests, never a hit."""
+    word (child ``k`` in bits ``8 (k % 4)``). The device decodes ``origin + q * scale``;
+    ``q`` is rounded down for lo and up for hi, then moved outwards until the decoded
+    value lies outside the float box both in float32 and exactly (float64 traversals
+    decode exactly), so a decoded box always contains the float box: it can only cost box
+    tests, never a hit."""
     W = w.width
     N = w.node_count
     bx = w.boxes.astype(np.float64)                      # (N, 6, W)
