@@ -14,8 +14,9 @@ Each batch goes through every accelerator of ``ACCELS`` (the binary BVH and the 
 collapsed from that same binary build) and through Mitsuba's
 ``scene.ray_intersect_preliminary`` (closest hit) / ``scene.ray_test`` (any hit) (OptiX on
 CUDA, Embree on the CPU), closest hit and any hit for each batch but ``shadow``. Timing:
-kernel time from Dr.Jit's kernel history, every contender timed in turn within each
-repeat (so a load spike on a shared machine hits all of them), median of repeats. Reported
+kernel time from Dr.Jit's kernel history and the process's CPU time of the evaluation
+(``_timed``), every contender timed in turn within each repeat (so a load spike on a
+shared machine hits all of them), median of repeats. Reported
 per query: M rays/s, the agreement with Mitsuba (hit/miss, same triangle, ``t`` within
 1e-4 relative; any hit: same answer), and from the instrumented traversal (``counts``) the
 node steps, triangle steps and loop iterations per ray, mean and the mean over SIMD
@@ -126,33 +127,46 @@ def reflection_rays_host(scene, o, d, t, prim_face) -> tuple[np.ndarray, np.ndar
 
 # ---- the measurement ----------------------------------------------------------------------
 def _timed(fns: dict, repeats: int, warmup: int = 2) -> dict:
-    """Kernel time of each ``fns[name]()`` (which evaluates its results), as
-    ``renderer.stats.kernel_ms`` reports it, but with the contenders timed in turn within
-    every repeat (round robin), so that a load spike on a shared machine slows them all."""
+    """Time each ``fns[name]()``, which traces a query and returns the variables to
+    evaluate: kernel time as ``renderer.stats.kernel_ms`` reports it, and the process's CPU
+    time of the evaluation alone (``time.process_time`` around ``dr.eval`` + sync: every
+    thread of this process, Dr.Jit's workers and Embree's alike, no Python tracing). The
+    contenders are timed in turn within every repeat (round robin). Why CPU time: on a
+    shared, oversubscribed CPU the scheduler time-slices a long kernel with the other
+    processes while a short one may finish within one slice, so wall-clock kernel time
+    penalises the slower contender more than its work; CPU time counts the work."""
+    def once(fn):
+        out = fn()
+        c0 = time.process_time()
+        dr.eval(out)
+        dr.sync_thread()
+        return time.process_time() - c0
+
     for fn in fns.values():
         for _ in range(warmup):
-            fn()
-    dr.sync_thread()
+            once(fn)
     kern = {k: [] for k in fns}
     wall = {k: [] for k in fns}
+    cpu = {k: [] for k in fns}
     dr.kernel_history()
     with dr.scoped_set_flag(dr.JitFlag.KernelHistory, True):
         for _ in range(repeats):
             for k, fn in fns.items():
                 dr.kernel_history()
                 t0 = time.perf_counter()
-                fn()
-                dr.sync_thread()
+                cpu[k].append(once(fn) * 1e3)
                 wall[k].append((time.perf_counter() - t0) * 1e3)
                 hist = [h for h in dr.kernel_history() if "execution_time" in h]
                 kern[k].append(sum(h["execution_time"] for h in hist))
     return {k: {"kernel_ms": statistics.median(kern[k]), "kernel_ms_min": min(kern[k]),
+                "cpu_ms": statistics.median(cpu[k]), "cpu_ms_min": min(cpu[k]),
                 "wall_ms": statistics.median(wall[k]), "repeats": repeats} for k in fns}
 
 
 def _rate(timing: dict, n: int) -> dict:
-    ms = timing["kernel_ms"]
-    return dict(timing, mrays_per_s=n / (ms * 1e-3) / 1e6 if ms > 0 else float("nan"))
+    ms, cpu = timing["kernel_ms"], timing["cpu_ms"]
+    return dict(timing, mrays_per_s=n / (ms * 1e-3) / 1e6 if ms > 0 else float("nan"),
+                mrays_per_cpu_s=n / (cpu * 1e-3) / 1e6 if cpu > 0 else float("nan"))
 
 
 def _steps(acc, ray, on, any_hit: bool, lanes: int) -> dict | None:
@@ -229,22 +243,22 @@ def ray_throughput(scene, *, backend: str, width: int = 1920, height: int = 1080
             fns = {}
             for a, acc in accs.items():
                 if q == "closest":
-                    fns[a] = lambda acc=acc: dr.eval(*_closest(acc, ray.o, ray.d, ray.t_max,
-                                                               on))
+                    fns[a] = lambda acc=acc: _closest(acc, ray.o, ray.d, ray.t_max, on)
                 else:
-                    fns[a] = lambda acc=acc: dr.eval(_occluded(acc, ray.o, ray.d,
-                                                               ray.t_max, on))
+                    fns[a] = lambda acc=acc: _occluded(acc, ray.o, ray.d, ray.t_max, on)
             if q == "closest":
-                def mi_fn():
+                def mi_trace():
                     pi = mscene.ray_intersect_preliminary(mray, coherent=coherent)
-                    dr.eval(pi.t, pi.prim_index)
-                    return pi
+                    return pi.t, pi.prim_index
             else:
-                def mi_fn():
-                    b = mscene.ray_test(mray, coherent=coherent)
-                    dr.eval(b)
-                    return b
-            fns["mitsuba"] = mi_fn
+                def mi_trace():
+                    return mscene.ray_test(mray, coherent=coherent)
+
+            def mi_fn():
+                out = mi_trace()
+                dr.eval(out)
+                return out
+            fns["mitsuba"] = mi_trace
             timing = _timed(fns, repeats) if m else {}
             res = {"ms": {k: _rate(v, m) for k, v in timing.items()}}
             if m and q == "closest":
@@ -253,10 +267,9 @@ def ray_throughput(scene, *, backend: str, width: int = 1920, height: int = 1080
                 t_ours = np.where(valid, ht.numpy(), np.inf)
                 order = accs[first].tris.order.numpy().astype(np.int64)
                 face = np.where(valid, order[np.minimum(hp.numpy(), len(order) - 1)], -1)
-                pi = mi_fn()
-                t_mi = pi.t.numpy()
-                face_mi = np.where(np.isfinite(t_mi), pi.prim_index.numpy().astype(np.int64),
-                                   -1)
+                mt, mp = mi_fn()
+                t_mi = mt.numpy()
+                face_mi = np.where(np.isfinite(t_mi), mp.numpy().astype(np.int64), -1)
                 res["agreement"] = _agreement_closest(t_ours, face, t_mi, face_mi)
                 res["_hits"] = (t_ours, face)
             elif m:
@@ -370,13 +383,16 @@ def markdown(rows: list[dict]) -> list[str]:
                 ms = x["ms"]
                 rate = {k: v["mrays_per_s"] for k, v in ms.items()}
                 best = max(accels, key=lambda a: rate[a])
+                crate = {k: v.get("mrays_per_cpu_s", float("nan")) for k, v in ms.items()}
+                cbest = max(accels, key=lambda a: crate[a])
                 ag = x.get("agreement", {})
                 agree = (f"{ag['same_triangle']:.4f}" if "same_triangle" in ag
                          else f"{ag.get('same_answer', float('nan')):.4f}")
                 cells.append([r["scene"], batch, q, f"{b['rays']:,}"]
                              + [_fmt(rate[a]) for a in accels]
                              + [_fmt(rate["mitsuba"]),
-                                f"{rate[best] / rate['mitsuba']:.2f} ({best})", agree])
+                                f"{rate[best] / rate['mitsuba']:.2f} ({best})",
+                                f"{crate[cbest] / crate['mitsuba']:.2f} ({cbest})", agree])
                 st = x.get("steps") or {}
                 steps.append([r["scene"], batch, q]
                              + [f"{st[a]['node']:.1f} / {st[a]['triangle']:.1f} / "
@@ -390,7 +406,8 @@ def markdown(rows: list[dict]) -> list[str]:
     return (table("Ray throughput (identical batches; M rays/s from kernel time, median of "
                   "repeats, contenders timed in turn)",
                   ["scene", "batch", "query", "rays"] + [f"{a} Mrays/s" for a in accels]
-                  + ["Mitsuba", "best / Mitsuba", "agreement"], "lllr" + "r" * (n + 3), cells)
+                  + ["Mitsuba", "best / Mitsuba", "best / Mitsuba by CPU time", "agreement"],
+                  "lllr" + "r" * (n + 4), cells)
             + table("Traversal steps per ray (instrumented traversal): node steps / triangle "
                     "steps / loop iterations of the slowest ray of each SIMD packet or warp",
                     ["scene", "batch", "query"] + accels, "lll" + "r" * n, steps)
