@@ -15,7 +15,7 @@ from accel_util import assert_same_hits, hits, random_rays, scene_from_arrays, s
 from renderer.accel import BVH, BruteForce, Ray, WideBVH
 from renderer.accel.bvh_build import build_bvh
 from renderer.accel.traverse import DONE
-from renderer.accel.wide import check_wide, collapse, quantize
+from renderer.accel.wide import HEAD, check_wide, collapse, quantize
 from renderer.device import array3, types
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -107,10 +107,11 @@ def test_quantised_boxes_contain_the_float_boxes(width):
     w = collapse(a, width)
     q = quantize(w)
     N, W = w.node_count, width
-    org, scale = q[:, 0:3].view(np.float32), q[:, 3:6].view(np.float32)
-    assert np.all(np.log2(scale) == np.round(np.log2(scale)))      # powers of two
+    org = q[:, 0:3].view(np.float32)
     shifts = np.array([0, 8, 16, 24], np.uint32)
-    b = (q[:, 6:6 + 6 * W // 4].reshape(N, 6, W // 4, 1) >> shifts) & 255
+    scale = (((q[:, 3:4] >> shifts[:3]) & 255) << 23).astype(np.uint32).view(np.float32)
+    assert np.all((scale > 0) & np.isfinite(scale))                  # normal powers of two
+    b = (q[:, HEAD:HEAD + 6 * W // 4].reshape(N, 6, W // 4, 1) >> shifts) & 255
     b = b.reshape(N, 6, W).astype(np.float32)
     for axis in range(3):
         dec_lo = org[:, axis, None] + b[:, axis] * scale[:, axis, None]

@@ -13,13 +13,14 @@ conversion only expands a child when ``pushes so far + (children - 1) + levels s
 needed below`` stays within ``STACK_SIZE`` (the binary tree's own bound: a subtree of ``L``
 inner levels never needs more than ``L`` entries), so the 32-entry stack cannot overflow.
 
-Node layout on the device (default, ``quantized``): ``nodes`` UInt32, ``record_words(width)``
-per node (12 for 4 children, 20 for 8): the node's origin and power-of-two scale per axis,
-then each coordinate of every child box as one byte, four children per word, SoA (all
-children's lo.x, then lo.y, lo.z, hi.x, hi.y, hi.z; CWBVH, Ylitie et al. 2017, rounded
-outwards by ``quantize``). Unquantised: ``nodes`` Float, ``6 * width`` per node, the same
-SoA order in float32. ``refs`` UInt32, ``width`` per node (``DONE`` marks an empty slot).
-One node step reads one contiguous record and tests one ray against every child box.
+Node layout on the device (default, ``quantized``): ``nodes`` UInt32,
+``record_words(width)`` per node (12 for 4 children, 16 for 8): the node's origin and the
+exponents of its power-of-two scales (one word), then each coordinate of every child box
+as one byte, four children per word, SoA (all children's lo.x, then lo.y, lo.z, hi.x,
+hi.y, hi.z; CWBVH, Ylitie et al. 2017, rounded outwards by ``quantize``). Unquantised:
+``nodes`` Float, ``6 * width`` per node, the same SoA order in float32. ``refs`` UInt32,
+``width`` per node (``DONE`` marks an empty slot). One node step reads one contiguous
+record and tests one ray against every child box.
 
 Why quantised: on the CPU (LLVM, 16 lanes per SIMD packet) a step's cost is its gathers,
 one per float per lane; quantised boxes need one gather per word, a quarter of the float
@@ -170,13 +171,13 @@ def collapse(a: BVHArrays, width: int = 4, stack_size: int = STACK_SIZE) -> Wide
 def quantize(w: WideArrays) -> np.ndarray:
     """The child boxes of ``w`` quantised to 8 bits per coordinate (CWBVH, Ylitie et al.
     2017), conservatively: uint32 (N, ``record_words(width)``) words per node,
-    ``origin xyz`` and ``scale xyz`` (float32 bits; scales are powers of two), then the
-    bytes ``q`` of lo.x, lo.y, lo.z, hi.x, hi.y, hi.z of every child, four children per
-    word (child ``k`` in bits ``8 (k % 4)``). The device decodes ``origin + q * scale``;
-    ``q`` is rounded down for lo and up for hi, then moved outwards until the decoded
-    value lies outside the float box both in float32 and exactly (float64 traversals
-    decode exactly), so a decoded box always contains the float box: it can only cost box
-    tests, never a hit."""
+    ``origin xyz`` (float32 bits) and one word holding the biased float32 exponents of the
+    three power-of-two scales (a byte each), then the bytes ``q`` of lo.x, lo.y, lo.z,
+    hi.x, hi.y, hi.z of every child, four children per word (child ``k`` in bits
+    ``8 (k % 4)``). The device decodes ``origin + q * scale``; ``q`` is rounded down for
+    lo and up for hi, then moved outwards until the decoded value lies outside the float
+    box both in float32 and exactly (float64 traversals decode exactly), so a decoded box
+    always contains the float box: it can only cost box tests, never a hit."""
     W = w.width
     N = w.node_count
     bx = w.boxes.astype(np.float64)                      # (N, 6, W)
@@ -187,7 +188,7 @@ def quantize(w: WideArrays) -> np.ndarray:
     top = np.where(rl, hi, -np.inf).max(axis=2)
     org = np.where(np.isfinite(org), org, 0.0).astype(np.float32)
     ext = np.maximum(np.where(np.isfinite(top), top, 0.0) - org, 0.0)
-    e = np.ceil(np.log2(np.maximum(ext / 254.0, 2.0 ** -120)))
+    e = np.clip(np.ceil(np.log2(np.maximum(ext / 254.0, 2.0 ** -120))), -120, 120)
     scale = np.exp2(e).astype(np.float32)                # (N, 3)
     o3 = np.broadcast_to(org[..., None], lo.shape)                  # float32 (N, 3, W)
     s3 = np.broadcast_to(scale[..., None], lo.shape)
@@ -199,8 +200,9 @@ def quantize(w: WideArrays) -> np.ndarray:
     q = np.concatenate([qlo, qhi], axis=1).astype(np.uint32)        # (N, 6, W)
     words = (q.reshape(N, 6, W // 4, 4) << np.array([0, 8, 16, 24], np.uint32)).sum(
         axis=3, dtype=np.uint32)                                    # (N, 6, W/4)
-    rec = np.concatenate([org.view(np.uint32), scale.view(np.uint32), words.reshape(N, -1)],
-                         axis=1)
+    biased = (scale.view(np.uint32) >> np.uint32(23)) & np.uint32(255)     # (N, 3)
+    exps = biased[:, 0] | (biased[:, 1] << np.uint32(8)) | (biased[:, 2] << np.uint32(16))
+    rec = np.concatenate([org.view(np.uint32), exps[:, None], words.reshape(N, -1)], axis=1)
     pad = record_words(W) - rec.shape[1]
     return np.concatenate([rec, np.zeros((N, pad), np.uint32)], axis=1) if pad else rec
 
@@ -230,9 +232,14 @@ def _outward(q, o, s, bound, real, step: int):
 
 
 def record_words(width: int) -> int:
-    """UInt32 words of a quantised node record: ``6 + 6 width / 4``, rounded up to whole
-    quads (12 for 4 children, 20 for 8) so that CUDA reads it with packet gathers."""
-    return (6 + 6 * width // 4 + 3) // 4 * 4
+    """UInt32 words of a quantised node record: ``HEAD + 6 width / 4``, rounded up to whole
+    quads (12 for 4 children, 16 for 8) so that CUDA reads it with packet gathers."""
+    return (HEAD + 6 * width // 4 + 3) // 4 * 4
+
+
+#: Header words of a quantised record: origin xyz (float32 bits) and the three biased
+#: float32 exponents of the power-of-two scales, one byte each.
+HEAD = 4
 
 
 def gather_words(t: Types, src, index, stride: int, count: int, active=True) -> list:
@@ -318,11 +325,12 @@ def child_boxes(t: Types, W: int, nodes, cur, active=True) -> list:
         f = gather_floats(t, nodes, cur, 6 * W, 6 * W, active)
         return [(t.Array3f(f[k], f[W + k], f[2 * W + k]),
                  t.Array3f(f[3 * W + k], f[4 * W + k], f[5 * W + k])) for k in range(W)]
-    rec = gather_words(t, nodes, cur, record_words(W), 6 + 6 * W // 4, active)
+    rec = gather_words(t, nodes, cur, record_words(W), HEAD + 6 * W // 4, active)
     F32 = array_type(t, "Float32")
-    head = [t.Float(dr.reinterpret_array(F32, h)) for h in rec[:6]]
-    org, scale = head[0:3], head[3:6]
-    words = rec[6:]
+    org = [t.Float(dr.reinterpret_array(F32, h)) for h in rec[:3]]
+    scale = [t.Float(dr.reinterpret_array(F32, ((rec[3] >> (8 * a)) & 255) << 23))
+             for a in range(3)]
+    words = rec[HEAD:]
     q = [[t.Float((words[c * (W // 4) + k // 4] >> (8 * (k % 4))) & 255) for c in range(6)]
          for k in range(W)]
     return [(t.Array3f(*(dr.fma(q[k][a], scale[a], org[a]) for a in range(3))),
