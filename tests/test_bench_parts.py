@@ -43,6 +43,16 @@ def test_throughput_rays_agree_with_mitsuba_on_a_small_batch():
     assert res["shadow_agreement"] > 0.95
     for k in ("ours_primary", "mitsuba_primary", "ours_shadow", "mitsuba_shadow"):
         assert res[k]["kernel_ms"] >= 0 and res[k]["repeats"] == 1
+    # the incoherent and reflection batches: the same rays for both, closest and any hit
+    for batch in ("incoherent", "reflection"):
+        b = res["batches"][batch]
+        assert b["rays"] > res["rays"] // 2
+        assert b["closest"]["agreement"]["hit_miss_agree"] > 0.99
+        assert b["closest"]["agreement"]["same_triangle"] > 0.95
+        assert b["any"]["agreement"]["same_answer"] > 0.99
+        assert set(b["closest"]["ms"]) == {"bvh", "bvh4", "bvh8", "mitsuba"}
+    steps = res["batches"]["primary"]["closest"]["steps"]
+    assert steps["bvh4"]["node"] < steps["bvh"]["node"]
 
 
 def test_interrupted_run_keeps_the_rows_saved_so_far(tmp_path, monkeypatch):

@@ -1,32 +1,54 @@
 """Part ``throughput``: ray throughput, ours vs Mitsuba 3, on identical ray batches.
 
-Primary rays through the pixel centres of the scene's first camera at 1920×1080 (the
-renderer's own camera, ``renderer.camera``), and shadow rays from the primary hits to the
-first light, go through our accelerator and through Mitsuba's
-``scene.ray_intersect_preliminary`` / ``scene.ray_test`` (OptiX on CUDA, Embree on the CPU).
-Reports kernel time (``renderer.stats.kernel_ms``), M rays/s and the fraction of rays on
-which the two agree.
+Four batches per scene, built on the host once and uploaded to both (``BATCHES``):
+
+- ``primary``: rays through the pixel centres of the scene's first camera at 1920×1080
+  (the renderer's own camera, ``renderer.camera``);
+- ``shadow``: from the primary hits to the first light (any-hit only);
+- ``incoherent``: as many rays with uniformly random origins in the scene's box and
+  uniformly random directions (fixed seed ``SEED``);
+- ``reflection``: mirror-reflection rays off the primary hits (origin offset along the
+  geometric normal on the incoming side).
+
+Each batch goes through every accelerator of ``ACCELS`` (the binary BVH and the wide BVHs
+collapsed from that same binary build) and through Mitsuba's
+``scene.ray_intersect_preliminary`` (closest hit) / ``scene.ray_test`` (any hit) (OptiX on
+CUDA, Embree on the CPU), closest hit and any hit for each batch but ``shadow``. Timing:
+kernel time from Dr.Jit's kernel history and the process's CPU time of the evaluation
+(``_timed``), every contender timed in turn within each repeat (so a load spike on a
+shared machine hits all of them), median of repeats. Reported
+per query: M rays/s, the agreement with Mitsuba (hit/miss, same triangle, ``t`` within
+1e-4 relative; any hit: same answer), and from the instrumented traversal (``counts``) the
+node steps, triangle steps and loop iterations per ray, mean and the mean over SIMD
+packets (16 lanes on the CPU, 32-lane warps on CUDA) of the packet's maximum. Build:
+the binary SAH build's throughput (triangles/s) and each collapse's time.
 """
 from __future__ import annotations
 
+import statistics
 import time
 
 import drjit as dr
 import numpy as np
 
-from renderer.accel import Ray, build_accelerator
+from renderer.accel import ACCELERATORS, Ray, build_accelerator
+from renderer.accel.bvh_build import build_bvh
 from renderer.device import array3, types
-from renderer.stats import kernel_ms
 
 from .. import SEED_SCENES
 from .part import Context, Part, jsonable, table
 
-SCENES = SEED_SCENES + ("bunny", "conference", "bunny_1m")
+SCENES = SEED_SCENES + ("bunny", "sponza", "conference", "bunny_1m")
+ACCELS = ("bvh", "bvh4", "bvh8")     # binary, and the wide BVHs collapsed from it
+BATCHES = ("primary", "shadow", "incoherent", "reflection")
+SEED = 12                           # the incoherent batch's random generator
 
 
 # ---- the accelerator seam: the one place that names the accelerator interface -------------
-def _build_accelerator(name: str, scene, t):
-    return build_accelerator(name, scene, t)
+def _build_accelerator(name: str, scene, t, binary=None):
+    if binary is None:
+        return build_accelerator(name, scene, t)
+    return ACCELERATORS[name].build(scene, t, binary=binary)
 
 
 def _closest(acc, o, d, t_max, active):
@@ -72,58 +94,100 @@ def shadow_rays_host(scene, o, d, t, prim_face, light_pos) -> tuple[np.ndarray, 
     return so.astype(np.float32), sd.astype(np.float32), tmax.astype(np.float32)
 
 
+def incoherent_rays_host(scene, n: int, seed: int = SEED) -> tuple[np.ndarray, np.ndarray]:
+    """``n`` rays with origins uniform in the box of the scene's vertices and directions
+    uniform on the sphere (normalised Gaussians), float32, from ``default_rng(seed)``."""
+    rng = np.random.default_rng(seed)
+    V = scene.vertices.astype(np.float64)
+    lo, hi = V.min(axis=0), V.max(axis=0)
+    o = lo + rng.random((n, 3)) * (hi - lo)
+    d = rng.standard_normal((n, 3))
+    d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-30)
+    return o.astype(np.float32), d.astype(np.float32)
+
+
+def reflection_rays_host(scene, o, d, t, prim_face) -> tuple[np.ndarray, np.ndarray]:
+    """Mirror reflections of the rays ``(o, d)`` at their hits ``o + t d`` (only the rays
+    that hit, ``t`` finite) off the geometric normal of face ``prim_face``: origins offset
+    by ``scene.ray_offset`` along the normal on the incoming side, unit directions."""
+    hit = np.isfinite(t)
+    dd = d[hit].astype(np.float64)
+    dd /= np.linalg.norm(dd, axis=1, keepdims=True)
+    p = o[hit].astype(np.float64) + t[hit, None] * d[hit].astype(np.float64)
+    fa = scene.faces[prim_face[hit]]
+    V = scene.vertices.astype(np.float64)
+    ng = np.cross(V[fa[:, 1]] - V[fa[:, 0]], V[fa[:, 2]] - V[fa[:, 0]])
+    ng /= np.maximum(np.linalg.norm(ng, axis=1, keepdims=True), 1e-300)
+    cos = np.sum(dd * ng, axis=1, keepdims=True)
+    r = dd - 2.0 * cos * ng
+    side = -np.where(cos > 0, 1.0, -1.0) * ng                  # the incoming side
+    ro = p + scene.ray_offset * side
+    return ro.astype(np.float32), r.astype(np.float32)
+
+
 # ---- the measurement ----------------------------------------------------------------------
-def ray_throughput(scene, *, backend: str, width: int = 1920, height: int = 1080,
-                   repeats: int = 10, accel: str = "bvh") -> dict:
-    """Closest-hit and shadow-ray throughput, ours vs Mitsuba, on identical ray batches."""
-    from reference import mitsuba_variant
-    from reference.mitsuba_scene import load_triangles, rays
-    t = types(backend)
-    o, d = primary_rays_host(scene, width, height, t)
-    n = len(o)
+def _timed(fns: dict, repeats: int, warmup: int = 2) -> dict:
+    """Time each ``fns[name]()``, which traces a query and returns the variables to
+    evaluate: kernel time as ``renderer.stats.kernel_ms`` reports it, and the process's CPU
+    time of the evaluation alone (``time.process_time`` around ``dr.eval`` + sync: every
+    thread of this process, Dr.Jit's workers and Embree's alike, no Python tracing). The
+    contenders are timed in turn within every repeat (round robin). Why CPU time: on a
+    shared, oversubscribed CPU the scheduler time-slices a long kernel with the other
+    processes while a short one may finish within one slice, so wall-clock kernel time
+    penalises the slower contender more than its work; CPU time counts the work."""
+    def once(fn):
+        out = fn()
+        c0 = time.process_time()
+        dr.eval(out)
+        dr.sync_thread()
+        return time.process_time() - c0
 
-    # ---- ours -----------------------------------------------------------------------------
-    t0 = time.perf_counter()
-    acc = _build_accelerator(accel, scene, t)
-    dr.eval(acc)
-    build_s = time.perf_counter() - t0
+    for fn in fns.values():
+        for _ in range(warmup):
+            once(fn)
+    kern = {k: [] for k in fns}
+    wall = {k: [] for k in fns}
+    cpu = {k: [] for k in fns}
+    dr.kernel_history()
+    with dr.scoped_set_flag(dr.JitFlag.KernelHistory, True):
+        for _ in range(repeats):
+            for k, fn in fns.items():
+                dr.kernel_history()
+                t0 = time.perf_counter()
+                cpu[k].append(once(fn) * 1e3)
+                wall[k].append((time.perf_counter() - t0) * 1e3)
+                hist = [h for h in dr.kernel_history() if "execution_time" in h]
+                kern[k].append(sum(h["execution_time"] for h in hist))
+    return {k: {"kernel_ms": statistics.median(kern[k]), "kernel_ms_min": min(kern[k]),
+                "cpu_ms": statistics.median(cpu[k]), "cpu_ms_min": min(cpu[k]),
+                "wall_ms": statistics.median(wall[k]), "repeats": repeats} for k in fns}
 
-    o_dev, d_dev = array3(t, o), array3(t, d)
-    inf = t.Float(np.full(n, np.inf, np.float32))
-    on = dr.full(t.Bool, True, n)
-    dr.eval(o_dev, d_dev, inf, on)
-    res = {}
 
-    def ours_closest():
-        h = _closest(acc, o_dev, d_dev, inf, on)
-        dr.eval(*h)
-        return h
+def _rate(timing: dict, n: int) -> dict:
+    ms, cpu = timing["kernel_ms"], timing["cpu_ms"]
+    return dict(timing, mrays_per_s=n / (ms * 1e-3) / 1e6 if ms > 0 else float("nan"),
+                mrays_per_cpu_s=n / (cpu * 1e-3) / 1e6 if cpu > 0 else float("nan"))
 
-    res["ours_primary"] = kernel_ms(ours_closest, repeats=repeats)
-    h_t, h_prim, h_found = ours_closest()
-    valid = h_found.numpy()
-    t_ours = np.where(valid, h_t.numpy(), np.inf)
-    order = acc.tris.order.numpy().astype(np.int64)
-    face_ours = np.where(valid, order[np.minimum(h_prim.numpy(), len(order) - 1)], -1)
 
-    # ---- Mitsuba (one mesh holding every triangle, so prim_index is the face index) -------
-    mitsuba_variant("cuda_ad_rgb" if backend == "cuda" else "llvm_ad_rgb")
-    mscene, mi_build_s = load_triangles(scene.vertices, scene.faces)
-    ray = rays(o, d)
-    dr.eval(ray)
+def _steps(acc, ray, on, any_hit: bool, lanes: int) -> dict | None:
+    """Node steps, triangle steps and loop iterations per ray of ``acc``'s instrumented
+    traversal (None when it has none): mean, and mean over packets of ``lanes`` rays of
+    the packet's maximum (what a SIMD packet or warp executes)."""
+    if not hasattr(acc, "counts"):
+        return None
+    out = {}
+    for name, c in zip(("node", "triangle", "iterations"), acc.counts(ray, on, any_hit)):
+        x = c.numpy().astype(np.int64)
+        m = len(x) // lanes * lanes
+        out[name] = float(x.mean()) if len(x) else 0.0
+        out[name + "_packet_max"] = (float(x[:m].reshape(-1, lanes).max(axis=1).mean())
+                                     if m else out[name])
+    return out
 
-    def mi_closest():
-        pi = mscene.ray_intersect_preliminary(ray, coherent=True)
-        dr.eval(pi.t, pi.prim_index)
-        return pi
 
-    res["mitsuba_primary"] = kernel_ms(mi_closest, repeats=repeats)
-    pi = mi_closest()
-    t_mi = pi.t.numpy()
-    face_mi = np.where(np.isfinite(t_mi), pi.prim_index.numpy().astype(np.int64), -1)
-
+def _agreement_closest(t_ours, face_ours, t_mi, face_mi) -> dict:
     both = np.isfinite(t_ours) & np.isfinite(t_mi)
-    res["primary_agreement"] = {
+    return {
         "hit_miss_agree": float(np.mean(np.isfinite(t_ours) == np.isfinite(t_mi))),
         "same_triangle": float(np.mean(face_ours == face_mi)),
         "t_rel_1e-4": float(np.mean(np.abs(t_ours[both] - t_mi[both])
@@ -131,48 +195,138 @@ def ray_throughput(scene, *, backend: str, width: int = 1920, height: int = 1080
         "hits": int(np.isfinite(t_ours).sum()),
     }
 
-    # ---- shadow rays to the first light (from our primary hits) ---------------------------
-    if scene.lights:
+
+def ray_throughput(scene, *, backend: str, width: int = 1920, height: int = 1080,
+                   repeats: int = 10, accels=ACCELS, batches=BATCHES,
+                   steps: bool = True) -> dict:
+    """Closest-hit and any-hit throughput of ``accels`` vs Mitsuba on the identical
+    ``batches`` (see the module docstring) of ``width``×``height`` rays. ``steps``: also
+    run the instrumented traversals. The legacy keys (``ours_primary``, ``ours_shadow``,
+    ``primary_agreement`` ...) hold the first accelerator's primary and shadow rows."""
+    from reference import mitsuba_variant
+    from reference.mitsuba_scene import load_triangles, rays
+    t = types(backend)
+    lanes = 32 if t.backend == "cuda" else 16
+    o, d = primary_rays_host(scene, width, height, t)
+    n = len(o)
+
+    # ---- builds: one binary SAH build, uploaded as is and collapsed to the wide BVHs -------
+    t0, c0 = time.perf_counter(), time.process_time()
+    binary = build_bvh(scene.vertices, scene.faces)
+    binary_s, binary_cpu = time.perf_counter() - t0, time.process_time() - c0
+    accs, build = {}, {"triangles": scene.face_count, "binary_build_s": binary.build_seconds,
+                       "binary_build_cpu_s": binary_cpu,
+                       "triangles_per_s": scene.face_count / max(binary.build_seconds, 1e-9),
+                       "triangles_per_cpu_s": scene.face_count / max(binary_cpu, 1e-9)}
+    for name in accels:
+        t0 = time.perf_counter()
+        accs[name] = _build_accelerator(name, scene, t, binary=binary)
+        dr.eval(accs[name])
+        build[name] = {"seconds": binary_s + time.perf_counter() - t0,
+                       "stats": jsonable(accs[name].stats())}
+    mitsuba_variant("cuda_ad_rgb" if backend == "cuda" else "llvm_ad_rgb")
+    mscene, mi_build_s = load_triangles(scene.vertices, scene.faces)
+    build["mitsuba_build_s"] = mi_build_s
+    first = accels[0]
+
+    def upload(bo, bd, btmax):
+        m = len(bo)
+        ray = Ray(o=array3(t, bo), d=array3(t, bd), t_max=t.Float(btmax))
+        on = dr.full(t.Bool, True, m)
+        mray = rays(bo, bd, btmax if np.all(np.isfinite(btmax)) else None)
+        dr.eval(ray, on, mray)
+        return ray, on, mray
+
+    def measure(name, bo, bd, btmax, queries, coherent):
+        m = len(bo)
+        ray, on, mray = upload(bo, bd, btmax)
+        out = {"rays": m}
+        for q in queries:
+            fns = {}
+            for a, acc in accs.items():
+                if q == "closest":
+                    fns[a] = lambda acc=acc: _closest(acc, ray.o, ray.d, ray.t_max, on)
+                else:
+                    fns[a] = lambda acc=acc: _occluded(acc, ray.o, ray.d, ray.t_max, on)
+            if q == "closest":
+                def mi_trace():
+                    pi = mscene.ray_intersect_preliminary(mray, coherent=coherent)
+                    return pi.t, pi.prim_index
+            else:
+                def mi_trace():
+                    return mscene.ray_test(mray, coherent=coherent)
+
+            def mi_fn():
+                out = mi_trace()
+                dr.eval(out)
+                return out
+            fns["mitsuba"] = mi_trace
+            timing = _timed(fns, repeats) if m else {}
+            res = {"ms": {k: _rate(v, m) for k, v in timing.items()}}
+            if m and q == "closest":
+                ht, hp, hf = _closest(accs[first], ray.o, ray.d, ray.t_max, on)
+                valid = hf.numpy()
+                t_ours = np.where(valid, ht.numpy(), np.inf)
+                order = accs[first].tris.order.numpy().astype(np.int64)
+                face = np.where(valid, order[np.minimum(hp.numpy(), len(order) - 1)], -1)
+                mt, mp = mi_fn()
+                t_mi = mt.numpy()
+                face_mi = np.where(np.isfinite(t_mi), mp.numpy().astype(np.int64), -1)
+                res["agreement"] = _agreement_closest(t_ours, face, t_mi, face_mi)
+                res["_hits"] = (t_ours, face)
+            elif m:
+                ours = _occluded(accs[first], ray.o, ray.d, ray.t_max, on).numpy()
+                res["agreement"] = {"same_answer": float(np.mean(ours == mi_fn().numpy())),
+                                    "hits": int(ours.sum())}
+            if steps and m:
+                res["steps"] = {a: _steps(acc, ray, on, q == "any", lanes)
+                                for a, acc in accs.items() if hasattr(acc, "counts")}
+            out[q] = res
+        return out
+
+    res = {"scene_triangles": scene.face_count, "batches": {}}
+    inf = np.full(n, np.inf, np.float32)
+    prim = measure("primary", o, d, inf, ("closest", "any"), True)
+    t_ours, face_ours = prim["closest"].pop("_hits")
+    if "primary" in batches:
+        res["batches"]["primary"] = prim
+    if "shadow" in batches and scene.lights:
         so, sd, stmax = shadow_rays_host(scene, o, d, t_ours, np.maximum(face_ours, 0),
                                          scene.lights[0].position)
-        m = len(so)
-        so_dev, sd_dev, st_dev = array3(t, so), array3(t, sd), t.Float(stmax)
-        son = dr.full(t.Bool, True, m)
-        dr.eval(so_dev, sd_dev, st_dev, son)
+        res["batches"]["shadow"] = measure("shadow", so, sd, stmax, ("any",), False)
+    if "incoherent" in batches:
+        io, idir = incoherent_rays_host(scene, n)
+        b = measure("incoherent", io, idir, inf, ("closest", "any"), False)
+        b["closest"].pop("_hits", None)
+        res["batches"]["incoherent"] = b
+    if "reflection" in batches:
+        ro, rd = reflection_rays_host(scene, o, d, t_ours, np.maximum(face_ours, 0))
+        b = measure("reflection", ro, rd, np.full(len(ro), np.inf, np.float32),
+                    ("closest", "any"), False)
+        b["closest"].pop("_hits", None)
+        res["batches"]["reflection"] = b
 
-        def ours_shadow():
-            b = _occluded(acc, so_dev, sd_dev, st_dev, son)
-            dr.eval(b)
-            return b
-
-        sray = rays(so, sd, stmax)
-        dr.eval(sray)
-
-        def mi_shadow():
-            b = mscene.ray_test(sray, coherent=False)
-            dr.eval(b)
-            return b
-
-        res["ours_shadow"] = kernel_ms(ours_shadow, repeats=repeats)
-        res["mitsuba_shadow"] = kernel_ms(mi_shadow, repeats=repeats)
-        res["shadow_agreement"] = float(np.mean(ours_shadow().numpy() == mi_shadow().numpy()))
-        res["shadow_rays"] = m
+    # ---- the legacy keys: the first accelerator's primary and shadow rows ------------------
     res["rays"] = n
-    for k in ("primary", "shadow"):
-        count = n if k == "primary" else res.get("shadow_rays", 0)
-        for who in ("ours", "mitsuba"):
-            if f"{who}_{k}" in res:
-                ms = res[f"{who}_{k}"]["kernel_ms"]
-                res[f"{who}_{k}"]["mrays_per_s"] = (count / (ms * 1e-3) / 1e6 if ms > 0
-                                                    else float("nan"))
-    res.update(triangles=scene.face_count, build_s=build_s, mitsuba_build_s=mi_build_s,
-               accel=accel, stats=jsonable(acc.stats()))
+    res["ours_primary"] = prim["closest"]["ms"][first]
+    res["mitsuba_primary"] = prim["closest"]["ms"]["mitsuba"]
+    res["primary_agreement"] = prim["closest"]["agreement"]
+    sh = res["batches"].get("shadow")
+    if sh:
+        res["ours_shadow"] = sh["any"]["ms"][first]
+        res["mitsuba_shadow"] = sh["any"]["ms"]["mitsuba"]
+        res["shadow_agreement"] = sh["any"]["agreement"]["same_answer"]
+        res["shadow_rays"] = sh["rays"]
+    res.update(triangles=scene.face_count, build_s=build[first]["seconds"],
+               mitsuba_build_s=mi_build_s, accel=first, accels=list(accels), build=build,
+               stats=build[first]["stats"])
     return res
 
 
 # ---- the part -----------------------------------------------------------------------------
 def run(ctx: Context) -> list[dict]:
-    """Every scene of ``SCENES`` present in the scenes folder, at 1920×1080 (quick: 320×180)."""
+    """Every scene of ``SCENES`` present in the scenes folder, at 1920×1080 (quick: 320×180),
+    one progress line per batch and query."""
     from renderer.scene import load_scene
     w, h = (320, 180) if ctx.quick else (1920, 1080)
     rows = []
@@ -184,13 +338,19 @@ def run(ctx: Context) -> list[dict]:
                            repeats=5 if ctx.quick else 10)
         r["scene"] = name
         rows.append(r)
-        print(f"  rays {name:16s} ours {r['ours_primary']['mrays_per_s']:9.1f} Mrays/s"
-              f"  mitsuba {r['mitsuba_primary']['mrays_per_s']:9.1f}"
-              f"  same tri {r['primary_agreement']['same_triangle']:.4f}", flush=True)
+        for batch, b in r["batches"].items():
+            for q in ("closest", "any"):
+                if q not in b:
+                    continue
+                ms = b[q]["ms"]
+                ours = "  ".join(f"{a} {ms[a]['mrays_per_s']:8.1f}" for a in r["accels"])
+                print(f"  rays {name:16s} {batch:10s} {q:7s} {ours}  mitsuba "
+                      f"{ms['mitsuba']['mrays_per_s']:8.1f} Mrays/s", flush=True)
     return rows
 
 
-def markdown(rows: list[dict]) -> list[str]:
+def _legacy_markdown(rows: list[dict]) -> list[str]:
+    """The table of results stored before the batches existed (primary and shadow only)."""
     cells = []
     for r in rows:
         op, mp = r["ours_primary"]["mrays_per_s"], r["mitsuba_primary"]["mrays_per_s"]
@@ -205,6 +365,61 @@ def markdown(rows: list[dict]) -> list[str]:
                  ["scene", "triangles", "rays", "ours primary Mrays/s", "Mitsuba primary",
                   "ratio", "same triangle", "ours shadow Mrays/s", "Mitsuba shadow", "ratio",
                   "shadow agree", "BVH build s"], "lrrrrrrrrrrr", cells)
+
+
+def _fmt(x: float) -> str:
+    return f"{x:,.0f}" if x >= 100 else f"{x:.1f}" if x >= 10 else f"{x:.2f}"
+
+
+def markdown(rows: list[dict]) -> list[str]:
+    if not rows or "batches" not in rows[0]:
+        return _legacy_markdown(rows)
+    accels = rows[0]["accels"]
+    cells, steps = [], []
+    for r in rows:
+        for batch, b in r["batches"].items():
+            for q in ("closest", "any"):
+                if q not in b:
+                    continue
+                x = b[q]
+                ms = x["ms"]
+                rate = {k: v["mrays_per_s"] for k, v in ms.items()}
+                best = max(accels, key=lambda a: rate[a])
+                crate = {k: v.get("mrays_per_cpu_s", float("nan")) for k, v in ms.items()}
+                cbest = max(accels, key=lambda a: crate[a])
+                ag = x.get("agreement", {})
+                agree = (f"{ag['same_triangle']:.4f}" if "same_triangle" in ag
+                         else f"{ag.get('same_answer', float('nan')):.4f}")
+                cells.append([r["scene"], batch, q, f"{b['rays']:,}"]
+                             + [_fmt(rate[a]) for a in accels]
+                             + [_fmt(rate["mitsuba"]),
+                                f"{rate[best] / rate['mitsuba']:.2f} ({best})",
+                                f"{crate[cbest] / crate['mitsuba']:.2f} ({cbest})", agree])
+                st = x.get("steps") or {}
+                steps.append([r["scene"], batch, q]
+                             + [f"{st[a]['node']:.1f} / {st[a]['triangle']:.1f} / "
+                                f"{st[a]['iterations_packet_max']:.1f}" if st.get(a) else "–"
+                                for a in accels])
+    build = [[r["scene"], f"{r['triangles']:,}", f"{r['build']['binary_build_s']:.3f}",
+              f"{r['build']['triangles_per_s'] / 1e6:.2f}",
+              f"{r['build'].get('triangles_per_cpu_s', float('nan')) / 1e6:.2f}"]
+             + [f"{r['build'][a]['stats'].get('convert_seconds', 0.0):.3f}" for a in accels]
+             + [f"{r['build']['mitsuba_build_s']:.3f}"] for r in rows]
+    n = len(accels)
+    return (table("Ray throughput (identical batches; M rays/s from kernel time, median of "
+                  "repeats, contenders timed in turn)",
+                  ["scene", "batch", "query", "rays"] + [f"{a} Mrays/s" for a in accels]
+                  + ["Mitsuba", "best / Mitsuba", "best / Mitsuba by CPU time", "agreement"],
+                  "lllr" + "r" * (n + 4), cells)
+            + table("Traversal steps per ray (instrumented traversal): node steps / triangle "
+                    "steps / loop iterations of the slowest ray of each SIMD packet or warp",
+                    ["scene", "batch", "query"] + accels, "lll" + "r" * n, steps)
+            + table("BVH build (CPU, numpy): binary SAH build, its throughput, and each "
+                    "accelerator's extra time (the wide BVHs' collapse and quantisation)",
+                    ["scene", "triangles", "binary SAH build s", "M triangles/s",
+                     "M triangles/CPU s"]
+                    + [f"{a} extra s" for a in accels] + ["Mitsuba build s"],
+                    "lrrrr" + "r" * (n + 1), build))
 
 
 PART = Part(name="throughput", key="throughput", run=run, markdown=markdown)

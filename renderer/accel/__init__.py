@@ -16,14 +16,16 @@ from .boxes import ObjectBoxes
 from .brute import BruteForce
 from .bvh import BVH
 from .triangle import ROUTINES, triangle_routine
+from .wide import BVH4, BVH8, WideBVH
 
-ACCELERATORS = {"brute": BruteForce, "boxes": ObjectBoxes, "bvh": BVH}
+ACCELERATORS = {"brute": BruteForce, "boxes": ObjectBoxes, "bvh": BVH, "bvh4": BVH4,
+                "bvh8": BVH8}
 DEFAULT_ACCEL = "bvh"
 DEFAULT_ROUTINE = "moller_trumbore"
 
-__all__ = ["ACCELERATORS", "BVH", "DEFAULT_ACCEL", "DEFAULT_ROUTINE", "ROUTINES", "Accelerator",
-           "BruteForce", "ClosestHit", "DeviceTriangles", "ObjectBoxes", "Ray", "build_accelerator",
-           "triangle_routine"]
+__all__ = ["ACCELERATORS", "BVH", "BVH4", "BVH8", "DEFAULT_ACCEL", "DEFAULT_ROUTINE", "ROUTINES",
+           "Accelerator", "BruteForce", "ClosestHit", "DeviceTriangles", "ObjectBoxes", "Ray",
+           "WideBVH", "build_accelerator", "triangle_routine"]
 
 
 def build_accelerator(name: str, scene, t: Types, *,

@@ -23,7 +23,7 @@ import numpy as np
 
 from ..device import Types
 from .base import Accelerator, DeviceTriangles, Ray, array_type, gather_floats
-from .bvh_build import BINS, LEAF_SIZE, build_bvh
+from .bvh_build import BINS, LEAF_SIZE, BVHArrays, build_bvh
 from .traverse import (
     DONE,
     STACK_SIZE,
@@ -97,12 +97,13 @@ class BVH(Accelerator):
 
     @classmethod
     def build(cls, scene, t: Types, *, intersection: str = "moller_trumbore",
-              leaf_size: int = LEAF_SIZE, bins: int = BINS, **build_options) -> "BVH":
+              leaf_size: int = LEAF_SIZE, bins: int = BINS, binary: BVHArrays | None = None,
+              **build_options) -> "BVH":
         """``build_options`` go to ``build_bvh`` (root_bins, all_axes, sah_leaves,
-        depth_first, sample)."""
+        depth_first, sample); ``binary``: an existing build of ``scene`` to upload instead."""
         triangle_routine(intersection)
-        a = build_bvh(scene.vertices, scene.faces, leaf_size=leaf_size, bins=bins,
-                      **build_options)
+        a = binary if binary is not None else build_bvh(
+            scene.vertices, scene.faces, leaf_size=leaf_size, bins=bins, **build_options)
         t0 = time.perf_counter()
         tri_data, tris = upload_triangles(scene, t, order=a.order)
         fdt = np.float64 if t.is_double else np.float32
@@ -123,9 +124,13 @@ class BVH(Accelerator):
                    intersection=intersection,
                    info=info)
 
+    def counts(self, ray: Ray, active=True, any_hit: bool = False):
+        """The instrumented traversal (profiling): ``(node_steps, triangle_steps,
+        iterations)`` UInt32 per ray, the same traversal as the query with counters."""
+        return self._traverse(ray, active, any_hit, True)
 
     @dr.syntax
-    def _traverse(self, ray: Ray, active, any_hit: bool):
+    def _traverse(self, ray: Ray, active, any_hit: bool, counting: bool = False):
         t = self.types
         routine = triangle_routine(self.intersection)
         robust = robust_scale(t)
@@ -138,12 +143,19 @@ class BVH(Accelerator):
         first = dr.zeros(t.UInt32, n)                           # pending leaf triangles
         end = dr.zeros(t.UInt32, n)                             # [first, end)
         rec = Closest.empty(t, t_max, n)                        # closest hit so far
+        n_node = dr.zeros(t.UInt32, n)                          # counters (``counts``)
+        n_tri = dr.zeros(t.UInt32, n)
+        n_iter = dr.zeros(t.UInt32, n)
 
         while dr.hint(active, max_iterations=-1,
                       label="bvh_llvm" if t.backend == "llvm" else "bvh",
-                      exclude=[self, t, routine, robust, any_hit]):
+                      exclude=[self, t, routine, robust, any_hit, counting]):
             # ---- node step: only when no leaf triangles are pending ---------------------
             is_leaf, is_inner, first, end = enter_leaf(cur, first, end)
+            if dr.hint(counting, mode="scalar"):
+                n_node += dr.select(is_inner, 1, 0)
+                n_tri += dr.select(first < end, 1, 0)
+                n_iter += 1
             sp, cur, to_pop = masked_step(
                 t, is_inner,
                 lambda sp, cur, to_pop, on, best_t=rec.t: node_step(
@@ -164,6 +176,8 @@ class BVH(Accelerator):
 
             active &= (first < end) | (cur != DONE)
 
+        if dr.hint(counting, mode="scalar"):
+            return n_node, n_tri, n_iter
         if dr.hint(any_hit, mode="scalar"):
             return rec.found
         return rec.result()

@@ -1,0 +1,485 @@
+"""The wide BVH: 4 or 8 children per node, built as a conversion of ``bvh_build``'s binary
+SAH tree (tinybvh's ``BVH4``/``BVH8_CWBVH::ConvertFrom``).
+
+Conversion (``collapse``): each wide node starts from a binary node's two children and
+repeatedly replaces the inner child of largest surface area by its two children (SAH-greedy
+expansion) until it has ``width`` children or no inner child may be expanded. Leaves are
+the binary tree's leaves unchanged (same triangle order, same packed references of
+``renderer.accel.traverse``), so the wide tree visits the same triangles in a different
+order and the hits are bitwise those of the binary BVH and of brute force.
+
+Stack bound: a closest-hit node step pushes at most ``children - 1`` entries. The
+conversion only expands a child when ``pushes so far + (children - 1) + levels still
+needed below`` stays within ``STACK_SIZE`` (the binary tree's own bound: a subtree of ``L``
+inner levels never needs more than ``L`` entries), so the 32-entry stack cannot overflow.
+
+Node layout on the device (default, ``quantized``): ``nodes`` UInt32,
+``record_words(width)`` per node (12 for 4 children, 16 for 8): the node's origin and the
+exponents of its power-of-two scales (one word), then each coordinate of every child box
+as one byte, four children per word, SoA (all children's lo.x, then lo.y, lo.z, hi.x,
+hi.y, hi.z; CWBVH, Ylitie et al. 2017, rounded outwards by ``quantize``). Unquantised:
+``nodes`` Float, ``6 * width`` per node, the same SoA order in float32. ``refs`` UInt32,
+``width`` per node (``DONE`` marks an empty slot). One node step reads one contiguous
+record and tests one ray against every child box.
+
+Why quantised: on the CPU (LLVM, 16 lanes per SIMD packet) a step's cost is its gathers,
+one per float per lane; quantised boxes need one gather per word, a quarter of the float
+layout's box gathers. Closest-hit steps sort the hit children by entry distance (a sorting
+network), go to the nearest and push the rest far to near; any-hit steps push every hit
+child in slot order (nearest-first any-hit was measured: 3-35 % more loop iterations per
+ray on Sponza, Conference and the bunny).
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import drjit as dr
+import numpy as np
+
+from ..device import Types
+from .base import Accelerator, DeviceTriangles, Ray, array_type, gather_floats
+from .bvh_build import BINS, LEAF_SIZE, BVHArrays, build_bvh
+from .traverse import (
+    DONE,
+    LEAF_BIT,
+    STACK_SIZE,
+    Closest,
+    enter_leaf,
+    masked_step,
+    pop,
+    robust_scale,
+    setup,
+    slab,
+    triangle_step,
+)
+from .triangle import STRIDE, triangle_routine, upload_triangles
+
+WIDTHS = (4, 8)
+
+
+@dataclass
+class WideArrays:
+    """A wide BVH on the host.
+
+    width: children per node; boxes: float32 (N, 6, width) SoA child boxes (lo xyz, hi xyz
+    rows; NaN in empty slots); refs: uint32 (N, width) child references (wide-node index or
+    packed leaf; ``DONE`` in empty slots); levels: wide levels; max_stack: the most stack
+    entries a closest-hit traversal can hold; convert_seconds.
+    """
+
+    width: int
+    boxes: np.ndarray
+    refs: np.ndarray
+    levels: int
+    max_stack: int
+    convert_seconds: float = 0.0
+
+    @property
+    def node_count(self) -> int:
+        return int(self.refs.shape[0])
+
+
+def _half_area(box):
+    """Half surface area of boxes (..., 6) (lo xyz, hi xyz); 0 for non-finite boxes."""
+    with np.errstate(invalid="ignore"):
+        d = box[..., 3:6].astype(np.float64) - box[..., 0:3]
+        a = d[..., 0] * d[..., 1] + d[..., 1] * d[..., 2] + d[..., 2] * d[..., 0]
+    return np.where(np.isfinite(a), a, 0.0)
+
+
+def _inner_levels(children: np.ndarray) -> np.ndarray:
+    """Inner levels of each binary node's subtree (1 for a node whose children are leaves)."""
+    ref = children.astype(np.int64)
+    inner = (ref & LEAF_BIT) == 0
+    levels = [np.zeros(1, np.int64)]
+    while True:
+        c = ref[levels[-1]][inner[levels[-1]]]
+        if not c.size:
+            break
+        levels.append(c)
+    need = np.ones(ref.shape[0], np.int64)
+    for nodes in reversed(levels):
+        for k in range(2):
+            m = inner[nodes, k]
+            need[nodes[m]] = np.maximum(need[nodes[m]], need[ref[nodes[m], k]] + 1)
+    return need
+
+
+def collapse(a: BVHArrays, width: int = 4, stack_size: int = STACK_SIZE) -> WideArrays:
+    """Collapse the binary tree ``a`` into ``width``-wide nodes (SAH-greedy expansion of the
+    largest-area inner child), one wide level at a time, vectorised over its nodes."""
+    if width not in WIDTHS:
+        raise ValueError(f"width: expected one of {WIDTHS}, got {width}")
+    t0 = time.perf_counter()
+    ch = a.children.astype(np.int64)
+    bx = a.boxes.reshape(-1, 2, 6)
+    need = _inner_levels(a.children)
+    is_inner = lambda r: (r != DONE) & ((r & LEAF_BIT) == 0)  # noqa: E731
+    frontier = np.zeros(1, np.int64)              # binary node of each new wide node
+    budget = np.array([stack_size], np.int64)     # stack entries left to its subtree
+    out_boxes, out_refs = [], []
+    next_index, levels, max_stack = 1, 0, 0
+    while frontier.size:
+        M = frontier.size
+        refs = np.full((M, width), DONE, np.int64)
+        boxes = np.full((M, width, 6), np.nan, np.float32)
+        refs[:, :2] = ch[frontier]
+        boxes[:, :2] = bx[frontier]
+        # a box at infinity (the binary tree's never-hit child of a single-leaf root)
+        refs[~np.all(np.isfinite(boxes), axis=2)] = DONE
+        count = np.full(M, 2, np.int64)
+        rows = np.arange(M)
+        for _ in range(width - 2):
+            inner = is_inner(refs)
+            r = np.where(inner, refs, 0)
+            slot_need = np.where(inner, need[r], 0)
+            # the most levels any other slot still needs, for each slot j (top two)
+            top = np.sort(slot_need, axis=1)
+            others = np.where(slot_need == top[:, -1:], top[:, -2:-1], top[:, -1:])
+            new_max = np.maximum(others, slot_need - 1)
+            ok = inner & ((count[:, None] + new_max) <= budget[:, None])
+            score = np.where(ok, _half_area(boxes), -1.0)
+            j = np.argmax(score, axis=1)
+            do = ok[rows, j] & (count < width)
+            if not do.any():
+                break
+            rr, jj = rows[do], j[do]
+            rb = refs[rr, jj]
+            cc = count[do]
+            refs[rr, cc] = ch[rb, 1]
+            boxes[rr, cc] = bx[rb, 1]
+            refs[rr, jj] = ch[rb, 0]
+            boxes[rr, jj] = bx[rb, 0]
+            count[do] += 1
+        inner = is_inner(refs)
+        rows_in, slots_in = np.nonzero(inner)
+        child_bin = refs[rows_in, slots_in]
+        refs[rows_in, slots_in] = next_index + np.arange(child_bin.size)
+        next_index += child_bin.size
+        used = stack_size - budget + (count - 1)
+        max_stack = max(max_stack, int(used.max()))
+        out_refs.append(refs.astype(np.uint32))
+        out_boxes.append(np.ascontiguousarray(boxes.transpose(0, 2, 1)))   # (M, 6, W)
+        frontier = child_bin
+        budget = (budget - (count - 1))[rows_in]
+        levels += 1
+    return WideArrays(width, np.concatenate(out_boxes), np.concatenate(out_refs), levels,
+                      max_stack, time.perf_counter() - t0)
+
+
+def quantize(w: WideArrays) -> np.ndarray:
+    """The child boxes of ``w`` quantised to 8 bits per coordinate (CWBVH, Ylitie et al.
+    2017), conservatively: uint32 (N, ``record_words(width)``) words per node,
+    ``origin xyz`` (float32 bits) and one word holding the biased float32 exponents of the
+    three power-of-two scales (a byte each), then the bytes ``q`` of lo.x, lo.y, lo.z,
+    hi.x, hi.y, hi.z of every child, four children per word (child ``k`` in bits
+    ``8 (k % 4)``). The device decodes ``origin + q * scale``; ``q`` is rounded down for
+    lo and up for hi, then moved outwards until the decoded value lies outside the float
+    box both in float32 and exactly (float64 traversals decode exactly), so a decoded box
+    always contains the float box: it can only cost box tests, never a hit."""
+    W = w.width
+    N = w.node_count
+    bx = w.boxes.astype(np.float64)                      # (N, 6, W)
+    real = (w.refs != DONE)[:, None, :] & np.isfinite(bx)
+    lo, hi = bx[:, 0:3], bx[:, 3:6]                      # (N, 3, W)
+    rl = real[:, 0:3]
+    org = np.where(rl, lo, np.inf).min(axis=2)           # (N, 3)
+    top = np.where(rl, hi, -np.inf).max(axis=2)
+    org = np.where(np.isfinite(org), org, 0.0).astype(np.float32)
+    ext = np.maximum(np.where(np.isfinite(top), top, 0.0) - org, 0.0)
+    e = np.clip(np.ceil(np.log2(np.maximum(ext / 254.0, 2.0 ** -120))), -120, 120)
+    scale = np.exp2(e).astype(np.float32)                # (N, 3)
+    o3 = np.broadcast_to(org[..., None], lo.shape)                  # float32 (N, 3, W)
+    s3 = np.broadcast_to(scale[..., None], lo.shape)
+    with np.errstate(invalid="ignore"):
+        qlo = np.clip(np.floor((np.where(rl, lo, o3) - o3) / s3), 0, 255)
+        qhi = np.clip(np.ceil((np.where(rl, hi, o3) - o3) / s3), 0, 255)
+    qlo = _outward(qlo, o3, s3, lo, rl, -1)
+    qhi = _outward(qhi, o3, s3, hi, rl, +1)
+    q = np.concatenate([qlo, qhi], axis=1).astype(np.uint32)        # (N, 6, W)
+    words = (q.reshape(N, 6, W // 4, 4) << np.array([0, 8, 16, 24], np.uint32)).sum(
+        axis=3, dtype=np.uint32)                                    # (N, 6, W/4)
+    biased = (scale.view(np.uint32) >> np.uint32(23)) & np.uint32(255)     # (N, 3)
+    exps = biased[:, 0] | (biased[:, 1] << np.uint32(8)) | (biased[:, 2] << np.uint32(16))
+    rec = np.concatenate([org.view(np.uint32), exps[:, None], words.reshape(N, -1)], axis=1)
+    pad = record_words(W) - rec.shape[1]
+    return np.concatenate([rec, np.zeros((N, pad), np.uint32)], axis=1) if pad else rec
+
+
+def _decoded(q, o, s):
+    """``o + q s`` (q float64 integers, o and s float32) as the device computes it: exactly
+    (float64 traversals) and rounded once to float32. Returns both, float64."""
+    exact = o.astype(np.float64) + q * s.astype(np.float64)
+    return exact, exact.astype(np.float32).astype(np.float64)
+
+
+def _outward(q, o, s, bound, real, step: int):
+    """``q`` moved by ``step`` (-1 for lo, +1 for hi) where the decoded value does not yet
+    lie outside ``bound`` (both decodings); raises if one is left inside after 4 moves."""
+    q = q.copy()
+    idx = np.nonzero(real)
+    for _ in range(5):
+        ex, f = _decoded(q[idx], o[idx], s[idx])
+        b = bound[idx]
+        bad = (ex > b) | (f > b) if step < 0 else (ex < b) | (f < b)
+        if not bad.any():
+            return q
+        sel = tuple(i[bad] for i in idx)
+        q[sel] = np.clip(q[sel] + step, 0, 255)
+        idx = sel
+    raise AssertionError("quantize: a decoded box does not contain its float box")
+
+
+def record_words(width: int) -> int:
+    """UInt32 words of a quantised node record: ``HEAD + 6 width / 4``, rounded up to whole
+    quads (12 for 4 children, 16 for 8) so that CUDA reads it with packet gathers."""
+    return (HEAD + 6 * width // 4 + 3) // 4 * 4
+
+
+#: Header words of a quantised record: origin xyz (float32 bits) and the three biased
+#: float32 exponents of the power-of-two scales, one byte each.
+HEAD = 4
+
+
+def gather_words(t: Types, src, index, stride: int, count: int, active=True) -> list:
+    """The first ``count`` UInt32 of record ``index`` of ``src`` (records of ``stride``
+    words, a multiple of 4): packet gathers of Array4u on CUDA, one scalar gather per word
+    on LLVM (as ``base.gather_floats``)."""
+    if t.backend == "llvm":
+        base = index * stride
+        return [dr.gather(t.UInt32, src, base + k, active) for k in range(count)]
+    A4 = array_type(t, "Array4u")
+    base = index * (stride // 4)
+    out = []
+    for k in range((count + 3) // 4):
+        q = dr.gather(A4, src, base + k if k else base, active)
+        out += [q.x, q.y, q.z, q.w]
+    return out[:count]
+
+
+def check_wide(w: WideArrays, a: BVHArrays) -> None:
+    """Validate a collapse (tests): every binary leaf appears exactly once, every wide node
+    but the root is referenced once, the stack bound holds. Raises AssertionError."""
+    ref = w.refs.astype(np.int64).reshape(-1)
+    real = ref != DONE
+    leaf = real & ((ref & LEAF_BIT) != 0)
+    inner = ref[real & ~leaf]
+    assert np.array_equal(np.sort(inner), np.arange(1, w.node_count))
+    b = a.children.astype(np.int64).reshape(-1)
+    finite = np.all(np.isfinite(a.boxes.reshape(-1, 6)), axis=1)
+    assert np.array_equal(np.sort(ref[leaf]), np.sort(b[((b & LEAF_BIT) != 0) & finite]))
+    assert w.max_stack <= STACK_SIZE
+
+
+def wide_node_step(t: Types, width: int, nodes, refs, o, inv, t_max, robust, stack, sp, cur,
+                   to_pop, any_hit: bool, active=True):
+    """One wide node ``cur`` where ``active``: test the ray against every child box at
+    once (``(0, t_max)``), go to the nearest hit child and push the other hit children far
+    to near (any-hit: in slot order). Returns ``(sp, cur, to_pop)``, ``to_pop`` grown by
+    the lanes where no child was hit."""
+    W = width
+    boxes = child_boxes(t, W, nodes, cur, active)
+    child = gather_words(t, refs, cur, W, W, active)
+    key, ref = [], []
+    for k in range(W):
+        lo, hi = boxes[k]
+        r = child[k]
+        hit, tn = slab(t, o, inv, lo, hi, t_max, robust)
+        hit &= r != DONE
+        if active is not True:
+            hit &= active
+        ref.append(dr.select(hit, r, DONE))
+        key.append(dr.select(hit, tn, dr.inf))
+    if any_hit:
+        nxt = dr.full(t.UInt32, DONE, dr.width(cur))
+        for k in range(W):
+            hit = ref[k] != DONE
+            take = hit & (nxt == DONE)
+            push = hit & ~take
+            stack.write(ref[k], sp, push)
+            sp = dr.select(push, sp + 1, sp)
+            nxt = dr.select(take, ref[k], nxt)
+    else:
+        for i, j in _network(W):
+            swap = key[j] < key[i]
+            key[i], key[j] = dr.select(swap, key[j], key[i]), dr.select(swap, key[i], key[j])
+            ref[i], ref[j] = dr.select(swap, ref[j], ref[i]), dr.select(swap, ref[i], ref[j])
+        for k in range(W - 1, 0, -1):
+            push = ref[k] != DONE
+            stack.write(ref[k], sp, push)
+            sp = dr.select(push, sp + 1, sp)
+        nxt = ref[0]
+    missed = nxt == DONE
+    if active is not True:
+        missed &= active
+        nxt = dr.select(active, nxt, cur)
+    return sp, dr.select(missed, cur, nxt), to_pop | missed
+
+
+def child_boxes(t: Types, W: int, nodes, cur, active=True) -> list:
+    """``[(lo, hi)]`` (Array3f) of the ``W`` children of node(s) ``cur``: ``nodes`` is
+    a Float of SoA float boxes (``6 W`` per node) or a UInt32 of quantised records
+    (``quantize``: ``record_words(W)`` words per node, decoded as ``origin + q * scale``)."""
+    if dr.type_v(nodes) != dr.VarType.UInt32:
+        f = gather_floats(t, nodes, cur, 6 * W, 6 * W, active)
+        return [(t.Array3f(f[k], f[W + k], f[2 * W + k]),
+                 t.Array3f(f[3 * W + k], f[4 * W + k], f[5 * W + k])) for k in range(W)]
+    rec = gather_words(t, nodes, cur, record_words(W), HEAD + 6 * W // 4, active)
+    F32 = array_type(t, "Float32")
+    org = [t.Float(dr.reinterpret_array(F32, h)) for h in rec[:3]]
+    scale = [t.Float(dr.reinterpret_array(F32, ((rec[3] >> (8 * a)) & 255) << 23))
+             for a in range(3)]
+    words = rec[HEAD:]
+    q = [[t.Float((words[c * (W // 4) + k // 4] >> (8 * (k % 4))) & 255) for c in range(6)]
+         for k in range(W)]
+    return [(t.Array3f(*(dr.fma(q[k][a], scale[a], org[a]) for a in range(3))),
+             t.Array3f(*(dr.fma(q[k][3 + a], scale[a], org[a]) for a in range(3))))
+            for k in range(W)]
+
+
+def _network(n: int) -> list[tuple[int, int]]:
+    """Compare-exchange pairs of an ascending sorting network on ``n`` in (4, 8) keys
+    (optimal networks: 5 and 19 comparators)."""
+    if n == 4:
+        return [(0, 1), (2, 3), (0, 2), (1, 3), (1, 2)]
+    return [(0, 2), (1, 3), (4, 6), (5, 7), (0, 4), (1, 5), (2, 6), (3, 7), (0, 1), (2, 3),
+            (4, 5), (6, 7), (2, 4), (3, 5), (1, 4), (3, 6), (1, 2), (3, 4), (5, 6)]
+
+
+@dataclass
+class WideBVH(Accelerator):
+    """Wide BVH accelerator (see the module docstring).
+
+    Build with ``WideBVH.build(scene, t, width=4, intersection=..., leaf_size=4, bins=32)``.
+    nodes: Float (6 width N) SoA child boxes; refs: UInt32 (width N) child references;
+    tri_data, tris: as ``BVH``; width: 4 or 8; backend, precision, intersection, info.
+    """
+
+    nodes: object
+    refs: object
+    tri_data: object
+    tris: DeviceTriangles
+    width: int = 4
+    backend: str = "llvm"
+    precision: str = "float32"
+    intersection: str = "moller_trumbore"
+    info: dict = field(default_factory=dict, repr=False)
+
+    @classmethod
+    def build(cls, scene, t: Types, *, width: int = 4, quantized: bool = True,
+              intersection: str = "moller_trumbore", leaf_size: int = LEAF_SIZE,
+              bins: int = BINS, binary: BVHArrays | None = None,
+              **build_options) -> "WideBVH":
+        """``binary``: a binary build of ``scene`` to convert (else one is built with
+        ``leaf_size``, ``bins`` and ``build_options``); ``quantized``: 8-bit child boxes
+        (``quantize``), else float32 SoA boxes."""
+        triangle_routine(intersection)
+        a = binary if binary is not None else build_bvh(
+            scene.vertices, scene.faces, leaf_size=leaf_size, bins=bins, **build_options)
+        w = collapse(a, width)
+        tq = time.perf_counter()
+        if quantized:
+            qwords = quantize(w)
+        quantize_seconds = time.perf_counter() - tq if quantized else 0.0
+        t0 = time.perf_counter()
+        tri_data, tris = upload_triangles(scene, t, order=a.order)
+        fdt = np.float64 if t.is_double else np.float32
+        nodes = (t.UInt32(qwords.reshape(-1)) if quantized
+                 else t.Float(w.boxes.astype(fdt).reshape(-1)))
+        refs = t.UInt32(w.refs.reshape(-1))
+        dr.eval(nodes, refs, tri_data, tris)
+        fsize = 8 if t.is_double else 4
+        F = max(scene.face_count, 1)
+        info = {
+            "accel": f"bvh{width}", "intersection": intersection,
+            "build_seconds": a.build_seconds + w.convert_seconds + quantize_seconds,
+            "binary_build_seconds": a.build_seconds,
+            "convert_seconds": w.convert_seconds + quantize_seconds, "quantized": quantized,
+            "upload_seconds": time.perf_counter() - t0, "triangles": scene.face_count,
+            "nodes": w.node_count, "binary_nodes": a.node_count, "leaves": a.leaf_count,
+            "levels": w.levels, "binary_levels": a.levels, "max_stack": w.max_stack,
+            "sah_cost": a.sah_cost, "leaf_size": leaf_size, "bins": bins, "width": width,
+            "fill": float(np.mean(w.refs != DONE)),
+            "node_bytes_per_triangle": w.node_count * (
+                (4 * record_words(width) if quantized else 6 * fsize * width)
+                + 4 * width) / F,
+            "traversal_triangle_bytes_per_triangle": STRIDE * fsize,
+        }
+        return cls(nodes, refs, tri_data, tris, width=width, backend=t.backend,
+                   precision=t.precision, intersection=intersection, info=info)
+
+    def counts(self, ray: Ray, active=True, any_hit: bool = False):
+        """The instrumented traversal (profiling): ``(node_steps, triangle_steps,
+        iterations)`` UInt32 per ray, the same traversal as the query with counters."""
+        return self._traverse(ray, active, any_hit, True)
+
+    @dr.syntax
+    def _traverse(self, ray: Ray, active, any_hit: bool, counting: bool = False):
+        t = self.types
+        W = self.width
+        routine = triangle_routine(self.intersection)
+        robust = robust_scale(t)
+        nodes, refs, tri_data, order = self.nodes, self.refs, self.tri_data, self.tris.order
+        t_max = ray.t_max
+        o, d, inv, active, n = setup(t, ray, active)
+        stack = dr.alloc_local(t.UInt32, STACK_SIZE)
+        sp = dr.zeros(t.UInt32, n)
+        cur = dr.select(active, dr.zeros(t.UInt32, n), DONE)
+        first = dr.zeros(t.UInt32, n)
+        end = dr.zeros(t.UInt32, n)
+        rec = Closest.empty(t, t_max, n)
+        n_node = dr.zeros(t.UInt32, n)
+        n_tri = dr.zeros(t.UInt32, n)
+        n_iter = dr.zeros(t.UInt32, n)
+
+        while dr.hint(active, max_iterations=-1, label=f"bvh{W}",
+                      exclude=[self, t, routine, robust, any_hit, counting, W]):
+            is_leaf, is_inner, first, end = enter_leaf(cur, first, end)
+            if dr.hint(counting, mode="scalar"):
+                n_node += dr.select(is_inner, 1, 0)
+                n_tri += dr.select(first < end, 1, 0)
+                n_iter += 1
+            sp, cur, to_pop = masked_step(
+                t, is_inner,
+                lambda sp, cur, to_pop, on, best_t=rec.t: wide_node_step(
+                    t, W, nodes, refs, o, inv, best_t, robust, stack, sp, cur, to_pop,
+                    any_hit, on),
+                (sp, cur, is_leaf | False))
+            sp, cur = pop(stack, sp, cur, to_pop)
+
+            rec, first = masked_step(
+                t, first < end,
+                lambda rec, first, on: (
+                    triangle_step(t, routine, o, d, tri_data, order, first, t_max, rec,
+                                  any_hit, on),
+                    first + 1 if on is True else dr.select(on, first + 1, first)),
+                (rec, first))
+            if dr.hint(any_hit, mode="scalar"):
+                active &= ~rec.found
+
+            active &= (first < end) | (cur != DONE)
+
+        if dr.hint(counting, mode="scalar"):
+            return n_node, n_tri, n_iter
+        if dr.hint(any_hit, mode="scalar"):
+            return rec.found
+        return rec.result()
+
+
+class BVH4(WideBVH):
+    """``WideBVH`` with 4 children per node (registered as ``bvh4``)."""
+
+    @classmethod
+    def build(cls, scene, t: Types, **kw) -> "WideBVH":
+        kw.setdefault("width", 4)
+        return super().build(scene, t, **kw)
+
+
+class BVH8(WideBVH):
+    """``WideBVH`` with 8 children per node (registered as ``bvh8``)."""
+
+    @classmethod
+    def build(cls, scene, t: Types, **kw) -> "WideBVH":
+        kw.setdefault("width", 8)
+        return super().build(scene, t, **kw)
