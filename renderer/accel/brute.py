@@ -36,7 +36,7 @@ class BruteForce:
     def build(cls, scene, t: Types, *, intersection: str = "moller_trumbore") -> "BruteForce":
         triangle_routine(intersection)
         t0 = time.perf_counter()
-        tri_data, tris = upload_triangles(scene, t)
+        tri_data, tris = upload_triangles(scene, t, routine=intersection)
         dr.eval(tri_data, tris)
         info = {"accel": "brute", "intersection": intersection,
                 "build_seconds": time.perf_counter() - t0, "triangles": tris.count,

@@ -23,7 +23,7 @@ import numpy as np
 
 from ..device import Types, types
 from .base import ClosestHit, DeviceTriangles, Ray, array_type, gather_floats
-from .bvh_build import BINS, LEAF_SIZE, build_bvh
+from .bvh_build import BINS, LEAF_SIZE, build_bvh, refit_boxes
 from .traverse import (
     DONE,
     STACK_SIZE,
@@ -36,7 +36,7 @@ from .traverse import (
     slab,
     triangle_step,
 )
-from .triangle import STRIDE, triangle_routine, upload_triangles
+from .triangle import STRIDE, box_reach, triangle_routine, upload_triangles
 
 
 def load_node(t: Types, nodes, children, cur, active=True):
@@ -104,9 +104,15 @@ class BVH:
         a = build_bvh(scene.vertices, scene.faces, leaf_size=leaf_size, bins=bins,
                       **build_options)
         t0 = time.perf_counter()
-        tri_data, tris = upload_triangles(scene, t, order=a.order)
+        tri_data, tris = upload_triangles(scene, t, order=a.order, routine=intersection)
         fdt = np.float64 if t.is_double else np.float32
-        nodes = t.Float(a.boxes.astype(fdt).reshape(-1))
+        reach = box_reach(scene, intersection)
+        boxes = a.boxes
+        if t.is_double or reach > 0:       # float64 boxes, or wider ones for the routine
+            extent = float(np.max(a.bounds[1] - a.bounds[0])) if scene.face_count else 0.0
+            boxes = refit_boxes(a, scene.positions(t.is_double), scene.faces, fdt,
+                                extent + reach)
+        nodes = t.Float(boxes.astype(fdt).reshape(-1))
         children = t.UInt32(a.children.reshape(-1))
         dr.eval(nodes, children, tri_data, tris)
         fsize = 8 if t.is_double else 4

@@ -533,6 +533,8 @@ def _assemble(r: _Reader, parts: list[_Part], cameras, settings, lights, materia
         objects=objects,
         vertices=cat(all_v, (0, 3), np.float32),
         normals=cat(all_n, (0, 3), np.float32),
+        vertices64=cat(all_v, (0, 3), np.float64),
+        normals64=cat(all_n, (0, 3), np.float64),
         faces=cat(all_f, (0, 3), np.int32),
         face_material=cat(f_mat, (0,), np.int32),
         face_object=cat(f_obj, (0,), np.int32),

@@ -182,9 +182,14 @@ class ObjectInfo:
 class Scene:
     """Everything needed to render, on the host.
 
-    vertices: float32 (V, 3) world-space positions.
+    vertices: float32 (V, 3) world-space positions (what float32 renders, the Mitsuba
+        reference and the BVH's binning read).
     normals: float32 (V, 3) unit vertex normals (average of adjacent face normals within
         the object); present for every vertex, used only for smooth objects.
+    vertices64, normals64: float64 (V, 3) the same before rounding to float32 (the loader
+        keeps them, so a float64 render sees the exact transformed positions), or None
+        (then ``positions(True)`` is ``vertices`` widened). Read both through
+        ``positions(double)`` / ``normals_of(double)``.
     faces: int32 (F, 3) global vertex indices; no zero-area triangles (dropped at load).
     face_material: int32 (F,) index into ``materials``.
     face_object: int32 (F,) index into ``objects``.
@@ -202,6 +207,8 @@ class Scene:
     face_material: np.ndarray
     face_object: np.ndarray
     ambient: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    vertices64: np.ndarray | None = None
+    normals64: np.ndarray | None = None
     name: str = "scene"
     path: Path | None = None
     # Files the scene was built from (scene file + meshes), for golden-image hashes.
@@ -217,6 +224,19 @@ class Scene:
         """bool (F,): whether each face interpolates vertex normals."""
         smooth = np.array([o.smooth for o in self.objects], dtype=bool)
         return smooth[self.face_object] if len(smooth) else np.zeros(0, bool)
+
+    def positions(self, double: bool = False) -> np.ndarray:
+        """Vertex positions of the precision in use: float64 (V, 3) ``vertices64`` for a
+        float64 render (``double``), else the float32 ``vertices``."""
+        if double and self.vertices64 is not None:
+            return self.vertices64
+        return self.vertices.astype(np.float64) if double else self.vertices
+
+    def normals_of(self, double: bool = False) -> np.ndarray:
+        """Vertex normals of the precision in use (as ``positions``)."""
+        if double and self.normals64 is not None:
+            return self.normals64
+        return self.normals.astype(np.float64) if double else self.normals
 
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         """(lo, hi) float64 (3,) of all vertices used by faces."""
