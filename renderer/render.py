@@ -20,7 +20,7 @@ from .effects import EffectSet
 from .film import develop
 from .integrator import trace
 from .lights import upload_lights
-from .scene import Camera, Scene
+from .scene import Camera, Scene, check_ranges, validate_image_size
 from .shade import SceneArrays, TraceOptions, upload_materials
 
 
@@ -80,6 +80,7 @@ class Renderer:
         s = scene.with_overrides(spp=spp, exact=exact).settings
         self.scene = scene
         self.t: Types = types(backend, precision)
+        check_ranges(scene, precision)
         self.exact = s.exact
         self.spp = s.spp
         self.effects = EffectSet.from_scene(scene) if effects is None else effects
@@ -116,6 +117,7 @@ class Renderer:
 
     def render(self, view: int = 0) -> RenderResult:
         cam = self.scene.cameras[view]
+        validate_image_size(cam.width, cam.height, self.spp, f"views[{view}]")
         ca = self.camera(cam)
         dr.sync_thread()
         t0 = time.perf_counter()

@@ -29,6 +29,7 @@ from .model import (
     Scene,
     SceneError,
     Settings,
+    validate_image_size,
     validate_settings,
 )
 from .subdivide import subdivide_midpoint
@@ -164,6 +165,12 @@ def load_scene(path, *, shading: str | None = None) -> Scene:
     look = _read_physical(r, data, settings)
     settings = replace(settings, background=look.background)
     cameras = _read_views(r, data)
+    for i, cam in enumerate(cameras):
+        try:
+            validate_image_size(cam.width, cam.height, settings.spp,
+                                f"views[{i}]" if "views" in data else "camera")
+        except SceneError as e:
+            raise SceneError(f"{r.path}: {e}", field=e.field) from None
     lights = _read_lights(r, data, settings.shading, look.light_scale)
     materials = _read_materials(r, data)
     objects, sources = _read_objects(r, data, {m.name: i for i, m in enumerate(materials)})
