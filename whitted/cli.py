@@ -5,10 +5,11 @@
     whitted reference SCENE...   (re)render Mitsuba golden images
     whitted export  --mitsuba-xml OUT.xml SCENE.toml
     whitted bench   ...          timing study (kernel times, frozen frames, vs Mitsuba)
+    whitted hard-cases --out DIR  hard-case stress suite → table; exit 0 iff all pass
 
 Each subcommand lives in its own module (``whitted/render.py``, ``compare.py``,
-``reference.py``, ``bench.py``) with ``register(subparsers)``, which sets ``func``; the options
-they share are in ``whitted/options.py``. Mitsuba is imported only by the subcommands that
+``reference.py``, ``bench.py``, ``hard_cases.py``) with ``register(subparsers)``, which sets
+``func``; the options they share are in ``whitted/options.py``. Mitsuba is imported only by the subcommands that
 run it, when they run, so ``render`` works with only the core dependencies installed.
 
 Errors: a bad scene file or override (``SceneError``) and an output that exists
@@ -22,10 +23,10 @@ import sys
 
 from renderer.scene import SceneError
 
-from . import bench, compare, reference, render
+from . import bench, compare, hard_cases, reference, render
 
 #: Modules that add subcommands, in the order ``--help`` lists them.
-COMMANDS = (render, compare, reference, bench)
+COMMANDS = (render, compare, reference, bench, hard_cases)
 
 
 def build_parser() -> argparse.ArgumentParser:
