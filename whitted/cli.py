@@ -9,8 +9,9 @@
 
 Each subcommand lives in its own module (``whitted/render.py``, ``compare.py``,
 ``reference.py``, ``bench.py``, ``hard_cases.py``) with ``register(subparsers)``, which sets
-``func``; the options they share are in ``whitted/options.py``. Mitsuba is imported only by the subcommands that
-run it, when they run, so ``render`` works with only the core dependencies installed.
+``func``; the options they share are in ``whitted/options.py``. Mitsuba is imported only by
+the subcommands that run it, when they run, so ``render`` works with only the core
+dependencies installed.
 
 Errors: a bad scene file or override (``SceneError``) and an output that exists
 (``FileExistsError``) print one ``error:`` line and return 2; a bad request on the command
