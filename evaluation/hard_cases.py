@@ -241,9 +241,13 @@ def case_closed_mesh(cfg: Config, spec: dict) -> list[Row]:
 def _closed_mesh_counts(acc, t, cfg: Config, n, c, r, V, edges, zero_dirs, side) -> dict:
     """Misses per ray group of case 1 for one accelerator: {group: {misses, rays}}."""
     rng = np.random.default_rng(cfg.seed)
+    fdt = np.float64 if t.is_double else np.float32
+    V = V.astype(fdt).astype(np.float64)         # the vertices as the precision stores them
 
     def interior(k):
-        return c + _ball(rng, k) * (0.5 * r)
+        """Interior points, rounded to the precision: a ray aimed at a vertex is then
+        ``o`` exactly and ``d = v - o`` rounded once."""
+        return (c + _ball(rng, k) * (0.5 * r)).astype(fdt).astype(np.float64)
 
     def count(o, d):
         misses = 0

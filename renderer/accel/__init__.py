@@ -15,11 +15,10 @@ from .base import Accelerator, ClosestHit, DeviceTriangles, Ray
 from .boxes import ObjectBoxes
 from .brute import BruteForce
 from .bvh import BVH
-from .triangle import ROUTINES, triangle_routine
+from .triangle import DEFAULT_ROUTINE, ROUTINES, triangle_routine
 
 ACCELERATORS = {"brute": BruteForce, "boxes": ObjectBoxes, "bvh": BVH}
 DEFAULT_ACCEL = "bvh"
-DEFAULT_ROUTINE = "moller_trumbore"
 
 __all__ = ["ACCELERATORS", "BVH", "DEFAULT_ACCEL", "DEFAULT_ROUTINE", "ROUTINES", "Accelerator",
            "BruteForce", "ClosestHit", "DeviceTriangles", "ObjectBoxes", "Ray", "build_accelerator",

@@ -16,14 +16,14 @@ from ..device import Types, types
 from .base import ClosestHit, DeviceTriangles, Ray, array_type, gather_floats
 from .bvh_build import pad_boxes
 from .traverse import Closest, masked_step, robust_scale, setup, slab, triangle_step
-from .triangle import box_reach, triangle_routine, upload_triangles
+from .triangle import DEFAULT_ROUTINE, box_reach, triangle_routine, upload_triangles
 
 
 @dataclass
 class ObjectBoxes:
     """Per-object boxes accelerator (see the module docstring).
 
-    Build with ``ObjectBoxes.build(scene, t, intersection="moller_trumbore")``.
+    Build with ``ObjectBoxes.build(scene, t, intersection=DEFAULT_ROUTINE)``.
     boxes: Float (8 n_objects) lo xyz, pad, hi xyz, pad (of the precision in use, from
     ``Scene.positions``, grown by ``pad_boxes`` with the routine's ``box_reach``);
     ranges: UInt32 (2 n_objects) first face, face count; tri_data: Float (12 F) packed
@@ -37,11 +37,11 @@ class ObjectBoxes:
     tris: DeviceTriangles
     backend: str = "llvm"
     precision: str = "float32"
-    intersection: str = "moller_trumbore"
+    intersection: str = DEFAULT_ROUTINE
     info: dict = field(default_factory=dict, repr=False)
 
     @classmethod
-    def build(cls, scene, t: Types, *, intersection: str = "moller_trumbore") -> "ObjectBoxes":
+    def build(cls, scene, t: Types, *, intersection: str = DEFAULT_ROUTINE) -> "ObjectBoxes":
         triangle_routine(intersection)
         t0 = time.perf_counter()
         F = scene.face_count

@@ -36,7 +36,7 @@ from .traverse import (
     slab,
     triangle_step,
 )
-from .triangle import STRIDE, box_reach, triangle_routine, upload_triangles
+from .triangle import DEFAULT_ROUTINE, STRIDE, box_reach, triangle_routine, upload_triangles
 
 
 def load_node(t: Types, nodes, children, cur, active=True):
@@ -79,7 +79,7 @@ def node_step(t: Types, nodes, children, o, inv, t_max, robust, stack, sp, cur, 
 class BVH:
     """Bounding volume hierarchy accelerator (see the module docstring).
 
-    Build with ``BVH.build(scene, t, intersection="moller_trumbore", leaf_size=4, bins=32)``.
+    Build with ``BVH.build(scene, t, intersection=DEFAULT_ROUTINE, leaf_size=4, bins=32)``.
     nodes: Float (12 N) child boxes; children: UInt32 (2 N) child references;
     tri_data: Float (12 F) packed triangles in BVH order; tris: DeviceTriangles in BVH order;
     backend, precision: of the arrays (``types``); intersection: name of the triangle
@@ -92,11 +92,11 @@ class BVH:
     tris: DeviceTriangles
     backend: str = "llvm"
     precision: str = "float32"
-    intersection: str = "moller_trumbore"
+    intersection: str = DEFAULT_ROUTINE
     info: dict = field(default_factory=dict, repr=False)
 
     @classmethod
-    def build(cls, scene, t: Types, *, intersection: str = "moller_trumbore",
+    def build(cls, scene, t: Types, *, intersection: str = DEFAULT_ROUTINE,
               leaf_size: int = LEAF_SIZE, bins: int = BINS, **build_options) -> "BVH":
         """``build_options`` go to ``build_bvh`` (root_bins, all_axes, sah_leaves,
         depth_first, sample)."""

@@ -154,6 +154,10 @@ def watertight(o, d, p0, p1, p2, t_min=0.0):
 #: Routines by name, so the intersection test is a render parameter.
 ROUTINES = {"moller_trumbore": moller_trumbore, "watertight": watertight}
 
+#: The routine a render uses unless told otherwise (re-exported by ``renderer.accel``;
+#: the measurements behind the choice are in its docstring there).
+DEFAULT_ROUTINE = "moller_trumbore"
+
 #: The three Array3f each routine reads from the packed layout.
 LAYOUTS = {"moller_trumbore": "edges", "watertight": "vertices"}
 
