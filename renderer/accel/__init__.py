@@ -7,6 +7,20 @@ validates both names. Where to add:
 - a triangle routine: a function in ``triangle.py``, registered in ``ROUTINES``;
 - an accelerator: a module with a plain dataclass answering ``intersect`` / ``intersect_p``
   / ``stats`` / ``tris`` from the steps of ``traverse.py``, registered in ``ACCELERATORS``.
+
+``DEFAULT_ROUTINE`` is the watertight test (``triangle.watertight``), chosen from the
+hard-case suite (``whitted hard-cases``, LLVM on this 2-core CPU): both routines miss 0 of
+10^6 rays from inside a closed sphere at (148376, 1234, -223423) and 0 of the rays aimed
+exactly at its vertices and edges (Möller–Trumbore only thanks to its 16-ulp edge slack;
+without it, 341 of 26k vertex/edge rays miss), but from 10^6 rays spawned off 1000 random
+triangles (coordinates over 10^±8) Möller–Trumbore re-hits its own triangle 105 times in
+float32 and the watertight test 0 times (its conservative ``t > deltaT``). Its cost per
+closest-hit ray is within the noise of this shared machine, 0–15 % above
+Möller–Trumbore (BVH, 512² primary rays: bunny 428–601 vs 442–578 ns, Cornell box 170 vs
+150 ns in float32), as the paper claims (Blender measured ~10 %). Images change only at
+ties on shared edges and in glass paths that a different ``t`` rounding sends elsewhere;
+the golden regression tests pass with either. ``--intersection moller_trumbore`` keeps the
+old images bit for bit.
 """
 from __future__ import annotations
 

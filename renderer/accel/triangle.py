@@ -156,7 +156,7 @@ ROUTINES = {"moller_trumbore": moller_trumbore, "watertight": watertight}
 
 #: The routine a render uses unless told otherwise (re-exported by ``renderer.accel``;
 #: the measurements behind the choice are in its docstring there).
-DEFAULT_ROUTINE = "moller_trumbore"
+DEFAULT_ROUTINE = "watertight"
 
 #: The three Array3f each routine reads from the packed layout.
 LAYOUTS = {"moller_trumbore": "edges", "watertight": "vertices"}
