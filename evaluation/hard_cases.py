@@ -257,13 +257,14 @@ def _closed_mesh_counts(acc, t, cfg: Config, n, c, r, V, edges, zero_dirs, side)
         return {"misses": misses, "rays": len(o)}
 
     info = {"random interior": {"misses": 0, "rays": 0}}
-    left = n
+    left, batch = n, 0
     while left > 0:
         k = min(left, cfg.chunk)
-        part = count(interior(k), _unit(rng, k))
-        info["random interior"]["misses"] += part["misses"]
+        info["random interior"]["misses"] += _device_interior_misses(acc, t, cfg, k, batch,
+                                                                     c, r)
         info["random interior"]["rays"] += k
         left -= k
+        batch += 1
     o = interior(len(V))
     info["at vertices"] = count(o, V - o)
     o = interior(len(edges))
@@ -280,12 +281,45 @@ def _closed_mesh_counts(acc, t, cfg: Config, n, c, r, V, edges, zero_dirs, side)
     return info
 
 
+def _device_rays(t, cfg: Config, k: int, batch: int, c, r):
+    """``k`` rays from uniform random points of the ball of radius ``r/2`` about ``c`` in
+    uniform random directions, drawn on the device (PCG32 stream ``batch`` of seed
+    ``cfg.seed``; float64 arithmetic, then the precision in use), so 10^8 rays cost no
+    host traffic."""
+    import importlib
+    m = importlib.import_module(f"drjit.{t.backend}")
+    F64 = m.Float64
+    rng = m.PCG32(size=k, initstate=cfg.seed * 1000003 + batch,
+                  initseq=dr.arange(m.UInt64, k))
+
+    def sphere():
+        z = 1.0 - 2.0 * rng.next_float64()
+        phi = (2.0 * math.pi) * rng.next_float64()
+        s = dr.safe_sqrt(1.0 - z * z)
+        return s * dr.cos(phi), s * dr.sin(phi), z
+
+    dx, dy, dz = sphere()
+    ux, uy, uz = sphere()
+    rad = (0.5 * r) * dr.cbrt(rng.next_float64())
+    o = t.Array3f(t.Float(F64(c[0]) + rad * ux), t.Float(F64(c[1]) + rad * uy),
+                  t.Float(F64(c[2]) + rad * uz))
+    d = t.Array3f(t.Float(dx), t.Float(dy), t.Float(dz))
+    return o, d
+
+
+def _device_interior_misses(acc, t, cfg: Config, k: int, batch: int, c, r) -> int:
+    """Misses of ``_device_rays(k, batch)``, counted on the device."""
+    o, d = _device_rays(t, cfg, k, batch, c, r)
+    hit = acc.intersect(Ray(o=o, d=d, t_max=dr.full(t.Float, dr.inf, k)),
+                        dr.full(t.Bool, True, k))
+    miss = dr.count(~hit.found)
+    return int(miss[0] if hasattr(miss, "__len__") else miss)
+
+
 def _ns_per_ray(acc, t, cfg: Config, c, r, n: int, reps: int = 3) -> float:
     """Closest-hit cost per ray (ns) of ``n`` random interior rays already on the device:
     the best of ``reps`` timed runs after a warm-up (JIT compilation excluded)."""
-    rng = np.random.default_rng(cfg.seed + 1)
-    o = array3(t, c + _ball(rng, n) * (0.5 * r))
-    d = array3(t, _unit(rng, n))
+    o, d = _device_rays(t, cfg, n, 1 << 30, c, r)
     dr.eval(o, d)
     ray = Ray(o=o, d=d, t_max=t.Float(np.full(n, np.inf)))
     times = []
