@@ -235,6 +235,26 @@ def case_closed_mesh(cfg: Config, spec: dict) -> list[Row]:
             passed=(total_miss <= limit) if default else True, value=float(total_miss),
             info=info))
         _progress(cfg, rows[-1])
+    # the view from the sphere's centre: every camera ray must hit the inside (no
+    # background pixel), lit by a light at the centre
+    # (background magenta; black pixels are shadow acne of the ε offset, reported apart)
+    inside = replace(scene, lights=[point_light(c, 1.0)],
+                     cameras=[camera(c, c + [1.0, -0.3, 0.2], fov_y=120.0, size=128)],
+                     settings=replace(scene.settings, background=np.array([1.0, 0.0, 1.0])))
+    for prec in cfg.precisions:
+        for routine in cfg.routines:
+            img = _render(inside, cfg, "bvh", routine, prec)
+            bg = int(np.all(img == [1.0, 0.0, 1.0], axis=2).sum())
+            acne = int((img.max(axis=2) == 0).sum())
+            default = routine == DEFAULT_ROUTINE
+            rows.append(Row(case="1 closed mesh", variant=f"bvh/{routine}/{prec} view",
+                            criterion=("camera inside: 0 background pixels" if default
+                                       else "background pixels reported (not default)"),
+                            measured=(f"{bg} background pixels of {img.shape[0] * img.shape[1]}"
+                                      f"; {acne} black (shadow acne of the ε offset)"),
+                            passed=bg == 0 if default else True, value=float(bg),
+                            image=_save(cfg, f"closed_mesh_{routine}_{prec}", img)))
+            _progress(cfg, rows[-1])
     return rows
 
 
@@ -422,7 +442,8 @@ def _save(cfg: Config, name: str, img: np.ndarray) -> str | None:
     if cfg.out is None:
         return None
     from renderer.film import write_png
-    rel = f"images/{name}.png"
+    safe = "".join(ch if ch.isalnum() or ch in "-_" else "_" for ch in name)
+    rel = f"images/{safe}.png"
     path = Path(cfg.out) / rel
     path.parent.mkdir(parents=True, exist_ok=True)
     write_png(path, np.nan_to_num(img, nan=1.0, posinf=1.0, neginf=0.0), overwrite=True)
