@@ -222,7 +222,7 @@ def case_closed_mesh(cfg: Config, spec: dict) -> list[Row]:
         info = _closed_mesh_counts(acc, t, cfg, n, c, r, V, edges, zero_dirs, side)
         total_miss = sum(v["misses"] for v in info.values())
         total_rays = sum(v["rays"] for v in info.values())
-        info["ns_per_ray"] = _ns_per_ray(acc, t, cfg, c, r, min(n, 1 << 20))
+        info["ns_per_ray"] = _ns_per_ray(acc, t, cfg, c, r, min(n, 1 << 22))
         default = routine == DEFAULT_ROUTINE
         limit = int(spec["max_misses"])
         rows.append(Row(
