@@ -1,7 +1,8 @@
 """Ray/triangle intersection routines and the one packed triangle layout.
 
-Routines (one function each, same signature) take the ray (origin ``o``, direction ``d``:
-Array3f) and the triangle as the three Array3f its ``LAYOUTS`` entry asks for, and return
+Routines (one function each) take the ray (origin ``o``, direction ``d``: Array3f) and the
+triangle as the Array3f its layout holds (the function's ``layout`` attribute, "edges"
+when absent; ``layout_of``), and return
 ``(t, u, v, hit)``: the ray parameter, the barycentrics of ``v1`` and ``v2``, and a Bool
 mask. ``hit`` already includes ``t > t_min``; callers compare ``t`` against their own
 ``t_max``. The types follow the inputs, so float64 works unchanged.
@@ -9,13 +10,14 @@ mask. ``hit`` already includes ``t > t_min``; callers compare ``t`` against thei
 - ``moller_trumbore`` reads the first vertex ``v0`` and the edge vectors ``e1 = v1 - v0``,
   ``e2 = v2 - v0`` (precomputed on the host at load, as in the thesis): layout "edges".
 - ``watertight`` (Woop, Benthin, Wald 2013; pbrt-v4 ``IntersectTriangle``) reads the raw
-  vertices ``p0, p1, p2``: layout "vertices". Watertightness needs the exact shared vertex
-  values (``v0 + e1`` rounded does not give back ``p1``), so the two routines cannot share
-  one set of three vectors.
+  vertices ``p0, p1, p2`` and the unit normal ``n``: layout "vertices". Watertightness needs
+  the exact shared vertex values (``v0 + e1`` rounded does not give back ``p1``), so the two
+  routines cannot share one set of vectors.
 
 Packed layout (``pack`` on the host, ``load`` on the device): 12 floats per triangle,
-three Array3f of the routine's layout (``v0, e1, e2`` or ``p0, p1, p2``) and 3 floats of
-padding, so a triangle is three aligned quads. This module is the one owner of it.
+three quads: "edges" is ``v0, e1, e2`` and 3 floats of padding; "vertices" is ``p0, p1, p2,
+n`` (the padding holds the unit normal, so a CUDA packet gather loads it for free). This
+module is the one owner of it.
 """
 from __future__ import annotations
 
@@ -85,7 +87,7 @@ def _gamma(n: int, double: bool) -> float:
     return n * u / (1 - n * u)
 
 
-def watertight(o, d, p0, p1, p2, t_min=0.0):
+def watertight(o, d, p0, p1, p2, n, t_min=0.0):
     """Watertight ray/triangle test (Woop, Benthin, Wald 2013; pbrt-v4's
     ``IntersectTriangle``): translate the vertices to the ray origin, permute the axes so
     that the ray's largest direction component is z, shear the ray onto +z, and test the
@@ -95,7 +97,13 @@ def watertight(o, d, p0, p1, p2, t_min=0.0):
     pass between two triangles. In float32 an edge function that comes out exactly 0 is
     recomputed in float64 (products of floats are exact there). Hits closer than the
     computation's own error bound (pbrt's ``deltaT``) are rejected, so a ray spawned from a
-    triangle never re-hits it at t ~ 0. Two-sided; edge-on triangles never hit."""
+    triangle never re-hits it at t ~ 0. Two-sided; edge-on triangles never hit.
+
+    The distance is the plane's, ``t = (p0 - o)·n / d·n`` with ``n`` the unit normal
+    rounded once on the host: for an axis-aligned plane ``n`` is exactly a unit axis, so
+    every triangle of the plane gets the same ``t`` for a ray, and coplanar overlapping
+    faces tie exactly (the lowest face index wins, in either precision) instead of
+    z-fighting on the rounding of the edge functions."""
     double = dr.type_v(o) == dr.VarType.Float64
     Float = type(o.x)
     UInt32 = dr.uint32_array_t(Float)
@@ -130,9 +138,8 @@ def watertight(o, d, p0, p1, p2, t_min=0.0):
     det = e0 + e1 + e2
     # ---- distance --------------------------------------------------------------------
     z0, z1, z2 = z0 * inv_dz, z1 * inv_dz, z2 * inv_dz
-    t_scaled = dr.fma(e0, z0, dr.fma(e1, z1, e2 * z2))
     inv_det = 1.0 / det
-    t = t_scaled * inv_det
+    t = dr.dot(a0, n) / dr.dot(d, n)
     u = e1 * inv_det
     v = e2 * inv_det
     # ---- conservative t > 0 (pbrt-v4's error bounds) ------------------------------------
@@ -147,7 +154,7 @@ def watertight(o, d, p0, p1, p2, t_min=0.0):
     max_e = dr.maximum(dr.maximum(dr.abs(e0), dr.abs(e1)), dr.abs(e2))
     delta_t = 3.0 * (g3 * max_e * max_z + delta_e * max_z + delta_z * max_e) \
         * dr.abs(inv_det)
-    hit = ~mixed & (det != 0) & (t > delta_t) & (t > t_min)
+    hit = ~mixed & (det != 0) & dr.isfinite(t) & (t > delta_t) & (t > t_min)
     return t, u, v, hit
 
 
@@ -158,8 +165,18 @@ ROUTINES = {"moller_trumbore": moller_trumbore, "watertight": watertight}
 #: the measurements behind the choice are in its docstring there).
 DEFAULT_ROUTINE = "watertight"
 
-#: The three Array3f each routine reads from the packed layout.
-LAYOUTS = {"moller_trumbore": "edges", "watertight": "vertices"}
+moller_trumbore.layout = "edges"
+watertight.layout = "vertices"
+
+#: Array3f per triangle of each layout (what ``load`` returns).
+LAYOUT_VECTORS = {"edges": 3, "vertices": 4}
+
+
+def layout_of(routine) -> str:
+    """The packed layout ("edges" or "vertices") the routine (a name of ``ROUTINES`` or the
+    function) reads: its ``layout`` attribute, "edges" when it has none."""
+    fn = triangle_routine(routine) if isinstance(routine, str) else routine
+    return getattr(fn, "layout", "edges")
 
 
 def triangle_routine(name: str):
@@ -179,7 +196,7 @@ def box_reach(scene, routine: str) -> float:
     moves them by up to a few units of roundoff of ``|p - o|``, so the boxes grow by that
     much (pbrt's conservative traversal: the slab test never rejects a ray the triangle test
     would accept)."""
-    if LAYOUTS[routine] != "vertices":
+    if layout_of(routine) != "vertices":
         return 0.0
     mags = [float(np.max(np.abs(scene.positions(True)))) if scene.face_count else 0.0]
     mags += [float(np.max(np.abs(c.position))) for c in scene.cameras]
@@ -190,8 +207,9 @@ def box_reach(scene, routine: str) -> float:
 def pack(vertices: np.ndarray, faces: np.ndarray, layout: str = "edges") -> np.ndarray:
     """float64 (F, STRIDE) packed rows of the triangles ``faces`` (int (F, 3)) of
     ``vertices`` (float (V, 3)); the caller casts to the precision in use. ``layout``
-    (``LAYOUTS``): "edges" stores ``v0, v1 - v0, v2 - v0`` (the edges are differences of
-    float64 vertices, rounded once by that cast); "vertices" stores ``p0, p1, p2``."""
+    (``layout_of``): "edges" stores ``v0, v1 - v0, v2 - v0`` (the edges are differences of
+    float64 vertices, rounded once by that cast); "vertices" stores ``p0, p1, p2`` and the
+    unit normal ``normalize((p1 - p0) x (p2 - p0))`` (zero for a degenerate triangle)."""
     if layout not in ("edges", "vertices"):
         raise ValueError(f"layout: expected 'edges' or 'vertices', got {layout!r}")
     V = np.asarray(vertices).astype(np.float64)
@@ -204,15 +222,18 @@ def pack(vertices: np.ndarray, faces: np.ndarray, layout: str = "edges") -> np.n
     else:
         packed[:, 3:6] = p1
         packed[:, 6:9] = p2
+        n = np.cross(p1 - p0, p2 - p0)
+        length = np.linalg.norm(n, axis=1, keepdims=True)
+        packed[:, 9:12] = np.where(length > 0, n / np.where(length > 0, length, 1.0), 0.0)
     return packed
 
 
-def load(t, data, i, active=True):
-    """The three Array3f of packed triangle(s) ``i`` (UInt32) of ``data``: ``(v0, e1, e2)``
-    or ``(p0, p1, p2)``, as the layout it was packed with (``LAYOUTS``)."""
-    f = gather_floats(t, data, i, STRIDE, 9, active)
-    return (t.Array3f(f[0], f[1], f[2]), t.Array3f(f[3], f[4], f[5]),
-            t.Array3f(f[6], f[7], f[8]))
+def load(t, data, i, active=True, layout: str = "edges"):
+    """The Array3f of packed triangle(s) ``i`` (UInt32) of ``data`` in ``layout``:
+    ``(v0, e1, e2)`` or ``(p0, p1, p2, n)``."""
+    k = LAYOUT_VECTORS[layout]
+    f = gather_floats(t, data, i, STRIDE, 3 * k, active)
+    return tuple(t.Array3f(f[3 * j], f[3 * j + 1], f[3 * j + 2]) for j in range(k))
 
 
 def upload_triangles(scene, t: Types, order: np.ndarray | None = None,
@@ -226,7 +247,7 @@ def upload_triangles(scene, t: Types, order: np.ndarray | None = None,
     order = np.arange(F, dtype=np.int64) if order is None else np.asarray(order, np.int64)
     faces = scene.faces[order]
     V = scene.positions(t.is_double)
-    packed = pack(V, faces, LAYOUTS[routine])
+    packed = pack(V, faces, layout_of(routine))
     V = V.astype(np.float64)
     ng = np.cross(V[faces[:, 1]] - V[faces[:, 0]], V[faces[:, 2]] - V[faces[:, 0]])
     ng /= np.maximum(np.linalg.norm(ng, axis=1, keepdims=True), 1e-300)
