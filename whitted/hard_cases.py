@@ -10,6 +10,7 @@ The full device run (10^8 rays in case 1, both precisions, every accelerator and
 from __future__ import annotations
 
 import argparse
+import os
 import platform
 import subprocess
 import sys
@@ -93,4 +94,11 @@ def _device(backend: str) -> str:
                                   capture_output=True, text=True, timeout=10).stdout.strip()
         except (OSError, subprocess.SubprocessError):
             return "cuda"
-    return f"{platform.processor() or platform.machine()} (LLVM)"
+    name = platform.processor() or platform.machine()
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8") as f:
+            name = next((ln.split(":", 1)[1].strip() for ln in f
+                         if ln.startswith("model name")), name)
+    except OSError:
+        pass
+    return f"{name}, {os.cpu_count()} cores (LLVM)"
