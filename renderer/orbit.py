@@ -18,7 +18,7 @@ from pathlib import Path
 import drjit as dr
 import numpy as np
 
-from .accel import DEFAULT_ACCEL
+from .accel import DEFAULT_ACCEL, DEFAULT_ROUTINE
 from .effects import EffectSet
 from .film import output_path, srgb_encode
 from .render import Renderer
@@ -87,7 +87,7 @@ def orbit_cameras(cam: Camera, n: int) -> list[Camera]:
 
 def render_orbit(scene: Scene, n: int, *, view: int = 0, backend: str = "auto",
                  accel: str = DEFAULT_ACCEL, precision: str = "float32",
-                 intersection: str = "moller_trumbore", effects: EffectSet | None = None,
+                 intersection: str = DEFAULT_ROUTINE, effects: EffectSet | None = None,
                  spp: int | None = None, exact: bool | None = None,
                  srgb: bool = True) -> OrbitResult:
     """Render ``n`` frames orbiting ``scene.cameras[view]`` (see ``orbit_cameras``) with one

@@ -13,14 +13,14 @@ from dataclasses import dataclass, field
 import drjit as dr
 import numpy as np
 
-from .accel import DEFAULT_ACCEL, build_accelerator
+from .accel import DEFAULT_ACCEL, DEFAULT_ROUTINE, build_accelerator
 from .camera import CameraArrays, camera_arrays, primary_rays
 from .device import Types, array3, types
 from .effects import EffectSet
 from .film import develop
 from .integrator import trace
 from .lights import upload_lights
-from .scene import Camera, Scene
+from .scene import Camera, Scene, check_ranges, validate_image_size
 from .shade import SceneArrays, TraceOptions, upload_materials
 
 
@@ -60,7 +60,7 @@ class Renderer:
       backend: "auto" | "cuda" | "llvm" (default "auto").
       precision: "float32" | "float64" (default "float32").
       accel: "brute" | "boxes" | "bvh" (default ``renderer.accel.DEFAULT_ACCEL``, the BVH).
-      intersection: triangle routine (default "moller_trumbore").
+      intersection: triangle routine (default ``renderer.accel.DEFAULT_ROUTINE``).
       effects: EffectSet to trace (default: derived from the scene).
       spp, exact: override ``scene.settings`` as ``Scene.with_overrides`` does (``spp``
           alone sets ``exact = spp == 1``; ``exact`` alone takes spp 1 or the scene's).
@@ -72,7 +72,7 @@ class Renderer:
     """
 
     def __init__(self, scene: Scene, *, backend: str = "auto", precision: str = "float32",
-                 accel: str = DEFAULT_ACCEL, intersection: str = "moller_trumbore",
+                 accel: str = DEFAULT_ACCEL, intersection: str = DEFAULT_ROUTINE,
                  effects: EffectSet | None = None, spp: int | None = None,
                  exact: bool | None = None, freeze: bool = False):
         if not scene.cameras:
@@ -80,6 +80,7 @@ class Renderer:
         s = scene.with_overrides(spp=spp, exact=exact).settings
         self.scene = scene
         self.t: Types = types(backend, precision)
+        check_ranges(scene, precision)
         self.exact = s.exact
         self.spp = s.spp
         self.effects = EffectSet.from_scene(scene) if effects is None else effects
@@ -116,6 +117,7 @@ class Renderer:
 
     def render(self, view: int = 0) -> RenderResult:
         cam = self.scene.cameras[view]
+        validate_image_size(cam.width, cam.height, self.spp, f"views[{view}]")
         ca = self.camera(cam)
         dr.sync_thread()
         t0 = time.perf_counter()
@@ -131,7 +133,7 @@ class Renderer:
 
 
 def render(scene: Scene, *, view: int = 0, backend: str = "auto", precision: str = "float32",
-           accel: str = DEFAULT_ACCEL, intersection: str = "moller_trumbore",
+           accel: str = DEFAULT_ACCEL, intersection: str = DEFAULT_ROUTINE,
            effects: EffectSet | None = None, spp: int | None = None,
            exact: bool | None = None) -> RenderResult:
     """Render ``scene`` from ``scene.cameras[view]``.

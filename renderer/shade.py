@@ -188,7 +188,9 @@ def shading_context(sp: SurfacePoint, d, active) -> ShadingContext:
 class PhongLobe:
     """The material's local-light coefficients at the hits: kd (Array3f), and with
     specular highlights ks (Array3f) and n (Float exponent), else None. In physical
-    shading kd and ks already carry their normalisation (1/π, (n+2)/2π)."""
+    shading kd and ks already carry their normalisation (1/π, (n+2)/2π). The lobe
+    ``(R·V)^n`` is evaluated by ``phong_power`` (guarded against Dr.Jit's float64 ``pow``
+    returning -inf near the bottom of the double range)."""
 
     kd: object = None
     ks: object = None
@@ -212,6 +214,24 @@ def phong_lobe(mats: DeviceMaterials, ctx: ShadingContext, t: Types, fx: EffectS
     return PhongLobe(kd=kd, ks=ks, n=n_exp)
 
 
+#: Below ``2^POWER_FLOOR_LOG2`` the Phong lobe ``(R·V)^n`` is taken as 0 in float64.
+POWER_FLOOR_LOG2 = -1000.0
+
+
+def phong_power(rv, n):
+    """``rv^n`` for ``rv`` in [0, 1] and exponents ``n > 0`` (Float arrays), 0 where
+    ``rv <= 0``. Guard: Dr.Jit 1.5's LLVM float64 ``dr.power`` (``exp2(n log2 rv)``) returns
+    -inf for exp2 arguments in about [-1024, -1023.5) (``0.09386617626859929^300`` gives -inf,
+    the true value is 5.7e-309); in float64 a result below ``2^POWER_FLOOR_LOG2`` (~1e-301,
+    far under any pixel's resolution) is therefore set to 0. float32 needs no guard (its
+    power underflows cleanly to 0 long before that exponent range) and stays bit-identical.
+    """
+    p = dr.power(rv, n)
+    if dr.type_v(rv) == dr.VarType.Float64:
+        p = dr.select(n * dr.log2(rv) > POWER_FLOOR_LOG2, p, 0.0)
+    return dr.select(rv > 0, p, 0.0)
+
+
 def _light_term(li, ctx: ShadingContext, lobe: PhongLobe, sa: SceneArrays, t: Types,
                 fx: EffectSet, opt: TraceOptions, result):
     """``result`` plus light ``li``'s contribution (``li``: UInt32 index, a literal or an
@@ -231,7 +251,7 @@ def _light_term(li, ctx: ShadingContext, lobe: PhongLobe, sa: SceneArrays, t: Ty
     if dr.hint(fx.specular, mode="scalar"):
         R_l = dr.fma(N, 2.0 * cos_theta, -L)
         rv = dr.maximum(dr.dot(R_l, ctx.V), 0.0)
-        spec = dr.select(rv > 0, dr.power(rv, lobe.n), 0.0)
+        spec = phong_power(rv, lobe.n)
         if dr.hint(fx.physical, mode="scalar"):
             spec = spec * cos_theta
         brdf = dr.fma(lobe.ks, spec, brdf)

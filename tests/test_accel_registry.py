@@ -30,7 +30,7 @@ def test_unknown_names_list_the_choices():
     with pytest.raises(ValueError, match="accel: expected one of .*'bvh'"):
         build_accelerator("kdtree", sc, t)
     with pytest.raises(ValueError, match="intersection: expected one of .*'moller_trumbore'"):
-        triangle_routine("watertight")
+        triangle_routine("plucker")
     with pytest.raises(ValueError, match="intersection"):
-        build_accelerator("bvh", sc, t, intersection="watertight")
+        build_accelerator("bvh", sc, t, intersection="plucker")
     assert triangle_routine("moller_trumbore") is ROUTINES["moller_trumbore"]

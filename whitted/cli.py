@@ -7,11 +7,13 @@
     whitted export  --mitsuba-xml OUT.xml SCENE.toml
     whitted bench   ...          timing study (kernel times, frozen frames, vs Mitsuba)
     whitted study   ...          accuracy-vs-time study (error vs time, Pareto front)
+    whitted hard-cases --out DIR  hard-case stress suite → table; exit 0 iff all pass
 
 Each subcommand lives in its own module (``whitted/render.py``, ``compare.py``,
-``check.py``, ``reference.py``, ``bench.py``, ``study.py``) with ``register(subparsers)``,
-which sets ``func``; the options they share are in ``whitted/options.py``. Mitsuba is imported
-only by the subcommands that run it, when they run, so ``render`` works with only the core
+``check.py``, ``reference.py``, ``bench.py``, ``study.py``, ``hard_cases.py``) with
+``register(subparsers)``, which sets ``func``; the options they share are in
+``whitted/options.py``. Mitsuba is imported only by the subcommands that run it, when they
+run, so ``render`` works with only the core
 dependencies installed.
 
 Errors: a bad scene file or override (``SceneError``) and an output that exists
@@ -27,10 +29,10 @@ import sys
 
 from renderer.scene import SceneError
 
-from . import bench, check, compare, reference, render, study
+from . import bench, check, compare, hard_cases, reference, render, study
 
 #: Modules that add subcommands, in the order ``--help`` lists them.
-COMMANDS = (render, compare, check, reference, bench, study)
+COMMANDS = (render, compare, check, reference, bench, study, hard_cases)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -16,15 +16,16 @@ from ..device import Types
 from .base import Accelerator, DeviceTriangles, Ray, array_type, gather_floats
 from .bvh_build import pad_boxes
 from .traverse import Closest, masked_step, robust_scale, setup, slab, triangle_step
-from .triangle import triangle_routine, upload_triangles
+from .triangle import DEFAULT_ROUTINE, box_reach, triangle_routine, upload_triangles
 
 
 @dataclass
 class ObjectBoxes(Accelerator):
     """Per-object boxes accelerator (see the module docstring).
 
-    Build with ``ObjectBoxes.build(scene, t, intersection="moller_trumbore")``.
-    boxes: Float (8 n_objects) lo xyz, pad, hi xyz, pad (float32 values, ``pad_boxes``);
+    Build with ``ObjectBoxes.build(scene, t, intersection=DEFAULT_ROUTINE)``.
+    boxes: Float (8 n_objects) lo xyz, pad, hi xyz, pad (of the precision in use, from
+    ``Scene.positions``, grown by ``pad_boxes`` with the routine's ``box_reach``);
     ranges: UInt32 (2 n_objects) first face, face count; tri_data: Float (12 F) packed
     triangles; tris: DeviceTriangles; backend, precision: of the arrays (``types``);
     intersection: name of the triangle routine; info: ``stats()``.
@@ -36,11 +37,11 @@ class ObjectBoxes(Accelerator):
     tris: DeviceTriangles
     backend: str = "llvm"
     precision: str = "float32"
-    intersection: str = "moller_trumbore"
+    intersection: str = DEFAULT_ROUTINE
     info: dict = field(default_factory=dict, repr=False)
 
     @classmethod
-    def build(cls, scene, t: Types, *, intersection: str = "moller_trumbore") -> "ObjectBoxes":
+    def build(cls, scene, t: Types, *, intersection: str = DEFAULT_ROUTINE) -> "ObjectBoxes":
         triangle_routine(intersection)
         t0 = time.perf_counter()
         F = scene.face_count
@@ -50,16 +51,16 @@ class ObjectBoxes(Accelerator):
         fdt = np.float64 if t.is_double else np.float32
         boxes = np.full((max(len(objs), 1), 8), np.inf, fdt)
         ranges = np.zeros((max(len(objs), 1), 2), np.uint32)
-        V = scene.vertices.astype(np.float32)
+        V = scene.positions(t.is_double).astype(fdt)
         ext = 0.0
         if F:
             lo_s, hi_s = scene.bounds()
-            ext = float(np.max(hi_s - lo_s))
+            ext = float(np.max(hi_s - lo_s)) + box_reach(scene, intersection)
         for k, (f0, fc) in enumerate(objs):      # a loop over objects, not triangles
             p = V[scene.faces[f0:f0 + fc].reshape(-1)]
             boxes[k, 0:3], boxes[k, 4:7] = pad_boxes(p.min(axis=0), p.max(axis=0), ext)
             ranges[k] = (f0, fc)
-        tri_data, tris = upload_triangles(scene, t)
+        tri_data, tris = upload_triangles(scene, t, routine=intersection)
         out = cls(t.Float(boxes.reshape(-1)), t.UInt32(ranges.reshape(-1)), tri_data, tris,
                   backend=t.backend, precision=t.precision,
                    intersection=intersection)

@@ -9,7 +9,7 @@ import drjit as dr
 from ..device import Types
 from .base import Accelerator, DeviceTriangles, Ray
 from .traverse import Closest, setup, triangle_step
-from .triangle import triangle_routine, upload_triangles
+from .triangle import DEFAULT_ROUTINE, triangle_routine, upload_triangles
 
 
 @dataclass
@@ -29,14 +29,14 @@ class BruteForce(Accelerator):
     tris: DeviceTriangles
     backend: str = "llvm"
     precision: str = "float32"
-    intersection: str = "moller_trumbore"
+    intersection: str = DEFAULT_ROUTINE
     info: dict = field(default_factory=dict, repr=False)
 
     @classmethod
-    def build(cls, scene, t: Types, *, intersection: str = "moller_trumbore") -> "BruteForce":
+    def build(cls, scene, t: Types, *, intersection: str = DEFAULT_ROUTINE) -> "BruteForce":
         triangle_routine(intersection)
         t0 = time.perf_counter()
-        tri_data, tris = upload_triangles(scene, t)
+        tri_data, tris = upload_triangles(scene, t, routine=intersection)
         dr.eval(tri_data, tris)
         info = {"accel": "brute", "intersection": intersection,
                 "build_seconds": time.perf_counter() - t0, "triangles": tris.count,

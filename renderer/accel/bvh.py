@@ -23,7 +23,7 @@ import numpy as np
 
 from ..device import Types
 from .base import Accelerator, DeviceTriangles, Ray, array_type, gather_floats
-from .bvh_build import BINS, LEAF_SIZE, BVHArrays, build_bvh
+from .bvh_build import BINS, LEAF_SIZE, BVHArrays, build_bvh, refit_boxes
 from .traverse import (
     DONE,
     STACK_SIZE,
@@ -36,7 +36,7 @@ from .traverse import (
     slab,
     triangle_step,
 )
-from .triangle import STRIDE, triangle_routine, upload_triangles
+from .triangle import DEFAULT_ROUTINE, STRIDE, box_reach, triangle_routine, upload_triangles
 
 
 def load_node(t: Types, nodes, children, cur, active=True):
@@ -75,11 +75,23 @@ def node_step(t: Types, nodes, children, o, inv, t_max, robust, stack, sp, cur, 
     return sp, dr.select(hit_a | hit_b, near, cur), to_pop | missed
 
 
+def traversal_boxes(a: BVHArrays, scene, t: Types, intersection: str) -> np.ndarray:
+    """The node boxes of ``a`` that the traversal of ``intersection`` in precision ``t``
+    needs: the build's float32 boxes, or boxes refitted in float64 for float64 renders and
+    padded by ``box_reach`` for routines that decide on translated vertices (watertight)."""
+    reach = box_reach(scene, intersection)
+    if not (t.is_double or reach > 0):
+        return a.boxes
+    fdt = np.float64 if t.is_double else np.float32
+    extent = float(np.max(a.bounds[1] - a.bounds[0])) if scene.face_count else 0.0
+    return refit_boxes(a, scene.positions(t.is_double), scene.faces, fdt, extent + reach)
+
+
 @dataclass
 class BVH(Accelerator):
     """Bounding volume hierarchy accelerator (see the module docstring).
 
-    Build with ``BVH.build(scene, t, intersection="moller_trumbore", leaf_size=4, bins=32)``.
+    Build with ``BVH.build(scene, t, intersection=DEFAULT_ROUTINE, leaf_size=4, bins=32)``.
     nodes: Float (12 N) child boxes; children: UInt32 (2 N) child references;
     tri_data: Float (12 F) packed triangles in BVH order; tris: DeviceTriangles in BVH order;
     backend, precision: of the arrays (``types``); intersection: name of the triangle
@@ -92,11 +104,11 @@ class BVH(Accelerator):
     tris: DeviceTriangles
     backend: str = "llvm"
     precision: str = "float32"
-    intersection: str = "moller_trumbore"
+    intersection: str = DEFAULT_ROUTINE
     info: dict = field(default_factory=dict, repr=False)
 
     @classmethod
-    def build(cls, scene, t: Types, *, intersection: str = "moller_trumbore",
+    def build(cls, scene, t: Types, *, intersection: str = DEFAULT_ROUTINE,
               leaf_size: int = LEAF_SIZE, bins: int = BINS, binary: BVHArrays | None = None,
               **build_options) -> "BVH":
         """``build_options`` go to ``build_bvh`` (root_bins, all_axes, sah_leaves,
@@ -105,9 +117,9 @@ class BVH(Accelerator):
         a = binary if binary is not None else build_bvh(
             scene.vertices, scene.faces, leaf_size=leaf_size, bins=bins, **build_options)
         t0 = time.perf_counter()
-        tri_data, tris = upload_triangles(scene, t, order=a.order)
+        tri_data, tris = upload_triangles(scene, t, order=a.order, routine=intersection)
         fdt = np.float64 if t.is_double else np.float32
-        nodes = t.Float(a.boxes.astype(fdt).reshape(-1))
+        nodes = t.Float(traversal_boxes(a, scene, t, intersection).astype(fdt).reshape(-1))
         children = t.UInt32(a.children.reshape(-1))
         dr.eval(nodes, children, tri_data, tris)
         fsize = 8 if t.is_double else 4

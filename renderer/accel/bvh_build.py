@@ -7,8 +7,10 @@ needs) and two child references (an inner-node index or a packed leaf, see
 ``renderer.accel.traverse``). Triangles are reordered so that each leaf is a contiguous
 range; ``BVHArrays.order`` maps positions back to original face indices.
 
-Boxes are computed in float32 from the float32 vertices, whatever the precision of the
-traversal, and padded by ``pad_boxes``. The number of inner-node levels is bounded by
+Boxes are computed in float32 from the float32 vertices and padded by ``pad_boxes``; a
+float64 traversal, or one whose triangle routine needs wider boxes (the watertight test),
+recomputes them over the same tree with ``refit_boxes`` (float64 from the float64
+vertices, padded for the routine). The number of inner-node levels is bounded by
 ``MAX_LEVELS`` (= the traversal's ``STACK_SIZE``, switching to median splits near the
 limit), so the traversal stack cannot overflow.
 """
@@ -536,6 +538,65 @@ def _depth_first(boxes, children):
     new_children = np.empty_like(children)
     new_children[pre] = new_ref
     return new_boxes, new_children
+
+
+def refit_boxes(a: BVHArrays, vertices: np.ndarray, faces: np.ndarray, dtype, extent: float
+                ) -> np.ndarray:
+    """The boxes of ``a``'s tree recomputed from ``vertices`` (float (V, 3)) in ``dtype``
+    (np.float32 or np.float64) and padded by ``pad_boxes(.., extent)``: (N, 12) of
+    ``dtype``. The tree (children, order) is unchanged; boxes at infinity (the empty
+    child of a single-leaf tree) stay at infinity. Vectorised per tree level."""
+    dt = np.dtype(dtype).type
+    N = a.node_count
+    boxes = np.array(a.boxes, dt)
+    F = a.order.size
+    if F == 0:
+        return boxes
+    V = np.asarray(vertices, dt)
+    Fi = np.asarray(faces, np.int64)[a.order]
+    p = [V[Fi[:, k]] for k in range(3)]
+    t_lo = np.minimum(np.minimum(p[0], p[1]), p[2])                  # (F, 3) in BVH order
+    t_hi = np.maximum(np.maximum(p[0], p[1]), p[2])
+    ref = a.children.astype(np.int64)
+    is_leaf = (ref & LEAF_BIT) != 0
+    real = np.isfinite(a.boxes.reshape(N, 2, 6)[:, :, 0])          # (N, 2)
+    lo = np.full((N, 2, 3), np.inf, dt)                            # unpadded child boxes
+    hi = np.full((N, 2, 3), -np.inf, dt)
+    # leaves: reduce over their contiguous triangle ranges
+    lf = is_leaf & real
+    first = (ref[lf] & FIRST_MASK)
+    count = ((ref[lf] >> COUNT_SHIFT) & 15) + 1
+    srt = np.argsort(first, kind="stable")
+    starts = first[srt]
+    red_lo = np.minimum.reduceat(t_lo, starts, axis=0)
+    red_hi = np.maximum.reduceat(t_hi, starts, axis=0)
+    ends = starts + count[srt]
+    assert np.all(ends[:-1] <= starts[1:]) and ends[-1] <= F
+    # reduceat over [start_k, start_{k+1}): leaves tile [0, F) with no gaps in a valid tree
+    leaf_lo = np.empty_like(red_lo)
+    leaf_hi = np.empty_like(red_hi)
+    leaf_lo[srt], leaf_hi[srt] = red_lo, red_hi
+    lo[lf], hi[lf] = leaf_lo, leaf_hi
+    # inner nodes: deepest level first
+    levels = [np.zeros(1, np.int64)]
+    while True:
+        nodes = levels[-1]
+        c = ref[nodes][~is_leaf[nodes]]
+        if not c.size:
+            break
+        levels.append(c)
+    for nodes in reversed(levels):
+        for k in range(2):
+            m = ~is_leaf[nodes, k]
+            par, child = nodes[m], ref[nodes[m], k]
+            lo[par, k] = np.minimum(lo[child, 0], lo[child, 1])
+            hi[par, k] = np.maximum(hi[child, 0], hi[child, 1])
+    for k in range(2):
+        with np.errstate(invalid="ignore"):
+            plo, phi = pad_boxes(lo[:, k], hi[:, k], extent)
+        boxes[:, 6 * k:6 * k + 3] = np.where(real[:, k, None], plo, np.inf)
+        boxes[:, 6 * k + 3:6 * k + 6] = np.where(real[:, k, None], phi, np.inf)
+    return boxes
 
 
 def _sah_cost(a: BVHArrays) -> float:

@@ -18,7 +18,7 @@ import drjit as dr
 
 from ..device import Types
 from .base import ClosestHit, Ray
-from .triangle import load, unit_roundoff
+from .triangle import layout_of, load, unit_roundoff
 
 LEAF_BIT = 1 << 31
 COUNT_SHIFT = 27
@@ -108,8 +108,7 @@ def triangle_step(t: Types, routine, o, d, tri_data, order, i, t_max, rec: Close
     index (``order``), so ties resolve the same in every accelerator. For ``any_hit`` only
     ``found`` (a hit in (0, t_max)) is updated. ``active`` is True where the caller's
     symbolic ``if`` already masks the lanes."""
-    v0, e1, e2 = load(t, tri_data, i, active)
-    th, u, v, h = routine(o, d, v0, e1, e2)
+    th, u, v, h = routine(o, d, *load(t, tri_data, i, active, layout_of(routine)))
     if active is not True:
         h &= active
     if any_hit:

@@ -1,14 +1,23 @@
 """Ray/triangle intersection routines and the one packed triangle layout.
 
-Routines (one function each, same signature) take the ray (origin ``o``, direction ``d``:
-Array3f) and the triangle as its first vertex ``v0`` and the edge vectors ``e1 = v1 - v0``,
-``e2 = v2 - v0`` (precomputed on the host at load, as in the thesis), and return
+Routines (one function each) take the ray (origin ``o``, direction ``d``: Array3f) and the
+triangle as the Array3f its layout holds (the function's ``layout`` attribute, "edges"
+when absent; ``layout_of``), and return
 ``(t, u, v, hit)``: the ray parameter, the barycentrics of ``v1`` and ``v2``, and a Bool
 mask. ``hit`` already includes ``t > t_min``; callers compare ``t`` against their own
 ``t_max``. The types follow the inputs, so float64 works unchanged.
 
+- ``moller_trumbore`` reads the first vertex ``v0`` and the edge vectors ``e1 = v1 - v0``,
+  ``e2 = v2 - v0`` (precomputed on the host at load, as in the thesis): layout "edges".
+- ``watertight`` (Woop, Benthin, Wald 2013; pbrt-v4 ``IntersectTriangle``) reads the raw
+  vertices ``p0, p1, p2`` and the unit normal ``n``: layout "vertices". Watertightness needs
+  the exact shared vertex values (``v0 + e1`` rounded does not give back ``p1``), so the two
+  routines cannot share one set of vectors.
+
 Packed layout (``pack`` on the host, ``load`` on the device): 12 floats per triangle,
-``v0.xyz, e1.xyz, e2.xyz`` and 3 floats of padding, so a triangle is three aligned quads.
+three quads: "edges" is ``v0, e1, e2`` and 3 floats of padding; "vertices" is ``p0, p1, p2,
+n`` (the padding holds the unit normal, so a CUDA packet gather loads it for free). This
+module is the one owner of it.
 """
 from __future__ import annotations
 
@@ -56,8 +65,130 @@ def moller_trumbore(o, d, v0, e1, e2, t_min=0.0):
     return t, u, v, hit
 
 
+def _permute(v, kx, ky, kz):
+    """``(v[kx], v[ky], v[kz])`` per lane (``k*`` UInt32 in 0..2), by selects."""
+    def pick(k):
+        return dr.select(k == 0, v.x, dr.select(k == 1, v.y, v.z))
+    return pick(kx), pick(ky), pick(kz)
+
+
+def difference_of_products(a, b, c, d):
+    """``a*b - c*d`` by Kahan's algorithm (pbrt-v4 ``DifferenceOfProducts``): relative
+    error <= 2 units of roundoff, so the sign is exact (0 exactly when ``a*b == c*d``) and
+    swapping the two products negates the result's sign exactly, FMA contraction or not."""
+    cd = c * d
+    dop = dr.fma(a, b, -cd)
+    err = dr.fma(-c, d, cd)
+    return dop + err
+
+
+def _gamma(n: int, double: bool) -> float:
+    u = unit_roundoff(double)
+    return n * u / (1 - n * u)
+
+
+def _edges_float64(x0, y0, x1, y1, x2, y2, e0, e1, e2):
+    """The three edge functions recomputed in float64 from float32 coordinates: the
+    products are exact there, so the one rounding of the difference keeps the sign."""
+    Float = type(x0)
+    F64 = dr.float64_array_t(Float)
+    X0, Y0, X1, Y1, X2, Y2 = (F64(c) for c in (x0, y0, x1, y1, x2, y2))
+    return (Float(X1 * Y2 - Y1 * X2), Float(X2 * Y0 - Y2 * X0), Float(X0 * Y1 - Y0 * X1))
+
+
+def _edges_as_they_are(x0, y0, x1, y1, x2, y2, e0, e1, e2):
+    return e0, e1, e2
+
+
+def watertight(o, d, p0, p1, p2, n, t_min=0.0):
+    """Watertight ray/triangle test (Woop, Benthin, Wald 2013; pbrt-v4's
+    ``IntersectTriangle``): translate the vertices to the ray origin, permute the axes so
+    that the ray's largest direction component is z, shear the ray onto +z, and test the
+    signs of the three 2-D edge functions of the projected triangle. A shared edge's edge
+    function is computed from the same transformed vertices in both triangles with exactly
+    opposite sign (``difference_of_products``), so a ray through an edge or a vertex cannot
+    pass between two triangles. In float32 an edge function that comes out exactly 0 is
+    recomputed in float64 (products of floats are exact there). Hits closer than the
+    computation's own error bound (pbrt's ``deltaT``) are rejected, so a ray spawned from a
+    triangle never re-hits it at t ~ 0. Two-sided; edge-on triangles never hit.
+
+    The distance is the plane's, ``t = (p0 - o)·n / d·n`` with ``n`` the unit normal
+    rounded once on the host: for an axis-aligned plane ``n`` is exactly a unit axis, so
+    every triangle of the plane gets the same ``t`` for a ray, and coplanar overlapping
+    faces tie exactly (the lowest face index wins, in either precision) instead of
+    z-fighting on the rounding of the edge functions."""
+    double = dr.type_v(o) == dr.VarType.Float64
+    Float = type(o.x)
+    UInt32 = dr.uint32_array_t(Float)
+    # ---- translate, permute (largest |d| component to z), shear --------------------------
+    a0, a1, a2 = p0 - o, p1 - o, p2 - o
+    ad = dr.abs(d)
+    kz = dr.select(ad.x > ad.y, dr.select(ad.x > ad.z, UInt32(0), UInt32(2)),
+                   dr.select(ad.y > ad.z, UInt32(1), UInt32(2)))
+    kx = dr.select(kz == 2, UInt32(0), kz + 1)
+    ky = dr.select(kx == 2, UInt32(0), kx + 1)
+    dx, dy, dz = _permute(d, kx, ky, kz)
+    x0, y0, z0 = _permute(a0, kx, ky, kz)
+    x1, y1, z1 = _permute(a1, kx, ky, kz)
+    x2, y2, z2 = _permute(a2, kx, ky, kz)
+    inv_dz = 1.0 / dz
+    sx, sy = -dx * inv_dz, -dy * inv_dz
+    x0, y0 = dr.fma(sx, z0, x0), dr.fma(sy, z0, y0)
+    x1, y1 = dr.fma(sx, z1, x1), dr.fma(sy, z1, y1)
+    x2, y2 = dr.fma(sx, z2, x2), dr.fma(sy, z2, y2)
+    # ---- edge functions (exact sign), float64 where one is exactly 0 in float32 ----------
+    e0 = difference_of_products(x1, y2, y1, x2)
+    e1 = difference_of_products(x2, y0, y2, x0)
+    e2 = difference_of_products(x0, y1, y0, x1)
+    if not double:
+        # a symbolic branch: the float64 products cost ~40 % of the test when evaluated
+        # on every lane, and an exactly-zero edge function is rare
+        e0, e1, e2 = dr.if_stmt((x0, y0, x1, y1, x2, y2, e0, e1, e2),
+                                (e0 == 0) | (e1 == 0) | (e2 == 0),
+                                _edges_float64, _edges_as_they_are)
+    mixed = ((e0 < 0) | (e1 < 0) | (e2 < 0)) & ((e0 > 0) | (e1 > 0) | (e2 > 0))
+    det = e0 + e1 + e2
+    # ---- distance --------------------------------------------------------------------
+    z0, z1, z2 = z0 * inv_dz, z1 * inv_dz, z2 * inv_dz
+    inv_det = 1.0 / det
+    t = dr.dot(a0, n) / dr.dot(d, n)
+    u = e1 * inv_det
+    v = e2 * inv_det
+    # ---- conservative t > 0 (pbrt-v4's error bounds) ------------------------------------
+    max_z = dr.maximum(dr.maximum(dr.abs(z0), dr.abs(z1)), dr.abs(z2))
+    max_x = dr.maximum(dr.maximum(dr.abs(x0), dr.abs(x1)), dr.abs(x2))
+    max_y = dr.maximum(dr.maximum(dr.abs(y0), dr.abs(y1)), dr.abs(y2))
+    g2, g3, g5 = (_gamma(n, double) for n in (2, 3, 5))
+    delta_z = g3 * max_z
+    delta_x = g5 * (max_x + max_z)
+    delta_y = g5 * (max_y + max_z)
+    delta_e = 2.0 * (g2 * max_x * max_y + delta_y * max_x + delta_x * max_y)
+    max_e = dr.maximum(dr.maximum(dr.abs(e0), dr.abs(e1)), dr.abs(e2))
+    delta_t = 3.0 * (g3 * max_e * max_z + delta_e * max_z + delta_z * max_e) \
+        * dr.abs(inv_det)
+    hit = ~mixed & (det != 0) & dr.isfinite(t) & (t > delta_t) & (t > t_min)
+    return t, u, v, hit
+
+
 #: Routines by name, so the intersection test is a render parameter.
-ROUTINES = {"moller_trumbore": moller_trumbore}
+ROUTINES = {"moller_trumbore": moller_trumbore, "watertight": watertight}
+
+#: The routine a render uses unless told otherwise (re-exported by ``renderer.accel``;
+#: the measurements behind the choice are in its docstring there).
+DEFAULT_ROUTINE = "watertight"
+
+moller_trumbore.layout = "edges"
+watertight.layout = "vertices"
+
+#: Array3f per triangle of each layout (what ``load`` returns).
+LAYOUT_VECTORS = {"edges": 3, "vertices": 4}
+
+
+def layout_of(routine) -> str:
+    """The packed layout ("edges" or "vertices") the routine (a name of ``ROUTINES`` or the
+    function) reads: its ``layout`` attribute, "edges" when it has none."""
+    fn = triangle_routine(routine) if isinstance(routine, str) else routine
+    return getattr(fn, "layout", "edges")
 
 
 def triangle_routine(name: str):
@@ -69,43 +200,74 @@ def triangle_routine(name: str):
                          f"got {name!r}") from None
 
 
-def pack(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+def box_reach(scene, routine: str) -> float:
+    """What ``pad_boxes`` adds to the scene's extent for ``routine``: 0 for
+    Möller–Trumbore (its hits lie on the float triangle), and for the watertight test the
+    largest coordinate magnitude a ray origin of ``scene`` has (cameras, lights, the
+    geometry itself): the test decides on vertices translated to the ray origin, which
+    moves them by up to a few units of roundoff of ``|p - o|``, so the boxes grow by that
+    much (pbrt's conservative traversal: the slab test never rejects a ray the triangle test
+    would accept)."""
+    if layout_of(routine) != "vertices":
+        return 0.0
+    mags = [float(np.max(np.abs(scene.positions(True)))) if scene.face_count else 0.0]
+    mags += [float(np.max(np.abs(c.position))) for c in scene.cameras]
+    mags += [float(np.max(np.abs(li.position))) for li in scene.lights]
+    return max(mags)
+
+
+def pack(vertices: np.ndarray, faces: np.ndarray, layout: str = "edges") -> np.ndarray:
     """float64 (F, STRIDE) packed rows of the triangles ``faces`` (int (F, 3)) of
-    ``vertices`` (float (V, 3)); the caller casts to the precision in use. The edges are
-    differences of float64 vertices, rounded once by that cast."""
+    ``vertices`` (float (V, 3)); the caller casts to the precision in use. ``layout``
+    (``layout_of``): "edges" stores ``v0, v1 - v0, v2 - v0`` (the edges are differences of
+    float64 vertices, rounded once by that cast); "vertices" stores ``p0, p1, p2`` and the
+    unit normal ``normalize((p1 - p0) x (p2 - p0))`` (zero for a degenerate triangle)."""
+    if layout not in ("edges", "vertices"):
+        raise ValueError(f"layout: expected 'edges' or 'vertices', got {layout!r}")
     V = np.asarray(vertices).astype(np.float64)
     p0, p1, p2 = (V[faces[:, k]] for k in range(3))
     packed = np.zeros((faces.shape[0], STRIDE), np.float64)
     packed[:, 0:3] = p0
-    packed[:, 3:6] = p1 - p0
-    packed[:, 6:9] = p2 - p0
+    if layout == "edges":
+        packed[:, 3:6] = p1 - p0
+        packed[:, 6:9] = p2 - p0
+    else:
+        packed[:, 3:6] = p1
+        packed[:, 6:9] = p2
+        n = np.cross(p1 - p0, p2 - p0)
+        length = np.linalg.norm(n, axis=1, keepdims=True)
+        packed[:, 9:12] = np.where(length > 0, n / np.where(length > 0, length, 1.0), 0.0)
     return packed
 
 
-def load(t, data, i, active=True):
-    """``(v0, e1, e2)`` (Array3f) of packed triangle(s) ``i`` (UInt32) of ``data``."""
-    f = gather_floats(t, data, i, STRIDE, 9, active)
-    return (t.Array3f(f[0], f[1], f[2]), t.Array3f(f[3], f[4], f[5]),
-            t.Array3f(f[6], f[7], f[8]))
+def load(t, data, i, active=True, layout: str = "edges"):
+    """The Array3f of packed triangle(s) ``i`` (UInt32) of ``data`` in ``layout``:
+    ``(v0, e1, e2)`` or ``(p0, p1, p2, n)``."""
+    k = LAYOUT_VECTORS[layout]
+    f = gather_floats(t, data, i, STRIDE, 3 * k, active)
+    return tuple(t.Array3f(f[3 * j], f[3 * j + 1], f[3 * j + 2]) for j in range(k))
 
 
 def upload_triangles(scene, t: Types, order: np.ndarray | None = None,
-                     with_normals: bool | None = None):
+                     with_normals: bool | None = None, routine: str = "moller_trumbore"):
     """Upload ``scene``'s triangles, optionally permuted by ``order`` (int (F,)): returns
-    ``(tri_data, tris)``, the packed geometry of ``pack`` as a Float and the
-    ``DeviceTriangles``. Normals are uploaded when ``with_normals`` (default: when any
-    object is smooth)."""
+    ``(tri_data, tris)``, the packed geometry of ``pack`` (in the layout ``routine``
+    reads) as a Float and the ``DeviceTriangles``. Normals are uploaded when
+    ``with_normals`` (default: when any object is smooth). The vertices are those of the
+    precision in use (``Scene.positions``)."""
     F = scene.face_count
     order = np.arange(F, dtype=np.int64) if order is None else np.asarray(order, np.int64)
     faces = scene.faces[order]
-    packed = pack(scene.vertices, faces)
-    ng = np.cross(packed[:, 3:6], packed[:, 6:9])
+    V = scene.positions(t.is_double)
+    packed = pack(V, faces, layout_of(routine))
+    V = V.astype(np.float64)
+    ng = np.cross(V[faces[:, 1]] - V[faces[:, 0]], V[faces[:, 2]] - V[faces[:, 0]])
     ng /= np.maximum(np.linalg.norm(ng, axis=1, keepdims=True), 1e-300)
     smooth = scene.face_smooth[order]
     if with_normals is None:
         with_normals = bool(smooth.any())
     if with_normals:
-        N = scene.normals.astype(np.float64)
+        N = scene.normals_of(t.is_double).astype(np.float64)
         n0, n1, n2 = (array3(t, N[faces[:, k]]) for k in range(3))
     else:
         n0 = n1 = n2 = t.Array3f(0, 0, 0)

@@ -32,13 +32,14 @@ ray on Sponza, Conference and the bunny).
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import drjit as dr
 import numpy as np
 
 from ..device import Types
 from .base import Accelerator, DeviceTriangles, Ray, array_type, gather_floats
+from .bvh import traversal_boxes
 from .bvh_build import BINS, LEAF_SIZE, BVHArrays, build_bvh
 from .traverse import (
     DONE,
@@ -53,7 +54,7 @@ from .traverse import (
     slab,
     triangle_step,
 )
-from .triangle import STRIDE, triangle_routine, upload_triangles
+from .triangle import DEFAULT_ROUTINE, STRIDE, triangle_routine, upload_triangles
 
 WIDTHS = (4, 8)
 
@@ -363,12 +364,12 @@ class WideBVH(Accelerator):
     width: int = 4
     backend: str = "llvm"
     precision: str = "float32"
-    intersection: str = "moller_trumbore"
+    intersection: str = DEFAULT_ROUTINE
     info: dict = field(default_factory=dict, repr=False)
 
     @classmethod
     def build(cls, scene, t: Types, *, width: int = 4, quantized: bool = True,
-              intersection: str = "moller_trumbore", leaf_size: int = LEAF_SIZE,
+              intersection: str = DEFAULT_ROUTINE, leaf_size: int = LEAF_SIZE,
               bins: int = BINS, binary: BVHArrays | None = None,
               **build_options) -> "WideBVH":
         """``binary``: a binary build of ``scene`` to convert (else one is built with
@@ -377,13 +378,14 @@ class WideBVH(Accelerator):
         triangle_routine(intersection)
         a = binary if binary is not None else build_bvh(
             scene.vertices, scene.faces, leaf_size=leaf_size, bins=bins, **build_options)
+        a = replace(a, boxes=traversal_boxes(a, scene, t, intersection))
         w = collapse(a, width)
         tq = time.perf_counter()
         if quantized:
             qwords = quantize(w)
         quantize_seconds = time.perf_counter() - tq if quantized else 0.0
         t0 = time.perf_counter()
-        tri_data, tris = upload_triangles(scene, t, order=a.order)
+        tri_data, tris = upload_triangles(scene, t, order=a.order, routine=intersection)
         fdt = np.float64 if t.is_double else np.float32
         nodes = (t.UInt32(qwords.reshape(-1)) if quantized
                  else t.Float(w.boxes.astype(fdt).reshape(-1)))

@@ -14,9 +14,12 @@ from .model import (
                     Scene,
                     SceneError,
                     Settings,
+                    check_ranges,
+                    precision_limits,
+                    validate_image_size,
                     validate_settings,
 )
 
 __all__ = ["COMBINATIONS", "FALLOFFS", "MAX_DEPTH_LIMIT", "SHADING_MODES", "Camera", "Material",
-           "ObjectInfo", "PointLight", "Scene", "SceneError", "Settings", "load_scene",
-           "validate_settings"]
+           "ObjectInfo", "PointLight", "Scene", "SceneError", "Settings", "check_ranges",
+           "load_scene", "precision_limits", "validate_image_size", "validate_settings"]

@@ -31,6 +31,7 @@ from .model import (
     Scene,
     SceneError,
     Settings,
+    validate_image_size,
     validate_settings,
 )
 from .subdivide import subdivide_midpoint
@@ -170,6 +171,12 @@ def load_scene(path, *, shading: str | None = None) -> Scene:
     look = _read_physical(r, data, settings)
     settings = replace(settings, background=look.background)
     cameras = _read_views(r, data)
+    for i, cam in enumerate(cameras):
+        try:
+            validate_image_size(cam.width, cam.height, settings.spp,
+                                f"views[{i}]" if "views" in data else "camera")
+        except SceneError as e:
+            raise SceneError(f"{r.path}: {e}", field=e.field) from None
     lights = _read_lights(r, data, settings.shading, look.light_scale)
     materials = _read_materials(r, data)
     objects, sources = _read_objects(r, data, {m.name: i for i, m in enumerate(materials)})
@@ -568,6 +575,8 @@ def _assemble(r: _Reader, parts: list[_Part], cameras, settings, lights, materia
         objects=objects,
         vertices=cat(all_v, (0, 3), np.float32),
         normals=cat(all_n, (0, 3), np.float32),
+        vertices64=cat(all_v, (0, 3), np.float64),
+        normals64=cat(all_n, (0, 3), np.float64),
         faces=cat(all_f, (0, 3), np.int32),
         face_material=cat(f_mat, (0,), np.int32),
         face_object=cat(f_obj, (0,), np.int32),

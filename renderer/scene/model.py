@@ -76,6 +76,67 @@ def validate_settings(*, spp: int | None = None, exact: bool | None = None,
                         f"got {shading!r}")
 
 
+#: Dr.Jit arrays hold fewer than 2^32 entries (UInt32 sizes and indices).
+ARRAY_LIMIT = 2 ** 32 - 1
+
+
+def validate_image_size(width: int, height: int, spp: int, where: str = "settings") -> None:
+    """A frame of ``width`` x ``height`` pixels at ``spp`` samples must fit Dr.Jit's array
+    limit: ``width·height·spp`` rays and ``3·width·height`` film entries, each at most
+    ``ARRAY_LIMIT`` (2^32 - 1). Raises SceneError naming ``where`` (the view)."""
+    rays, film = int(width) * int(height) * int(spp), 3 * int(width) * int(height)
+    if rays > ARRAY_LIMIT or film > ARRAY_LIMIT:
+        f = f"{where}.resolution"
+        raise SceneError(f"{f}: {width} x {height} pixels at spp = {spp} needs {rays} rays "
+                         f"and {film} film entries; Dr.Jit arrays hold at most 2^32 - 1 "
+                         f"entries (use fewer pixels or samples, or render in tiles)",
+                         field=f)
+
+
+def precision_limits(double: bool) -> tuple[float, float]:
+    """``(coordinate_limit, intensity_limit)`` of the precision: the largest coordinate
+    magnitude whose squared distances stay finite (``sqrt(max / 16)``: any two points
+    within it are less than ``2·limit`` apart per axis, ``|Δ|² <= 12 limit² < max``) and
+    the largest light intensity whose square stays finite. The intensity limit is float32's
+    ``sqrt(max)`` in both precisions: the image (``RenderResult.image``, EXR) is float32, so
+    a float64 render of a brighter light would overflow there."""
+    fmax = float(np.finfo(np.float64 if double else np.float32).max)
+    return math.sqrt(fmax / 16.0), math.sqrt(float(np.finfo(np.float32).max))
+
+
+def check_ranges(scene: "Scene", precision: str = "float32") -> None:
+    """Numerical guard before upload: every vertex, camera and light position within the
+    precision's coordinate limit and every light intensity within its intensity limit
+    (``precision_limits``; float32: 4.6e18 and 1.8e19; float64: 3.4e153 and 1.8e19).
+    Raises SceneError naming the file and the field (a float32 1e39 intensity would
+    otherwise become inf and NaN pixels)."""
+    double = precision == "float64"
+    c_lim, i_lim = precision_limits(double)
+    src = f"{scene.path}: " if scene.path is not None else f"scene {scene.name!r}: "
+    hint = "" if double else "; render with --precision float64 or rescale the scene"
+
+    def fail(field: str, what: str, value: float, lim: float):
+        kind = "float32 image" if what == "intensity" else precision
+        tail = "; rescale the light intensities" if what == "intensity" else hint
+        raise SceneError(f"{src}{field}: {what} {value:.6g} exceeds the {kind} limit "
+                         f"{lim:.3g} (its square overflows){tail}", field=field)
+
+    for i, light in enumerate(scene.lights):
+        if np.max(np.abs(light.position)) > c_lim:
+            fail(f"lights[{i}].position", "coordinate", np.max(np.abs(light.position)), c_lim)
+        if np.max(light.intensity) > i_lim:
+            fail(f"lights[{i}].intensity", "intensity", np.max(light.intensity), i_lim)
+    for i, cam in enumerate(scene.cameras):
+        if np.max(np.abs(cam.position)) > c_lim:
+            fail(f"views[{i}].position", "coordinate", np.max(np.abs(cam.position)), c_lim)
+    V = scene.positions(double)
+    for k, obj in enumerate(scene.objects):
+        v = V[obj.first_vertex:obj.first_vertex + obj.vertex_count]
+        if v.size and np.max(np.abs(v)) > c_lim:
+            fail(f"objects[{k}] ({obj.name!r}) vertices", "coordinate",
+                 float(np.max(np.abs(v))), c_lim)
+
+
 @dataclass(frozen=True)
 class Camera:
     """Pinhole camera (docs/MODEL.md, "Camera and pixels").
@@ -182,9 +243,14 @@ class ObjectInfo:
 class Scene:
     """Everything needed to render, on the host.
 
-    vertices: float32 (V, 3) world-space positions.
+    vertices: float32 (V, 3) world-space positions (what float32 renders, the Mitsuba
+        reference and the BVH's binning read).
     normals: float32 (V, 3) unit vertex normals (average of adjacent face normals within
         the object); present for every vertex, used only for smooth objects.
+    vertices64, normals64: float64 (V, 3) the same before rounding to float32 (the loader
+        keeps them, so a float64 render sees the exact transformed positions), or None
+        (then ``positions(True)`` is ``vertices`` widened). Read both through
+        ``positions(double)`` / ``normals_of(double)``.
     faces: int32 (F, 3) global vertex indices; no zero-area triangles (dropped at load).
     face_material: int32 (F,) index into ``materials``.
     face_object: int32 (F,) index into ``objects``.
@@ -202,6 +268,8 @@ class Scene:
     face_material: np.ndarray
     face_object: np.ndarray
     ambient: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    vertices64: np.ndarray | None = None
+    normals64: np.ndarray | None = None
     name: str = "scene"
     path: Path | None = None
     # Files the scene was built from (scene file + meshes), for golden-image hashes.
@@ -220,6 +288,19 @@ class Scene:
         """bool (F,): whether each face interpolates vertex normals."""
         smooth = np.array([o.smooth for o in self.objects], dtype=bool)
         return smooth[self.face_object] if len(smooth) else np.zeros(0, bool)
+
+    def positions(self, double: bool = False) -> np.ndarray:
+        """Vertex positions of the precision in use: float64 (V, 3) ``vertices64`` for a
+        float64 render (``double``), else the float32 ``vertices``."""
+        if double and self.vertices64 is not None:
+            return self.vertices64
+        return self.vertices.astype(np.float64) if double else self.vertices
+
+    def normals_of(self, double: bool = False) -> np.ndarray:
+        """Vertex normals of the precision in use (as ``positions``)."""
+        if double and self.normals64 is not None:
+            return self.normals64
+        return self.normals.astype(np.float64) if double else self.normals
 
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         """(lo, hi) float64 (3,) of all vertices used by faces."""
@@ -303,6 +384,9 @@ class Scene:
                 raise SceneError(f"size: expected positive integers (width, height), "
                                  f"got {size!r}", field="size")
             scene = scene.with_size(w, h)
+        for i, cam in enumerate(scene.cameras):
+            validate_image_size(cam.width, cam.height, scene.settings.spp,
+                                "size" if size is not None else f"views[{i}]")
         return scene
 
     def with_size(self, width: int, height: int | None = None) -> "Scene":
