@@ -19,6 +19,8 @@ def register(subparsers) -> None:
     p.add_argument("--quick", action="store_true", help="small sizes (smoke run)")
     p.add_argument("--parts", type=part_names, default=tuple(PARTS),
                    help=f"comma-separated subset of {','.join(PARTS)} (default all)")
+    p.add_argument("--force", action="store_true",
+                   help="replace existing bench-<backend>.json/.md and strips in --out")
     p.set_defaults(func=cmd_bench)
 
 
@@ -34,5 +36,5 @@ def part_names(text: str) -> tuple[str, ...]:
 
 def cmd_bench(args: argparse.Namespace) -> int:
     run(args.out, backend=args.backend, scenes_dir=args.scenes, quick=args.quick,
-        parts=args.parts)
+        parts=args.parts, overwrite=args.force)
     return 0

@@ -3,46 +3,146 @@
     whitted render  SCENE.toml   render with the Dr.Jit tracer → EXR + PNG
     whitted compare SCENE.toml   ours vs Mitsuba's golden → HTML side-by-side report
     whitted reference SCENE...   (re)render Mitsuba golden images
-    whitted export  --mitsuba-xml OUT.xml SCENE.toml
+    whitted export  SCENE.toml --mitsuba-xml OUT.xml [--portable]
     whitted bench   ...          timing study (kernel times, frozen frames, vs Mitsuba)
+    whitted data    DIR          copy the bundled scenes and meshes out of the package
 
 Each subcommand lives in its own module (``whitted/render.py``, ``compare.py``,
-``reference.py``, ``bench.py``) with ``register(subparsers)``, which sets ``func``; the options
-they share are in ``whitted/options.py``. Mitsuba is imported only by the subcommands that
-run it, when they run, so ``render`` works with only the core dependencies installed.
+``reference.py``, ``bench.py``, ``data.py``) with ``register(subparsers)``, which sets
+``func``; the options they share are in ``whitted/options.py``. Mitsuba is imported only by
+the subcommands that run it, when they run, so ``render`` works with only the core
+dependencies installed.
 
-Errors: a bad scene file or override (``SceneError``) and an output that exists
-(``FileExistsError``) print one ``error:`` line and return 2; a bad request on the command
-line ends through argparse (status 2) or ``options.CliError`` (status 1).
+Exit codes (``options.EXIT``; the style of OpenImageIO's ``idiff``):
+
+    0    done (for a comparison: pass)
+    1    warning (a comparison that passes with a warning)
+    2    failure: images differ; or a bad request (argparse usage errors, a bad option value,
+         a bad scene file, a view that does not exist, a backend this machine lacks)
+    3    images of different sizes
+    4    file error: an output that exists (no --overwrite/--force), cannot be written
+         (read-only, a file where a folder is expected, a full disk), a missing input file,
+         a golden that is missing, stale or would be replaced
+    130  interrupted (Ctrl-C): no partial file is left
+
+Every error is one ``error:`` line on stderr, never a traceback; warnings are one
+``warning:`` line. The command runs in a worker thread while the main thread waits, so
+Ctrl-C takes effect at once even in the middle of a long kernel: temporary files of the
+atomic writer (``renderer.outputs``) are removed and the process exits with 130.
 """
 from __future__ import annotations
 
 import argparse
+import os
 import sys
+import threading
+import warnings
 
+from renderer.device import DeviceError
+from renderer.outputs import OutputError, remove_live_temporaries
 from renderer.scene import SceneError
 
-from . import bench, compare, reference, render
+from . import bench, compare, data, reference, render
+from .options import EXIT, CliError
+from .progress import STOP
 
 #: Modules that add subcommands, in the order ``--help`` lists them.
-COMMANDS = (render, compare, reference, bench)
+COMMANDS = (render, compare, reference, bench, data)
+
+
+def version() -> str:
+    """The installed distribution's version (``0+unknown`` when run from a bare tree)."""
+    from importlib.metadata import PackageNotFoundError
+    from importlib.metadata import version as dist_version
+    try:
+        return dist_version("whitted")
+    except PackageNotFoundError:
+        return "0+unknown"
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="whitted", description=__doc__.split("\n")[0])
+    parser = argparse.ArgumentParser(prog="whitted", description=__doc__.split("\n")[0],
+                                     epilog="exit codes: 0 ok, 1 warning, 2 failure or bad "
+                                     "request, 3 size mismatch, 4 file error, 130 Ctrl-C",
+                                     )
+    parser.add_argument("--version", action="version", version=f"whitted {version()}")
     sub = parser.add_subparsers(dest="command", required=True)
     for module in COMMANDS:
         module.register(sub)
     return parser
 
 
-def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+def _one_line_warning(message, category, filename, lineno, file=None, line=None):
+    """``warnings.showwarning`` of the CLI: ``warning: <message> (<Category>)``, one line,
+    no source line."""
+    text = " ".join(str(message).split())
+    print(f"warning: {text} ({category.__name__})", file=sys.stderr if file is None else file)
+
+
+def error_code(e: BaseException) -> tuple[int, str] | None:
+    """The exit code and the one-line message of an error the CLI reports without a
+    traceback; None for any other exception (a bug: its traceback is shown)."""
+    if isinstance(e, CliError):
+        return e.code, str(e)
+    if isinstance(e, (SceneError, DeviceError)):
+        return EXIT["fail"], str(e)
+    if isinstance(e, (OutputError, FileExistsError, FileNotFoundError, IsADirectoryError,
+                      NotADirectoryError, PermissionError)):
+        return EXIT["file"], str(e)
+    from reference.golden import GoldenError  # no Mitsuba import: golden imports it lazily
+    if isinstance(e, GoldenError):
+        return EXIT["file"], str(e)
+    return None
+
+
+def _run(args: argparse.Namespace, box: dict) -> None:
     try:
-        return args.func(args) or 0
-    except (SceneError, FileExistsError) as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 2
+        box["code"] = args.func(args) or 0
+    except BaseException as e:  # noqa: BLE001 - handed to the main thread as it is
+        box["error"] = e
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Parse ``argv``, run the subcommand in a worker thread, return its exit code."""
+    args = build_parser().parse_args(argv)
+    STOP.clear()
+    box: dict = {}
+    with warnings.catch_warnings():
+        warnings.showwarning = _one_line_warning
+        worker = threading.Thread(target=_run, args=(args, box), daemon=True,
+                                  name=f"whitted {args.command}")
+        worker.start()
+        try:
+            while worker.is_alive():
+                worker.join(0.05)
+        except KeyboardInterrupt:
+            return interrupted(worker)
+    if "error" not in box:
+        return box["code"]
+    e = box["error"]
+    if isinstance(e, KeyboardInterrupt):
+        return interrupted(worker)
+    known = error_code(e)
+    if known is None:
+        raise e
+    code, message = known
+    print(f"error: {message}", file=sys.stderr)
+    return code
+
+
+def interrupted(worker: threading.Thread) -> int:
+    """Ctrl-C: ask the worker to stop, remove the atomic writer's temporary files, say so
+    in one line. Returns 130 when the worker has ended; otherwise (it is inside a kernel,
+    which cannot be cancelled) the process exits with 130 at once."""
+    STOP.set()
+    remove_live_temporaries()
+    print("interrupted: stopped before writing any partial file", file=sys.stderr)
+    worker.join(0.2)
+    if worker.is_alive():
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(EXIT["interrupted"])
+    return EXIT["interrupted"]
 
 
 if __name__ == "__main__":

@@ -19,10 +19,12 @@ import numpy as np
 from evaluation.report import ReportEntry, format_metrics_table, write_report
 from reference import golden
 from reference.mitsuba_scene import render_mitsuba
+from renderer.outputs import check_output_dir
 from renderer.render import Renderer
 from renderer.stats import format_operations, kernel_operations
 
-from .options import CliError, add_scene_options, effects_for_cli, load_for_cli
+from .options import EXIT, CliError, add_scene_options, effects_for_cli, load_for_cli
+from .progress import render_view
 
 
 def register(subparsers) -> None:
@@ -65,7 +67,7 @@ def mitsuba_golden(scene, view: int) -> tuple[np.ndarray, float | None, dict]:
     try:
         g = golden.load_golden(scene, view=view, shading=scene.settings.shading, mode="exact")
     except golden.GoldenError as e:
-        raise CliError(f"{e} (or use --live)") from e
+        raise CliError(f"{e} (or use --live)", code=EXIT["file"]) from e
     meta = g.meta
     made = ", ".join(str(meta[k]) for k in ("mitsuba_version", "variant", "date") if k in meta)
     return (np.asarray(g.image, np.float32), meta.get("seconds"),
@@ -84,8 +86,10 @@ def cmd_compare(args: argparse.Namespace) -> int:
         raise CliError("goldens are exact-mode images (1 ray per pixel centre); "
                        "use --live to compare a converged (--spp) render")
     out = args.out or _default_out(scene)
-    if out.exists() and any(out.iterdir()) and not args.force:
-        raise CliError(f"report folder {out} exists; pass --force to replace it")
+    if out.exists() and out.is_dir() and any(out.iterdir()) and not args.force:
+        raise CliError(f"report folder {out} exists; pass --force to replace it",
+                       code=EXIT["file"])
+    check_output_dir(out)
 
     effects = effects_for_cli(scene, args)
     print(f"{scene.name}: {scene.face_count} triangles, {len(scene.lights)} lights, "
@@ -99,12 +103,13 @@ def cmd_compare(args: argparse.Namespace) -> int:
     entries = []
     for v in views:
         cam = scene.cameras[v]
-        ks = kernel_operations(lambda v=v: renderer.render(v))
+        ks = kernel_operations(
+            lambda v=v: render_view(renderer, v, f"{scene.name}/{scene.cameras[v].name}"))
         res = ks["result"]
         ref, ref_seconds, ref_info = mitsuba_image(scene, v)
         if ref.shape != res.image.shape:
             raise CliError(f"view {cam.name!r}: Mitsuba's image is {ref.shape[1]}x"
-                           f"{ref.shape[0]}, ours {cam.width}x{cam.height}")
+                           f"{ref.shape[0]}, ours {cam.width}x{cam.height}", code=EXIT["size"])
         info = {
             "ours: kernel time": f"{ks['kernel_ms']:.2f} ms (sum of kernel execution "
                                  "times; the wall time above includes tracing and compilation)",

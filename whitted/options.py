@@ -6,26 +6,32 @@ mode, accelerator, triangle routine or effect shows up on the command line witho
 here. ``--spp``, ``--max-depth`` and ``--size`` go through ``Scene.with_overrides``, the one
 place that validates them (``--spp`` alone also sets exact mode to ``spp == 1``); a bad value
 there is a ``SceneError`` naming the field, which ``whitted.cli.main`` prints as one
-``error:`` line (exit code 2).
+``error:`` line (exit code 2). ``EXIT`` is the table of exit codes (``whitted.cli``).
 """
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
 from renderer.accel import ACCELERATORS, DEFAULT_ACCEL, DEFAULT_ROUTINE, ROUTINES
 from renderer.device import BACKENDS, PRECISIONS
 from renderer.effects import FLAGS, EffectSet
 from renderer.scene import SHADING_MODES, Scene, load_scene
 
+from .data import scene_arg
 
-class CliError(SystemExit):
+#: Exit codes of every subcommand (OpenImageIO ``idiff``'s, plus 130 for Ctrl-C).
+EXIT = {"ok": 0, "warn": 1, "fail": 2, "usage": 2, "size": 3, "file": 4, "interrupted": 130}
+
+
+class CliError(Exception):
     """A command-line request that cannot be carried out (a view that does not exist, an
-    output that would be replaced, a golden that cannot be compared). It ends the program
-    like ``SystemExit`` with the one line ``error: <message>`` on stderr (exit status 1)."""
+    output that would be replaced, a golden that cannot be compared). ``whitted.cli.main``
+    prints the one line ``error: <message>`` on stderr and returns ``code`` (default
+    ``EXIT["usage"]``; ``EXIT["file"]`` for files, ``EXIT["size"]`` for a size mismatch)."""
 
-    def __init__(self, message: str):
-        super().__init__(f"error: {message}")
+    def __init__(self, message: str, code: int = EXIT["usage"]):
+        super().__init__(message)
+        self.code = code
 
 
 def size(text: str) -> tuple[int, int]:
@@ -47,7 +53,8 @@ def add_backend_option(p: argparse.ArgumentParser) -> None:
 
 def add_scene_options(p: argparse.ArgumentParser) -> None:
     """Options shared by every subcommand that renders a scene with our tracer."""
-    p.add_argument("scene", type=Path, help="scene file (.toml)")
+    p.add_argument("scene", type=scene_arg,
+                   help="scene file (.toml), or a bundled scene's name (whitted data)")
     p.add_argument("--view", default="0", help="view index, view name, or 'all' (default 0)")
     p.add_argument("--size", type=size, help="override the resolution, e.g. 512x512")
     p.add_argument("--shading", choices=SHADING_MODES, help="override the shading mode")

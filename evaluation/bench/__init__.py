@@ -28,6 +28,8 @@ import subprocess
 import time
 from pathlib import Path
 
+from renderer.outputs import check_output_file, write_text
+
 from . import effects, seed_table, throughput, whitted_frame
 from .part import Context, Part, jsonable
 
@@ -71,11 +73,12 @@ def device_info(backend: str) -> dict:
 
 
 def run(out_dir, *, backend: str = "auto", scenes_dir="scenes", quick: bool = False,
-        parts=tuple(PARTS)) -> dict:
+        parts=tuple(PARTS), overwrite: bool = False) -> dict:
     """Run the parts named in ``parts`` (in ``PARTS`` order) and write
     ``bench-<backend>.json`` and ``.md`` (``-quick`` appended to the tag when ``quick``)
-    in ``out_dir``. Returns the result: device, quick, date and each part's rows under its
-    key.
+    in ``out_dir`` (atomically; existing files are replaced only when ``overwrite``, checked
+    before the study runs: ``OutputExistsError``). Returns the result: device, quick, date
+    and each part's rows under its key.
 
     ``quick`` shrinks every size (for a smoke run on a CPU): 1920×1080 → 320×180,
     512² → 128², 20 frozen frames → 5.
@@ -86,17 +89,20 @@ def run(out_dir, *, backend: str = "auto", scenes_dir="scenes", quick: bool = Fa
         raise ValueError(f"parts: unknown {unknown}; expected some of {list(PARTS)}")
     backend = types(backend).backend
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    ctx = Context(backend=backend, scenes_dir=Path(scenes_dir), out_dir=out, quick=quick)
+    tag = backend + ("-quick" if quick else "")
+    for ext in (".json", ".md"):        # before the study, not after its minutes of work
+        check_output_file(out / f"bench-{tag}{ext}", overwrite=overwrite, flag="--force")
+    ctx = Context(backend=backend, scenes_dir=Path(scenes_dir), out_dir=out, quick=quick,
+                  overwrite=overwrite)
     info = device_info(backend)
     print(f"bench on {info.get('device')} ({backend})", flush=True)
     result = {"device": info, "quick": quick, "date": time.strftime("%Y-%m-%d %H:%M:%S")}
     for part in PARTS.values():
         if part.name in parts:
             result[part.key] = part.run(ctx)
-    tag = backend + ("-quick" if quick else "")
-    (out / f"bench-{tag}.json").write_text(json.dumps(jsonable(result), indent=1))
-    (out / f"bench-{tag}.md").write_text(markdown(result))
+    write_text(out / f"bench-{tag}.json", json.dumps(jsonable(result), indent=1),
+               overwrite=overwrite, flag="--force")
+    write_text(out / f"bench-{tag}.md", markdown(result), overwrite=overwrite, flag="--force")
     print(f"wrote {out / f'bench-{tag}.json'} and .md", flush=True)
     return result
 

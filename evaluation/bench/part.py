@@ -18,13 +18,15 @@ class Context:
     """What every part is given.
 
     backend: "cuda" | "llvm" (resolved, never "auto"); scenes_dir: the folder holding the
-    scene files; out_dir: the output folder (exists when a part runs); quick: smoke sizes.
+    scene files; out_dir: the output folder (exists when a part runs); quick: smoke sizes;
+    overwrite: a part may replace its existing output files (``whitted bench --force``).
     """
 
     backend: str
     scenes_dir: Path
     out_dir: Path
     quick: bool = False
+    overwrite: bool = False
 
     @property
     def frames(self) -> int:
