@@ -3,11 +3,21 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 from reference import golden
-from reference.mitsuba_scene import export_xml
+from reference.mitsuba_scene import (
+    check_export,
+    export_paths,
+    export_xml,
+    portable_integrator,
+    portable_problems,
+)
 from renderer.scene import SHADING_MODES, load_scene
+
+from .data import scene_arg
+from .options import CliError, select_views
 
 
 def register(subparsers) -> None:
@@ -15,7 +25,8 @@ def register(subparsers) -> None:
     p = subparsers.add_parser("reference", help="render golden images with Mitsuba 3",
                               description="Render every view x shading mode x mode of each "
                               "scene with Mitsuba into reference/goldens/.")
-    p.add_argument("scenes", nargs="+", type=Path, help="scene .toml files")
+    p.add_argument("scenes", nargs="+", type=scene_arg,
+                   help="scene .toml files (or bundled scene names)")
     p.add_argument("--force", action="store_true", help="overwrite existing goldens")
     p.add_argument("--spp", type=int, default=golden.CONVERGED_SPP,
                    help=f"converged samples per pixel (default {golden.CONVERGED_SPP})")
@@ -32,14 +43,25 @@ def register(subparsers) -> None:
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_reference)
 
-    p = subparsers.add_parser("export", help="write a scene as a Mitsuba 3 XML file",
-                              description="Write a Mitsuba 3 XML scene (meshes as .ply "
-                              "beside it); it loads with mi.load_file once the "
-                              "harness's plugins (reference/plugins.py) are registered.")
-    p.add_argument("scene", type=Path, help="scene .toml file")
+    p = subparsers.add_parser(
+        "export", help="write a scene as a Mitsuba 3 XML file (meshes in a folder of its own)",
+        description="Write a Mitsuba 3 XML scene, its meshes as .ply files in "
+        "<xml stem>_meshes/ beside it. By default it loads with mi.load_file once the "
+        "harness's plugins (reference/plugins.py) are registered; --portable writes stock "
+        "plugins only (plain Mitsuba loads it) or says which parts need ours. Nothing is "
+        "replaced without --force.")
+    p.add_argument("scene", type=scene_arg, help="scene .toml file or bundled scene name")
     p.add_argument("--mitsuba-xml", type=Path, required=True, help="output .xml path")
-    p.add_argument("--view", type=int, default=0)
+    p.add_argument("--view", default="0", help="view index or name (default 0)")
     p.add_argument("--shading", choices=SHADING_MODES, default=None)
+    p.add_argument("--portable", action="store_true",
+                   help="stock Mitsuba plugins only (diffuse, conductor, dielectric, point, "
+                        "direct/path): physical shading, no ambient or background")
+    p.add_argument("--spp", type=int, default=None,
+                   help="samples per pixel of the exported sampler (a perfect square; "
+                        "default: the scene's, 16 with --portable)")
+    p.add_argument("--force", action="store_true",
+                   help="replace an existing export (the XML and its mesh folder)")
     p.set_defaults(func=cmd_export)
 
 
@@ -54,6 +76,31 @@ def cmd_reference(args: argparse.Namespace) -> int:
 
 def cmd_export(args: argparse.Namespace) -> int:
     scene = load_scene(args.scene, shading=args.shading)
-    out = export_xml(scene, args.mitsuba_xml, view=args.view)
-    print(f"wrote {out}")
+    if args.spp is not None:
+        scene = scene.with_overrides(spp=args.spp)
+    views = select_views(scene, args.view)
+    if len(views) != 1:
+        raise CliError("--view: export writes one view; name one index or view name")
+    check_export(args.mitsuba_xml, overwrite=args.force)
+    if args.portable:
+        problems = portable_problems(scene)
+        if problems:
+            raise CliError(f"{args.scene}: --portable: these parts need the project's "
+                           "Mitsuba plugins (reference/plugins.py):\n  "
+                           + "\n  ".join(problems) + "\nexport without --portable to keep "
+                           "them")
+    s = scene.settings
+    spp = s.spp if not s.exact else (16 if args.portable else 1)
+    mode = "converged" if args.portable or not s.exact else "exact"
+    out = export_xml(scene, args.mitsuba_xml, view=views[0], spp=spp, mode=mode,
+                     portable=args.portable, overwrite=args.force)
+    print(f"wrote {out} and its meshes in {export_paths(out)[1]}/")
+    if args.portable:
+        note = portable_integrator(scene)[1]
+        print("portable: stock Mitsuba plugins only (mi.load_file needs no plugin of ours)")
+        if note:
+            print(f"warning: {note}", file=sys.stderr)
+    else:
+        print("note: loads in Mitsuba once reference.plugins.register() has run "
+              "(whitted integrator, whitted_material, whitted_phong)")
     return 0
