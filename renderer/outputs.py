@@ -140,6 +140,7 @@ def atomic_path(path, *, overwrite: bool = False, flag: str = "--overwrite"):
             cause = e.__cause__ or e.__context__
             if isinstance(cause, OSError) or "write" in str(e).lower():
                 reason = _reason(cause) if isinstance(cause, OSError) else str(e)
+                reason = " ".join(reason.replace(str(tmp), str(path)).split())
                 raise OutputError(f"{path}: write failed: {reason}") from None
             raise
     finally:

@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import signal
 import sys
 import threading
 import warnings
@@ -95,11 +96,17 @@ def error_code(e: BaseException) -> tuple[int, str] | None:
     return None
 
 
-def _run(args: argparse.Namespace, box: dict) -> None:
+def _run(args: argparse.Namespace, box: dict, done: threading.Event) -> None:
+    # SIGINT goes to the main thread only: threads started from here (Dr.Jit's pool, LLVM)
+    # inherit the mask, so no C++ wait is interrupted under them.
+    if hasattr(signal, "pthread_sigmask"):
+        signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
     try:
         box["code"] = args.func(args) or 0
     except BaseException as e:  # noqa: BLE001 - handed to the main thread as it is
         box["error"] = e
+    finally:
+        done.set()
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -107,21 +114,25 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     STOP.clear()
     box: dict = {}
+    # The worker's end is an Event, not Thread.join: a KeyboardInterrupt inside join() can
+    # mark a running thread stopped (CPython's bpo-45274 handling), and the interpreter
+    # would then shut down under a running kernel.
+    done = threading.Event()
     with warnings.catch_warnings():
         warnings.showwarning = _one_line_warning
-        worker = threading.Thread(target=_run, args=(args, box), daemon=True,
+        worker = threading.Thread(target=_run, args=(args, box, done), daemon=True,
                                   name=f"whitted {args.command}")
         worker.start()
         try:
-            while worker.is_alive():
-                worker.join(0.05)
+            while not done.wait(0.05):
+                pass
         except KeyboardInterrupt:
-            return interrupted(worker)
+            return interrupted(done)
     if "error" not in box:
         return box["code"]
     e = box["error"]
     if isinstance(e, KeyboardInterrupt):
-        return interrupted(worker)
+        return interrupted(done)
     known = error_code(e)
     if known is None:
         raise e
@@ -130,15 +141,15 @@ def main(argv: list[str] | None = None) -> int:
     return code
 
 
-def interrupted(worker: threading.Thread) -> int:
+def interrupted(done: threading.Event) -> int:
     """Ctrl-C: ask the worker to stop, remove the atomic writer's temporary files, say so
-    in one line. Returns 130 when the worker has ended; otherwise (it is inside a kernel,
-    which cannot be cancelled) the process exits with 130 at once."""
+    in one line. Returns 130 when the worker has already ended; otherwise the process exits
+    with 130 at once (``os._exit``: the worker may be inside a kernel, which cannot be
+    cancelled, and the interpreter's shutdown would wait for it)."""
     STOP.set()
     remove_live_temporaries()
-    print("interrupted: stopped before writing any partial file", file=sys.stderr)
-    worker.join(0.2)
-    if worker.is_alive():
+    print("interrupted: stopped; no partial file written", file=sys.stderr)
+    if not done.is_set():
         sys.stdout.flush()
         sys.stderr.flush()
         os._exit(EXIT["interrupted"])

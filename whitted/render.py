@@ -17,7 +17,7 @@ from renderer.film import write_exr, write_png
 from renderer.orbit import PLAYBACK_FPS, mp4_available, render_orbit, write_gif, write_mp4
 from renderer.outputs import check_output_file
 from renderer.render import Renderer
-from renderer.stats import format_operations, kernel_operations
+from renderer.stats import format_operations
 
 from .options import CliError, add_scene_options, effects_for_cli, load_for_cli
 from .progress import render_view
@@ -112,8 +112,7 @@ def cmd_render(args: argparse.Namespace) -> int:
                         accel=args.accel, intersection=args.intersection, effects=effects)
     for v, f in zip(views, files):
         cam = scene.cameras[v]
-        ks = kernel_operations(
-            lambda v=v, label=f"{scene.name}/{cam.name}": render_view(renderer, v, label))
+        ks = render_view(renderer, v, f"{scene.name}/{cam.name}")
         res = ks["result"]
         if "exr" in f:
             write_exr(f["exr"], res.image, overwrite=args.overwrite)
@@ -123,7 +122,8 @@ def cmd_render(args: argparse.Namespace) -> int:
         print(f"  view {cam.name}: {cam.width}x{cam.height}, {res.seconds * 1e3:.1f} ms"
               f"{f' in {bands} bands' if bands > 1 else ''} → "
               f"{', '.join(map(str, f.values()))}")
-        print(f"    kernels: {format_operations(ks)}, {ks['kernel_ms']:.2f} ms kernel time")
+        if "operations" in ks:
+            print(f"    kernels: {format_operations(ks)}, {ks['kernel_ms']:.2f} ms kernel time")
     return 0
 
 
