@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from renderer.film import read_exr_layers, write_exr
+from renderer.outputs import write_text
 from renderer.scene import SHADING_MODES, Scene, load_scene
 
 from . import MODES
@@ -157,7 +158,7 @@ def render_goldens(scene_paths, *, force: bool = False, spp: int = CONVERGED_SPP
             "sources": source_hashes(scene),
             "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
         }
-        out.with_suffix(".json").write_text(json.dumps(meta, indent=1) + "\n")
+        write_text(out.with_suffix(".json"), json.dumps(meta, indent=1) + "\n", overwrite=True)
         written.append(out)
     return written
 
