@@ -47,3 +47,47 @@ def test_stop_request_ends_a_banded_render_between_bands():
     with pytest.raises(KeyboardInterrupt):
         r.render(0, tile_samples=16 * 4, stop=stop)
     assert len(calls) == 3
+
+
+class _Terminal:
+    """A stand-in for stderr on a terminal."""
+
+    def __init__(self):
+        self.text = ""
+
+    def isatty(self):
+        return True
+
+    def write(self, s):
+        self.text += s
+
+    def flush(self):
+        pass
+
+
+def test_progress_is_a_tqdm_bar_on_a_terminal_and_plain_lines_in_a_log():
+    import io
+
+    from whitted.progress import bar
+    term = _Terminal()
+    b = bar(10, "scene/view", file=term)
+    b.update(4)
+    b.refresh()                        # tqdm redraws at most every 0.1 s on its own
+    b.close()
+    assert "scene/view" in term.text and "4/10" in term.text and "<" in term.text  # ETA
+    log = io.StringIO()
+    b = bar(10, "scene/view", file=log)
+    for _ in range(10):
+        b.update(1)
+    lines = log.getvalue().splitlines()
+    assert lines[-1].startswith("scene/view: 10/10 (100%)") and "ETA" in lines[-1]
+    assert "\r" not in log.getvalue()
+
+
+def test_cli_render_in_bands_reports_them(tmp_path, capsys):
+    from whitted.cli import main
+    # 700 x 500 = 350,000 camera rays > 2^18: two bands on LLVM
+    assert main(["render", str(SCENES / "cornell_box.toml"), "--size", "700x500",
+                 "--backend", "llvm", "--out", str(tmp_path / "a.png")]) == 0
+    out, err = capsys.readouterr()
+    assert "in 2 bands" in out and "cornell_box/front: 500/500 (100%)" in err
