@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import drjit as dr
 import numpy as np
 import pytest
 
@@ -14,10 +15,15 @@ from renderer.scene import load_scene
 SCENES = Path(__file__).resolve().parents[1] / "scenes"
 
 
+BACKENDS = ["llvm", pytest.param("cuda", marks=pytest.mark.skipif(
+    not dr.has_backend(dr.JitBackend.CUDA), reason="no CUDA device"))]
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
 @pytest.mark.parametrize("name,spp", [("cornell_sphere", None), ("cornell_box", 4)])
-def test_banded_image_is_bitwise_the_one_batch_image(name, spp):
+def test_banded_image_is_bitwise_the_one_batch_image(name, spp, backend):
     scene = load_scene(SCENES / f"{name}.toml").with_overrides(size=(40, 23), spp=spp)
-    r = Renderer(scene, backend="llvm")
+    r = Renderer(scene, backend=backend)
     whole = r.render(1, tile_samples=0)
     per_row = 40 * (spp or 1)
     done = []
