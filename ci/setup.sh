@@ -31,8 +31,8 @@ stamp=.venv/.whitted-installed
 # the top-level packages that existed when it was made).
 want=$( (cat pyproject.toml; ls -d -- */__init__.py) | sha256sum | cut -d' ' -f1)
 if [ "$(cat "$stamp" 2>/dev/null)" != "$want" ]; then
-  echo "setup: pip install -e .[reference,test]"
+  echo "setup: pip install -e .[reference,study,test]"
   .venv/bin/python -m pip install -q --upgrade pip
-  .venv/bin/python -m pip install -q -e ".[reference,test]"
+  .venv/bin/python -m pip install -q -e ".[reference,study,test]"
   echo "$want" > "$stamp"
 fi

@@ -15,8 +15,9 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def test_parts_have_unique_names_and_keys_in_study_order():
-    assert list(PARTS) == ["throughput", "seed", "whitted", "effects"]
-    assert [p.key for p in PARTS.values()] == ["throughput", "seed_table", "whitted", "effects"]
+    assert list(PARTS) == ["throughput", "seed", "whitted", "peer", "effects"]
+    assert [p.key for p in PARTS.values()] == ["throughput", "seed_table", "whitted", "peer",
+                                               "effects"]
     assert all(name == p.name for name, p in PARTS.items())
 
 
@@ -42,3 +43,28 @@ def test_throughput_rays_agree_with_mitsuba_on_a_small_batch():
     assert res["shadow_agreement"] > 0.95
     for k in ("ours_primary", "mitsuba_primary", "ours_shadow", "mitsuba_shadow"):
         assert res[k]["kernel_ms"] >= 0 and res[k]["repeats"] == 1
+
+
+def test_interrupted_run_keeps_the_rows_saved_so_far(tmp_path, monkeypatch):
+    """A part that saves a row and is then cut off (Ctrl-C, ``timeout -s INT``): the row is
+    on disk as soon as it is saved (a run killed outright keeps it), and the result files
+    hold it and say where the run was interrupted."""
+    import evaluation.bench as bench
+    from evaluation.bench.part import Part
+
+    def cut_off(ctx):
+        ctx.save_rows([{"n": 1}])
+        on_disk = json.loads((tmp_path / "bench-llvm.json").read_text())
+        assert on_disk["fake"] == [{"n": 1}] and "interrupted" not in on_disk
+        raise KeyboardInterrupt
+
+    fake = Part(name="fake", key="fake", run=cut_off,
+                markdown=lambda rows: [f"rows: {len(rows)}", ""])
+    monkeypatch.setattr(bench, "PARTS", {"fake": fake})
+    monkeypatch.setattr(bench, "device_info", lambda backend: {"backend": backend})
+    with pytest.raises(KeyboardInterrupt):
+        bench.run(tmp_path, backend="llvm", parts=("fake",))
+    saved = json.loads((tmp_path / "bench-llvm.json").read_text())
+    assert saved["fake"] == [{"n": 1}] and saved["interrupted"] == "in part fake"
+    md = (tmp_path / "bench-llvm.md").read_text()
+    assert "Interrupted in part fake" in md and "rows: 1" in md

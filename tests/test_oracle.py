@@ -22,11 +22,11 @@ so glass and mirrors are over-represented against a full image):
 from __future__ import annotations
 
 import types
-import numpy as np
-import pytest
 
+import numpy as np
 import oracle
 import oracle_report as report
+import pytest
 
 N_PIXELS = 200
 SEED = 0
@@ -198,8 +198,8 @@ def test_against_the_offset_limit(name, shading, view, source):
     """Pixels lit directly (no reflected or refracted ray in their tree) agree with the
     oracle to float32 precision: at least 97 % within 1e-5 relative and all within 1e-4
     (measured: 100 % within 1e-5 on every view but platonic_solids/physical/left, 97.4 %
-    there, largest 1.9e-5). Pixels with specular rays move with the offset of 1e-4 x diagonal; the share
-    of all pixels within 1e-3 is bounded by MIN_WITHIN."""
+    there, largest 1.9e-5). Pixels with specular rays move with the offset of 1e-4 x
+    diagonal; the share of all pixels within 1e-3 is bounded by MIN_WITHIN."""
     c = _compared(name, shading, view)
     e = c["err"][source]
     within = e <= report.TOL

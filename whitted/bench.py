@@ -12,7 +12,8 @@ from .options import add_backend_option
 def register(subparsers) -> None:
     """Add the ``bench`` subcommand to the main CLI's subparsers."""
     p = subparsers.add_parser("bench", help="timing study: ray throughput, the thesis's table, "
-                                            "Whitted frames and effect savings, vs Mitsuba")
+                                            "Whitted frames (vs a fair Mitsuba peer) and "
+                                            "effect savings")
     add_backend_option(p)
     p.add_argument("--out", default="results", help="folder for bench-<backend>.json/.md")
     p.add_argument("--scenes", default="scenes", help="folder holding the scene files")
@@ -35,6 +36,11 @@ def part_names(text: str) -> tuple[str, ...]:
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
-    run(args.out, backend=args.backend, scenes_dir=args.scenes, quick=args.quick,
-        parts=args.parts, overwrite=args.force)
+    """Run the study; on Ctrl-C (``timeout -s INT``) the partial result is already written
+    (``evaluation.bench.run``) and the exit status is 130."""
+    try:
+        run(args.out, backend=args.backend, scenes_dir=args.scenes, quick=args.quick,
+            parts=args.parts, overwrite=args.force)
+    except KeyboardInterrupt:
+        return 130
     return 0

@@ -5,10 +5,11 @@
     whitted reference SCENE...   (re)render Mitsuba golden images
     whitted export  SCENE.toml --mitsuba-xml OUT.xml [--portable]
     whitted bench   ...          timing study (kernel times, frozen frames, vs Mitsuba)
+    whitted study   ...          accuracy-vs-time study (error vs time, Pareto front)
     whitted data    DIR          copy the bundled scenes and meshes out of the package
 
 Each subcommand lives in its own module (``whitted/render.py``, ``compare.py``,
-``reference.py``, ``bench.py``, ``data.py``) with ``register(subparsers)``, which sets
+``reference.py``, ``bench.py``, ``study.py``, ``data.py``) with ``register(subparsers)``, which sets
 ``func``; the options they share are in ``whitted/options.py``. Mitsuba is imported only by
 the subcommands that run it, when they run, so ``render`` works with only the core
 dependencies installed.
@@ -33,6 +34,7 @@ atomic writer (``renderer.outputs``) are removed and the process exits with 130.
 from __future__ import annotations
 
 import argparse
+import ctypes
 import os
 import signal
 import sys
@@ -43,12 +45,12 @@ from renderer.device import DeviceError
 from renderer.outputs import OutputError, remove_live_temporaries
 from renderer.scene import SceneError
 
-from . import bench, compare, data, reference, render
+from . import bench, compare, data, reference, render, study
 from .options import EXIT, CliError
 from .progress import STOP
 
 #: Modules that add subcommands, in the order ``--help`` lists them.
-COMMANDS = (render, compare, reference, bench, data)
+COMMANDS = (render, compare, reference, bench, study, data)
 
 
 def version() -> str:
@@ -127,12 +129,12 @@ def main(argv: list[str] | None = None) -> int:
             while not done.wait(0.05):
                 pass
         except KeyboardInterrupt:
-            return interrupted(done)
+            return interrupted(done, worker)
     if "error" not in box:
         return box["code"]
     e = box["error"]
-    if isinstance(e, KeyboardInterrupt):
-        return interrupted(done)
+    if isinstance(e, KeyboardInterrupt):       # stopped from within (STOP), no signal
+        return interrupted(done, None)
     known = error_code(e)
     if known is None:
         raise e
@@ -141,19 +143,32 @@ def main(argv: list[str] | None = None) -> int:
     return code
 
 
-def interrupted(done: threading.Event) -> int:
-    """Ctrl-C: ask the worker to stop, remove the atomic writer's temporary files, say so
-    in one line. Returns 130 when the worker has already ended; otherwise the process exits
-    with 130 at once (``os._exit``: the worker may be inside a kernel, which cannot be
-    cancelled, and the interpreter's shutdown would wait for it)."""
+#: Seconds Ctrl-C gives the command to stop on its own (a bench saving what it measured)
+#: before the process exits anyway.
+GRACE_SECONDS = 0.8
+
+
+def interrupted(done: threading.Event, worker: threading.Thread | None) -> int:
+    """Ctrl-C (``worker`` given) or a stop from within (``worker`` None).
+
+    Ctrl-C: set ``STOP`` and raise ``KeyboardInterrupt`` inside the worker too, which takes
+    effect at its next Python line (an atomic write then removes its temporary file; a
+    bench writes the rows it measured), wait up to ``GRACE_SECONDS`` for it, remove any
+    temporary file still open, print one line and exit with 130 at once (``os._exit``: the
+    worker may be inside a kernel, which cannot be cancelled, and the interpreter's
+    shutdown would wait for it). A stop from within returns 130."""
     STOP.set()
+    if worker is not None and not done.is_set():
+        ctypes.pythonapi.PyThreadState_SetAsyncExc(ctypes.c_ulong(worker.ident),
+                                                   ctypes.py_object(KeyboardInterrupt))
+        done.wait(GRACE_SECONDS)
     remove_live_temporaries()
     print("interrupted: stopped; no partial file written", file=sys.stderr)
-    if not done.is_set():
-        sys.stdout.flush()
-        sys.stderr.flush()
-        os._exit(EXIT["interrupted"])
-    return EXIT["interrupted"]
+    if worker is None:
+        return EXIT["interrupted"]
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(EXIT["interrupted"])
 
 
 if __name__ == "__main__":

@@ -12,8 +12,12 @@ a module of this package:
   the two agree.
 - ``seed`` (``seed_table.py``): the thesis's table (three seed scenes × three views at 512²,
   primary rays only and with reflection, brute force / per-object boxes / BVH), frozen frames.
-- ``whitted`` (``whitted_frame.py``): our frozen Whitted frame vs Mitsuba rendering the same
-  scene with the reference harness's integrator, with the image difference.
+- ``whitted`` (``whitted_frame.py``): our Whitted frame at the scene's own depth against
+  the reference harness's Mitsuba render (the image difference and a PNG strip); the
+  harness's integrator is a reference, not a speed peer, so it is not timed.
+- ``peer`` (``peer.py``): the Whitted-frame speed comparison: our frozen frame vs a fair
+  Mitsuba peer (``reference.peer``: one kernel, frozen) at equal depth, 512² and 1024², with
+  the depth at which the peer's unrolled tree stops compiling (probed in subprocesses).
 - ``effects`` (``effects.py``): the scene's specialised kernel vs the all-effects kernel.
 
 A new part is one module defining ``PART = Part(name, key, run, markdown)`` (``part.py``)
@@ -28,16 +32,16 @@ import subprocess
 import time
 from pathlib import Path
 
-from renderer.outputs import check_output_file, write_text
+from renderer.outputs import check_output_file
 
-from . import effects, seed_table, throughput, whitted_frame
-from .part import Context, Part, jsonable
+from . import effects, peer, seed_table, throughput, whitted_frame
+from .part import Context, Part, jsonable, write_atomic
 
 __all__ = ["PARTS", "Context", "Part", "device_info", "markdown", "run"]
 
 #: The study's parts by name, in the order they run and appear in the markdown.
 PARTS: dict[str, Part] = {p.name: p for p in (throughput.PART, seed_table.PART,
-                                               whitted_frame.PART, effects.PART)}
+                                               whitted_frame.PART, peer.PART, effects.PART)}
 
 
 def device_info(backend: str) -> dict:
@@ -76,9 +80,13 @@ def run(out_dir, *, backend: str = "auto", scenes_dir="scenes", quick: bool = Fa
         parts=tuple(PARTS), overwrite: bool = False) -> dict:
     """Run the parts named in ``parts`` (in ``PARTS`` order) and write
     ``bench-<backend>.json`` and ``.md`` (``-quick`` appended to the tag when ``quick``)
-    in ``out_dir`` (atomically; existing files are replaced only when ``overwrite``, checked
-    before the study runs: ``OutputExistsError``). Returns the result: device, quick, date
-    and each part's rows under its key.
+    in ``out_dir``. Existing files there are replaced only when ``overwrite``, checked before
+    the study runs (``OutputExistsError``). Returns the result: device, quick, date and each
+    part's rows under its key.
+
+    The files are rewritten (atomically) after each part and at each part's checkpoints
+    (``Context.save_rows``); on Ctrl-C (or ``timeout -s INT``) they are written with what
+    was measured and ``"interrupted"`` naming the part, and the interrupt is re-raised.
 
     ``quick`` shrinks every size (for a smoke run on a CPU): 1920×1080 → 320×180,
     512² → 128², 20 frozen frames → 5.
@@ -92,17 +100,36 @@ def run(out_dir, *, backend: str = "auto", scenes_dir="scenes", quick: bool = Fa
     tag = backend + ("-quick" if quick else "")
     for ext in (".json", ".md"):        # before the study, not after its minutes of work
         check_output_file(out / f"bench-{tag}{ext}", overwrite=overwrite, flag="--force")
-    ctx = Context(backend=backend, scenes_dir=Path(scenes_dir), out_dir=out, quick=quick,
-                  overwrite=overwrite)
     info = device_info(backend)
     print(f"bench on {info.get('device')} ({backend})", flush=True)
     result = {"device": info, "quick": quick, "date": time.strftime("%Y-%m-%d %H:%M:%S")}
-    for part in PARTS.values():
-        if part.name in parts:
-            result[part.key] = part.run(ctx)
-    write_text(out / f"bench-{tag}.json", json.dumps(jsonable(result), indent=1),
-               overwrite=overwrite, flag="--force")
-    write_text(out / f"bench-{tag}.md", markdown(result), overwrite=overwrite, flag="--force")
+
+    def save() -> None:
+        write_atomic(out / f"bench-{tag}.json", json.dumps(jsonable(result), indent=1))
+        write_atomic(out / f"bench-{tag}.md", markdown(result))
+
+    def checkpoint(key: str):
+        def keep(rows: list[dict]) -> None:
+            result[key] = list(rows)
+            save()
+        return keep
+
+    part = None
+    try:
+        for part in PARTS.values():
+            if part.name in parts:
+                ctx = Context(backend=backend, scenes_dir=Path(scenes_dir), out_dir=out,
+                              quick=quick, checkpoint=checkpoint(part.key),
+                              overwrite=overwrite)
+                result[part.key] = part.run(ctx)
+                save()
+    except KeyboardInterrupt:
+        result["interrupted"] = f"in part {part.name}" if part else "before the first part"
+        save()
+        print(f"interrupted {result['interrupted']}: wrote what was measured to "
+              f"{out / f'bench-{tag}.json'} and .md", flush=True)
+        raise
+    save()
     print(f"wrote {out / f'bench-{tag}.json'} and .md", flush=True)
     return result
 
@@ -114,6 +141,8 @@ def markdown(result: dict) -> str:
              f"{result['date']}; drjit {dev.get('drjit')}, mitsuba {dev.get('mitsuba')}"
              + (f", driver {dev['driver']}" if dev.get("driver") else "")
              + ("; QUICK smoke sizes" if result.get("quick") else ""), ""]
+    if result.get("interrupted"):
+        lines += [f"**Interrupted {result['interrupted']}: partial results.**", ""]
     for part in PARTS.values():
         if result.get(part.key):
             lines += part.markdown(result[part.key])

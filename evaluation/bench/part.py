@@ -12,6 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
+from renderer.outputs import write_text
+
 
 @dataclass(frozen=True)
 class Context:
@@ -19,6 +21,7 @@ class Context:
 
     backend: "cuda" | "llvm" (resolved, never "auto"); scenes_dir: the folder holding the
     scene files; out_dir: the output folder (exists when a part runs); quick: smoke sizes;
+    checkpoint: ``checkpoint(rows)`` saves a part's rows so far (``save_rows``);
     overwrite: a part may replace its existing output files (``whitted bench --force``).
     """
 
@@ -26,7 +29,14 @@ class Context:
     scenes_dir: Path
     out_dir: Path
     quick: bool = False
+    checkpoint: Callable[[list[dict]], None] | None = None
     overwrite: bool = False
+
+    def save_rows(self, rows: list[dict]) -> None:
+        """Write the running part's rows so far with the result (a long part calls this
+        after each row, so a run cut short keeps them); nothing without a checkpoint."""
+        if self.checkpoint is not None:
+            self.checkpoint(rows)
 
     @property
     def frames(self) -> int:
@@ -71,6 +81,14 @@ def jsonable(x):
     if isinstance(x, (int, float, str, bool)) or x is None:
         return x
     return str(x)
+
+
+def write_atomic(path: Path, text: str) -> None:
+    """Write ``text`` to ``path`` through the project's atomic writer
+    (``renderer.outputs``: a temporary file in the same folder, fsync, rename), so a reader
+    (or a run cut off mid-write) never sees half a file. Replaces ``path``: the callers
+    checked before the run that they may (``evaluation.bench.run``)."""
+    write_text(path, text, overwrite=True)
 
 
 def table(title: str, columns: list[str], align: str, rows: list[list[str]]) -> list[str]:

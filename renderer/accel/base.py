@@ -23,11 +23,10 @@ from __future__ import annotations
 
 import importlib
 from dataclasses import dataclass
-from typing import Protocol
 
 import drjit as dr
 
-from ..device import Types
+from ..device import Types, types
 
 
 @dataclass
@@ -81,16 +80,31 @@ class DeviceTriangles:
         return dr.width(self.material)
 
 
-class Accelerator(Protocol):
-    """What the integrator needs from an accelerator (see the module docstring)."""
+class Accelerator:
+    """What the integrator needs from an accelerator (see the module docstring), and what
+    every accelerator shares: ``intersect``/``intersect_p`` are one traversal
+    ``_traverse(ray, active, any_hit)`` each subclass writes; ``types`` and ``stats()`` come
+    from the ``backend``/``precision``/``info`` fields of the subclass's dataclass."""
 
     tris: DeviceTriangles
 
-    def intersect(self, ray: Ray, active=True) -> ClosestHit: ...
+    @property
+    def types(self) -> Types:
+        return types(self.backend, self.precision)
 
-    def intersect_p(self, ray: Ray, active=True): ...
+    def stats(self) -> dict:
+        return dict(self.info)
 
-    def stats(self) -> dict: ...
+    def intersect(self, ray: Ray, active=True) -> ClosestHit:
+        """Closest hit in ``(0, ray.t_max)``."""
+        return self._traverse(ray, active, False)
+
+    def intersect_p(self, ray: Ray, active=True):
+        """Any hit in ``(0, ray.t_max)`` (shadow rays); stops at the first hit."""
+        return self._traverse(ray, active, True)
+
+    def _traverse(self, ray: Ray, active, any_hit: bool):
+        raise NotImplementedError
 
 
 def array_type(t: Types, name: str) -> type:

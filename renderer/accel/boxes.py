@@ -12,15 +12,15 @@ from dataclasses import dataclass, field
 import drjit as dr
 import numpy as np
 
-from ..device import Types, types
-from .base import ClosestHit, DeviceTriangles, Ray, array_type, gather_floats
+from ..device import Types
+from .base import Accelerator, DeviceTriangles, Ray, array_type, gather_floats
 from .bvh_build import pad_boxes
 from .traverse import Closest, masked_step, robust_scale, setup, slab, triangle_step
 from .triangle import triangle_routine, upload_triangles
 
 
 @dataclass
-class ObjectBoxes:
+class ObjectBoxes(Accelerator):
     """Per-object boxes accelerator (see the module docstring).
 
     Build with ``ObjectBoxes.build(scene, t, intersection="moller_trumbore")``.
@@ -70,18 +70,6 @@ class ObjectBoxes:
                     "box_bytes_per_triangle": len(objs) * 8 * (8 if t.is_double else 4) / max(F, 1)}
         return out
 
-    @property
-    def types(self) -> Types:
-        return types(self.backend, self.precision)
-
-    def stats(self) -> dict:
-        return dict(self.info)
-
-    def intersect(self, ray: Ray, active=True) -> ClosestHit:
-        return self._traverse(ray, active, False)
-
-    def intersect_p(self, ray: Ray, active=True):
-        return self._traverse(ray, active, True)
 
     def _box_step(self, o, inv, t_max, robust, obj, first, end, active=True):
         """Object ``obj``'s box where ``active``: on a hit its faces become the pending

@@ -6,14 +6,14 @@ from dataclasses import dataclass, field
 
 import drjit as dr
 
-from ..device import Types, types
-from .base import ClosestHit, DeviceTriangles, Ray
+from ..device import Types
+from .base import Accelerator, DeviceTriangles, Ray
 from .traverse import Closest, setup, triangle_step
 from .triangle import triangle_routine, upload_triangles
 
 
 @dataclass
-class BruteForce:
+class BruteForce(Accelerator):
     """Every ray tests every triangle, in scene order.
 
     tri_data: Float (12 F) packed triangles; tris: DeviceTriangles, in scene order;
@@ -44,23 +44,9 @@ class BruteForce:
         return cls(tri_data, tris, backend=t.backend, precision=t.precision,
                    intersection=intersection, info=info)
 
-    @property
-    def types(self) -> Types:
-        return types(self.backend, self.precision)
-
-    def stats(self) -> dict:
-        return dict(self.info)
-
-    def intersect(self, ray: Ray, active=True) -> ClosestHit:
-        """Closest hit in ``(0, ray.t_max)``."""
-        return self._candidates(ray, active, False)
-
-    def intersect_p(self, ray: Ray, active=True):
-        """Any hit in ``(0, ray.t_max)`` (shadow rays); stops at the first hit."""
-        return self._candidates(ray, active, True)
 
     @dr.syntax
-    def _candidates(self, ray: Ray, active, any_hit: bool):
+    def _traverse(self, ray: Ray, active, any_hit: bool):
         t = self.types
         routine = triangle_routine(self.intersection)
         tri_data, order = self.tri_data, self.tris.order

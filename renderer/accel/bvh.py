@@ -21,8 +21,8 @@ from dataclasses import dataclass, field
 import drjit as dr
 import numpy as np
 
-from ..device import Types, types
-from .base import ClosestHit, DeviceTriangles, Ray, array_type, gather_floats
+from ..device import Types
+from .base import Accelerator, DeviceTriangles, Ray, array_type, gather_floats
 from .bvh_build import BINS, LEAF_SIZE, build_bvh
 from .traverse import (
     DONE,
@@ -76,7 +76,7 @@ def node_step(t: Types, nodes, children, o, inv, t_max, robust, stack, sp, cur, 
 
 
 @dataclass
-class BVH:
+class BVH(Accelerator):
     """Bounding volume hierarchy accelerator (see the module docstring).
 
     Build with ``BVH.build(scene, t, intersection="moller_trumbore", leaf_size=4, bins=32)``.
@@ -123,18 +123,6 @@ class BVH:
                    intersection=intersection,
                    info=info)
 
-    @property
-    def types(self) -> Types:
-        return types(self.backend, self.precision)
-
-    def stats(self) -> dict:
-        return dict(self.info)
-
-    def intersect(self, ray: Ray, active=True) -> ClosestHit:
-        return self._traverse(ray, active, False)
-
-    def intersect_p(self, ray: Ray, active=True):
-        return self._traverse(ray, active, True)
 
     @dr.syntax
     def _traverse(self, ray: Ray, active, any_hit: bool):

@@ -1,0 +1,162 @@
+"""The accuracy-vs-time study (evaluation.study) on a tiny sweep: the facts its plots rest on.
+
+One tiny sweep (cornell_box at 16 x 16, spp 1/4/16 and the three accelerators, 5 seeds) is
+run once in-process; the other tests check facts of it, re-run it (resumed, on Dask) and
+compare, or render single points.
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+# ---- project imports (the one block to rename at merge) ------------------------------------
+from evaluation import study
+from evaluation.executor import InProcess, make_executor
+from renderer.render import Renderer
+
+ROOT = Path(__file__).resolve().parents[1]
+TINY = replace(study.PROFILES["tiny"], factors=("spp", "accel"), grid=False)
+SCENES = ["scenes/cornell_box.toml"]
+
+
+def _spec(**changes) -> dict:
+    spec = {"scene": "scenes/cornell_box.toml", "offset": 0.0, "label": "cornell_box",
+            "shading": "classic", "view": 0, "size": 16, "backend": "llvm", "spp": 4,
+            "max_depth": 5, "min_weight": 0.01, "precision": "float32",
+            "combination": "scene", "intersection": "moller_trumbore", "accel": "bvh",
+            "effects": "auto", "seeds": [0, 1, 2, 3, 4]}
+    spec.update(changes)
+    return spec
+
+
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory):
+    out = tmp_path_factory.mktemp("study")
+    data = study.run_study(SCENES, out, profile=TINY, show_progress=False, outputs=True,
+                           log=lambda *a: None)
+    return out, data
+
+
+def test_sweep_is_complete_and_written(tiny):
+    out, data = tiny
+    assert not data["meta"]["missing"]
+    assert len(data["points"]) == 5          # default (4 spp), spp 1 and 16, brute, boxes
+    for name in ("study.json", "study.md", "index.html", "cornell_box.png", "cornell_box.svg"):
+        assert (out / name).exists(), name
+    p = next(iter(data["points"].values()))
+    assert len(p["seeds"]) >= 5 and p["device"]["backend"] == "llvm"
+    for ref in study.REFS:
+        assert set(p["errors"][ref]) == set(study.METRICS)
+    for k in ("kernel_ms", "frozen_wall_ms", "compile_ms", "first_frame_ms"):
+        assert p["timing"][k] >= 0
+    assert p["facts"]["frozen_equals_traced"]
+
+
+def test_more_spp_never_raises_golden_error(tiny):
+    _, data = tiny
+    line = study.factor_line(data, "cornell_box", "spp")
+    assert [p["settings"]["spp"] for p in line] == [1, 4, 16]
+    for a, b in zip(line, line[1:]):
+        ea, eb = a["errors"]["golden"]["rmse"], b["errors"]["golden"]["rmse"]
+        spread = max(ea["max"] - ea["min"], eb["max"] - eb["min"])
+        assert eb["mean"] <= ea["mean"] + spread, (a["settings"]["spp"], b["settings"]["spp"])
+    assert line[-1]["errors"]["own"]["rmse"]["mean"] < line[0]["errors"]["own"]["rmse"]["mean"]
+
+
+def test_accelerators_give_the_same_image(tiny):
+    _, data = tiny
+    line = study.factor_line(data, "cornell_box", "accel")
+    assert {p["settings"]["accel"] for p in line} == {"brute", "boxes", "bvh"}
+    assert len({tuple(p["image_sha256"]) for p in line}) == 1
+
+
+def test_pareto_front_and_tables(tiny):
+    _, data = tiny
+    pts = study.scene_points(data, "cornell_box")
+    front = study.pareto(pts, "own")
+    for p in pts:             # nothing on the front is beaten in both time and error
+        for q in front:
+            assert not (study.time_of(p) < study.time_of(q)
+                        and study.err_of(p, "own") < study.err_of(q, "own"))
+    default = data["scenes"]["cornell_box"]["default"]
+    rows = study.equal_time_rows(pts, default, "own")
+    assert rows and all(r["kernel_ms"] <= r["budget_ms"] for r in rows)
+    errs = [r["relmse"] for r in rows]
+    assert errs == sorted(errs, reverse=True)
+    assert "spp" in study.factor_sentences(data, "cornell_box")
+
+
+def test_resumed_sweep_equals_uninterrupted(tiny, tmp_path):
+    _, full = tiny
+    part = study.run_study(SCENES, tmp_path, profile=TINY, max_points=2, show_progress=False,
+                           outputs=False, log=lambda *a: None)
+    assert len(part["points"]) == 2 and len(part["meta"]["missing"]) == 3
+    resumed = study.run_study(SCENES, tmp_path, profile=TINY, show_progress=False,
+                              outputs=False, log=lambda *a: None)
+    assert study.strip_timings(resumed) == study.strip_timings(full)
+    on_disk = json.loads((tmp_path / "study.json").read_text())
+    assert study.strip_timings(on_disk) == study.strip_timings(full)
+
+
+def test_dask_local_cluster_gives_the_same_json(tiny, tmp_path):
+    pytest.importorskip("dask.distributed")
+    _, full = tiny
+    data = study.run_study(SCENES, tmp_path, profile=TINY, workers=2, show_progress=False,
+                           outputs=False, log=lambda *a: None)
+    assert data["meta"]["executor"]["workers"] == 2
+    assert len({p["pid"] for p in data["points"].values()}) >= 1
+    assert study.strip_timings(data) == study.strip_timings(full)
+
+
+def test_depth_beyond_reachable_changes_nothing(tmp_path):
+    # cornell_box without transmission: the mirror block is a closed convex mirror, the only
+    # reflector, so nothing is reachable past depth 1.
+    text = (ROOT / "scenes/cornell_box.toml").read_text()
+    text = text.replace("k_refl = 0.1\nk_refr = 0.85", "k_refl = 0.0\nk_refr = 0.0")
+    path = tmp_path / "mirror_box.toml"
+    path.write_text(text)
+    images = {d: study.render_seeds(_spec(scene=str(path), max_depth=d, seeds=[0, 1]))
+              for d in (0, 1, 2, 8)}
+    assert images[1][1]["reachable_depth"] == 1
+    for d in (2, 8):
+        for a, b in zip(images[1][0], images[d][0]):
+            assert np.array_equal(a, b), d
+    assert not np.array_equal(images[0][0][0], images[1][0][0])
+
+
+def test_float64_beats_float32_far_from_the_origin():
+    errs = {}
+    for prec in ("float32", "float64"):
+        spec = _spec(offset=1e4, size=32, precision=prec, seeds=[0, 1, 2, 3, 4])
+        golden, _ = study.golden_for(spec)
+        images, _ = study.render_seeds(spec)
+        errs[prec] = np.mean([study.error_metrics(i, golden)["rmse"] for i in images])
+    assert errs["float64"] <= errs["float32"]
+
+
+def test_seed_is_the_settings_seed():
+    spec = _spec(seeds=[3])
+    images, _ = study.render_seeds(spec)
+    sc = study.prepare_scene(spec)
+    sc = replace(sc, settings=replace(sc.settings, seed=3))
+    img = Renderer(sc, backend="llvm", accel="bvh").render(0).image
+    assert np.array_equal(images[0], img)
+
+
+def test_golden_box_reduction_and_metrics():
+    g = np.random.default_rng(0).random((8, 8, 3))
+    small = study.block_mean(g, 2, 2)
+    assert small.shape == (2, 2, 3) and np.allclose(small[0, 0], g[:4, :4].mean(axis=(0, 1)))
+    m = study.error_metrics(g, g)
+    assert m["rmse"] == 0 and m["relmse"] == 0 and m["de2000_mean"] == 0
+
+
+def test_executors_map_everything():
+    items = list(range(5))
+    with InProcess() as ex:
+        assert sorted(ex.map(abs, items)) == [(i, i) for i in items]
+    assert isinstance(make_executor(0), InProcess)
