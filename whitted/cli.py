@@ -115,6 +115,10 @@ def main(argv: list[str] | None = None) -> int:
     """Parse ``argv``, run the subcommand in a worker thread, return its exit code."""
     args = build_parser().parse_args(argv)
     STOP.clear()
+    if threading.current_thread() is threading.main_thread():
+        # A shell starts background jobs with SIGINT ignored; `timeout -s INT whitted ... &`
+        # in a script must still stop the command cleanly.
+        signal.signal(signal.SIGINT, signal.default_int_handler)
     box: dict = {}
     # The worker's end is an Event, not Thread.join: a KeyboardInterrupt inside join() can
     # mark a running thread stopped (CPython's bpo-45274 handling), and the interpreter
@@ -145,7 +149,7 @@ def main(argv: list[str] | None = None) -> int:
 
 #: Seconds Ctrl-C gives the command to stop on its own (a bench saving what it measured)
 #: before the process exits anyway.
-GRACE_SECONDS = 0.8
+GRACE_SECONDS = 0.5
 
 
 def interrupted(done: threading.Event, worker: threading.Thread | None) -> int:
