@@ -99,10 +99,6 @@ def error_code(e: BaseException) -> tuple[int, str] | None:
 
 
 def _run(args: argparse.Namespace, box: dict, done: threading.Event) -> None:
-    # SIGINT goes to the main thread only: threads started from here (Dr.Jit's pool, LLVM)
-    # inherit the mask, so no C++ wait is interrupted under them.
-    if hasattr(signal, "pthread_sigmask"):
-        signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
     try:
         box["code"] = args.func(args) or 0
     except BaseException as e:  # noqa: BLE001 - handed to the main thread as it is
