@@ -3,7 +3,6 @@
 ``--version`` answers."""
 from __future__ import annotations
 
-import functools
 import subprocess
 import sys
 import warnings
@@ -53,22 +52,27 @@ def test_missing_scene_file_is_one_line(tmp_path, capsys):
     assert last.startswith("error: ") and "nope.toml" in last
 
 
-def test_reference_over_an_existing_golden_needs_force(tmp_path, monkeypatch, capsys):
+def test_reference_replaces_a_stale_golden_only_with_force(tmp_path, capsys):
+    """The golden store keeps what is up to date (exit 0, nothing rewritten) and refuses to
+    replace a stale golden without --force: exit 4, one line naming --force, files kept."""
     pytest.importorskip("mitsuba")
-    from reference import golden
     root = tmp_path / "goldens"
-    monkeypatch.setattr(golden, "render_goldens",
-                        functools.partial(golden.render_goldens, root=root))
-    argv = ["reference", str(ROOT / "scenes" / "analytic_quad.toml"), "--size", "8",
+    scene = tmp_path / "analytic_quad.toml"
+    text = (ROOT / "scenes" / "analytic_quad.toml").read_text()
+    scene.write_text(text)
+    argv = ["reference", str(scene), "--goldens", str(root), "--size", "8",
             "--modes", "exact", "--shadings", "classic", "--quiet"]
     assert main(argv) == 0
-    stored = {p: p.read_bytes() for p in root.rglob("*.exr")}
-    assert len(stored) == 3
+    stored = {p: p.read_bytes() for p in root.rglob("*.*")}
+    assert len([p for p in stored if p.suffix == ".exr"]) == 3
+    assert main(argv) == 0                              # up to date: kept as it is
+    assert {p: p.read_bytes() for p in root.rglob("*.*")} == stored
+    scene.write_text(text.replace("ambient = 0.0", "ambient = 0.1"))   # now stale
     capsys.readouterr()
     assert main(argv) == 4
     last = _one_error_line(capsys.readouterr().err)
-    assert last.startswith("error: ") and "exists" in last and "--force" in last
-    assert {p: p.read_bytes() for p in root.rglob("*.exr")} == stored
+    assert last.startswith("error: ") and "stale" in last and "--force" in last
+    assert {p: p.read_bytes() for p in root.rglob("*.*")} == stored
 
 
 def test_warnings_are_one_line_without_source(tmp_path, monkeypatch, capsys):

@@ -5,6 +5,7 @@ the repository's), and ``whitted data`` copies them out. The dependencies come f
 project's environment (PYTHONPATH), so nothing is downloaded but the build backend."""
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import sys
@@ -72,3 +73,26 @@ def test_installed_whitted_renders_a_bundled_scene_from_another_folder(installed
     assert (work / "mine" / "meshes" / "conference" / "conference.ply").exists()
     version = _run([str(bin_ / "whitted"), "--version"], cwd=work, env=env)
     assert version.stdout.strip() == "whitted 0.1.0"
+
+
+def test_installed_whitted_checks_a_bundled_scene_against_the_bundled_golden(installed):
+    """``whitted check bunny`` from a folder with no project in it: the scene by its name
+    from the wheel's ``whitted/bundled/scenes``, its goldens found by content in the wheel's
+    bundled store (``reference/goldens`` inside the package), every verdict PASS, exit 0."""
+    env, work, bin_ = installed["env"], installed["work"], installed["bin"]
+    env = {k: v for k, v in env.items() if k != "WHITTED_GOLDENS"}
+    run = subprocess.run([str(bin_ / "whitted"), "check", "bunny", "--backend", "llvm",
+                          "--json", "verdicts.json"], cwd=work, env=env, capture_output=True,
+                         text=True, timeout=600)
+    assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]
+    lines = [line for line in run.stdout.splitlines() if line.startswith(("PASS", "WARN",
+                                                                          "FAIL", "SIZE",
+                                                                          "MISSING", "STALE",
+                                                                          "ERROR"))]
+    assert len(lines) == 4 and all(line.startswith("PASS") for line in lines), run.stdout
+    assert run.stdout.splitlines()[0] == "goldens: the bundled store"
+    store = _run([str(bin_ / "python"), "-c", "from reference import golden; "
+                  "print(golden.BUNDLED_STORE)"], cwd=work, env=env).stdout.strip()
+    assert store.startswith(str(bin_.parent)) and (Path(store) / "bunny").is_dir()
+    verdicts = json.loads((work / "verdicts.json").read_text())
+    assert verdicts["exit_code"] == 0 and verdicts["counts"]["PASS"] == 4
