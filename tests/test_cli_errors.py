@@ -95,3 +95,19 @@ def test_version():
     run = subprocess.run([sys.executable, "-m", "whitted", "--version"], cwd=ROOT,
                          capture_output=True, text=True, timeout=60)
     assert run.returncode == 0 and run.stdout.startswith("whitted 0.")
+
+
+def test_one_exit_code_table():
+    """``options.EXIT`` (every command) and ``evaluation.verdict.EXIT_CODES`` (check and
+    compare's verdicts) agree, and ``whitted --help`` shows every code."""
+    from evaluation.verdict import EXIT_CODES
+    from whitted.cli import build_parser
+    from whitted.options import EXIT
+    assert (EXIT["ok"], EXIT["warn"], EXIT["fail"], EXIT["size"]) == tuple(
+        EXIT_CODES[s] for s in ("PASS", "WARN", "FAIL", "SIZE"))
+    assert EXIT["file"] == EXIT_CODES["MISSING"] == EXIT_CODES["STALE"] == EXIT_CODES["ERROR"]
+    assert EXIT["usage"] == 2 and EXIT["interrupted"] == 130     # argparse's, the shell's
+    text = build_parser().format_help()
+    for status, code in EXIT_CODES.items():
+        assert f"\n  {code} " in text and status in text
+    assert "\n  130 " in text
