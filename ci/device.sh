@@ -22,5 +22,5 @@ nvidia-smi --query-gpu=name,driver_version,memory.total --format=csv,noheader
 what=${1:-tests}; shift || true
 case "$what" in
   tests) "$py" -m pytest -q -x -k cuda -p no:cacheprovider "$@" tests/ ;;
-  bench) "$py" -m whitted bench --backend cuda --out "${OUT:-results}" "$@" ;;
+  bench) "$py" -m whitted bench --backend cuda --out "${OUT:-results}" --force "$@" ;;
 esac

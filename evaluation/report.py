@@ -28,6 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from renderer.film import srgb_encode, write_exr
+from renderer.outputs import atomic_path, check_output_dir, write_text
 
 from .metrics import abs_error_heatmap, colormap_stops, flip_error, flip_heatmap, metrics
 
@@ -140,7 +141,8 @@ def format_metrics_table(entries: list[ReportEntry]) -> str:
 def _save_png(path: Path, rgb: np.ndarray) -> None:
     from PIL import Image
 
-    Image.fromarray(np.ascontiguousarray(rgb, np.uint8), "RGB").save(path)
+    with atomic_path(path, overwrite=True) as tmp:
+        Image.fromarray(np.ascontiguousarray(rgb, np.uint8), "RGB").save(tmp, format="PNG")
 
 
 def _strip(panels: list[tuple[str, np.ndarray]]) -> np.ndarray:
@@ -341,7 +343,7 @@ def write_report(out_dir: str | Path, entries: list[ReportEntry], *, title: str,
         raise FileExistsError(f"report folder {out} already exists and is not empty")
     if not entries and not notes:
         raise ValueError("entries: expected at least one comparison")
-    out.mkdir(parents=True, exist_ok=True)
+    check_output_dir(out)
 
     taken: set[str] = set()
     slugs, sections = [], []
@@ -371,7 +373,8 @@ def write_report(out_dir: str | Path, entries: list[ReportEntry], *, title: str,
         record = {"name": e.name, "metrics": e.metrics, "absdiff_scale": scale,
                   "ours_seconds": e.ours_seconds, "ref_seconds": e.ref_seconds,
                   "effects": e.effects, "operations": e.operations, "info": e.info}
-        (folder / "metrics.json").write_text(json.dumps(record, indent=2, default=str) + "\n")
+        write_text(folder / "metrics.json", json.dumps(record, indent=2, default=str) + "\n",
+                   overwrite=True)
         sections.append(_entry_html(e, slug, scale))
 
     esc = html.escape
@@ -391,5 +394,5 @@ def write_report(out_dir: str | Path, entries: list[ReportEntry], *, title: str,
         + f"</main><script>{_JS}</script></body></html>\n"
     )
     index = out / "index.html"
-    index.write_text(page, encoding="utf-8")
+    write_text(index, page, overwrite=True)
     return index

@@ -63,6 +63,7 @@ from evaluation.metrics import delta_e2000, flip_error
 from reference.golden import GoldenError, load_golden
 from renderer.accel import ACCELERATORS, ROUTINES
 from renderer.effects import EffectSet
+from renderer.outputs import atomic_path, check_output_dir, write_text
 from renderer.render import Renderer, make_frame_fn
 from renderer.scene import Scene, load_scene
 from renderer.stats import kernel_ms
@@ -492,11 +493,7 @@ def load_results(path: Path) -> dict:
 def save_results(path: Path, data: dict) -> None:
     """Write ``data`` to ``path`` through a temporary file and a rename: an interrupted run
     leaves the previous complete file or the new one, never half of one."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + f".tmp{os.getpid()}")
-    tmp.write_text(json.dumps(data, indent=1, sort_keys=True) + "\n")
-    os.replace(tmp, path)
+    write_text(path, json.dumps(data, indent=1, sort_keys=True) + "\n", overwrite=True)
 
 
 def _ref_cache(out: Path, key: str) -> Path:
@@ -543,8 +540,8 @@ def run_study(scene_args, out, *, profile: Profile | str = "cpu", backend: str =
                                    enabled=show_progress):
                 (label, comb), rs = todo[i]
                 cache = _ref_cache(out, rs["key"])
-                cache.parent.mkdir(parents=True, exist_ok=True)
-                np.save(cache, res["image"])
+                with atomic_path(cache, overwrite=True) as tmp, open(tmp, "wb") as f:
+                    np.save(f, res["image"])
                 owns[(label, comb)] = res["image"]
                 scenes[label].setdefault("ref_info", {})[comb] = {
                     "spp": prof.ref_spp, "seconds": res["seconds"],
@@ -571,7 +568,7 @@ def run_study(scene_args, out, *, profile: Profile | str = "cpu", backend: str =
         done = 0
         stopped = False
         try:
-            for i, rec in progress(ex.map(run_point, items), len(items), desc="study",
+            for _i, rec in progress(ex.map(run_point, items), len(items), desc="study",
                                    enabled=show_progress):
                 data["points"][rec["key"]] = rec
                 if data["meta"].get("device") is None:
@@ -781,7 +778,8 @@ def factor_sentences(data: dict, label: str) -> dict:
         same = len({tuple(p["image_sha256"]) for p in line}) == 1
         slow = max(line, key=time_of)
         out["accel"] = (f"{'same image from every accelerator' if same else 'IMAGES DIFFER'}; "
-                        f"{fastest['settings']['accel']} is {time_of(slow) / time_of(fastest):.1f}× "
+                        f"{fastest['settings']['accel']} is "
+                        f"{time_of(slow) / time_of(fastest):.1f}× "
                         f"faster than {slow['settings']['accel']}.")
     line = factor_line(data, label, "intersection")
     if len(line) == 1:
@@ -930,7 +928,8 @@ def markdown(data: dict) -> str:
         for ref in REFS:
             rows = equal_time_rows(pts, default, ref)
             if rows:
-                out.append(f"Equal time (vs {ref}): the best setting within each kernel-time budget")
+                out.append(f"Equal time (vs {ref}): the best setting within each "
+                           "kernel-time budget")
                 out.append("")
                 out.append(_md_table(["budget ms", "best setting", "kernel ms", "relMSE (± std)",
                                       "RMSE", "mean FLIP"],
@@ -958,7 +957,8 @@ def markdown(data: dict) -> str:
                          *[f"{_fmt(err_of(p, r))} ± {_fmt(p['errors'][r]['relmse']['std'], 2)}"
                            if p["errors"].get(r) else "–" for r in REFS],
                          *[_fmt(err_of(p, r, "rmse")) for r in REFS],
-                         _fmt(err_of(p, "golden", "flip_mean")), _fmt(err_of(p, "golden", "flip_p95")),
+                         _fmt(err_of(p, "golden", "flip_mean")),
+                         _fmt(err_of(p, "golden", "flip_p95")),
                          _fmt(err_of(p, "golden", "de2000_mean"))])
         out.append(_md_table(["setting (★ Pareto)", "kernel ms", "frozen wall ms", "compile ms",
                               "trace ms", "relMSE golden", "relMSE own", "RMSE golden",
@@ -988,7 +988,8 @@ def plot_scene(data: dict, label: str, out: Path, metric: str = "relmse") -> lis
     for ax, ref in zip(axes, refs):
         grid = [p for p in pts if len(differs(p["settings"], data["scenes"][label]["default"])) > 1]
         if grid:
-            ax.scatter([time_of(p) for p in grid], [max(err_of(p, ref, metric), 1e-12) for p in grid],
+            ax.scatter([time_of(p) for p in grid],
+                       [max(err_of(p, ref, metric), 1e-12) for p in grid],
                        s=9, color="0.75", label="spp × depth grid", zorder=1)
         for f in FACTORS:
             if f in MODEL_FACTORS:
@@ -1009,9 +1010,11 @@ def plot_scene(data: dict, label: str, out: Path, metric: str = "relmse") -> lis
                                 xytext=(3, 3), textcoords="offset points")
         front = pareto(pts, ref, metric)
         if front:
-            ax.step([time_of(p) for p in front], [max(err_of(p, ref, metric), 1e-12) for p in front],
+            ax.step([time_of(p) for p in front],
+                    [max(err_of(p, ref, metric), 1e-12) for p in front],
                     where="post", color="k", lw=1, ls="--", zorder=4, label="Pareto front")
-            ax.scatter([time_of(p) for p in front], [max(err_of(p, ref, metric), 1e-12) for p in front],
+            ax.scatter([time_of(p) for p in front],
+                       [max(err_of(p, ref, metric), 1e-12) for p in front],
                        s=40, facecolors="none", edgecolors="k", zorder=5)
         g = data["scenes"][label].get("golden", {})
         if ref == "golden" and g.get("noise_rmse") and metric == "rmse":
@@ -1031,7 +1034,8 @@ def plot_scene(data: dict, label: str, out: Path, metric: str = "relmse") -> lis
             ax.scatter([time_of(p) for p in sel], [max(err_of(p, ref, metric), 1e-12) for p in sel],
                        color=c, marker="*", s=60, label=f"vs {ref}")
             for p in sel:
-                ax.annotate(p["settings"]["combination"], (time_of(p), max(err_of(p, ref, metric), 1e-12)),
+                ax.annotate(p["settings"]["combination"],
+                            (time_of(p), max(err_of(p, ref, metric), 1e-12)),
                             fontsize=7, xytext=(3, 3), textcoords="offset points")
     ax.set_xscale("log")
     ax.set_yscale("log")
@@ -1045,7 +1049,9 @@ def plot_scene(data: dict, label: str, out: Path, metric: str = "relmse") -> lis
     paths = []
     for ext in ("png", "svg"):
         p = Path(out) / f"{label}.{ext}"
-        fig.savefig(p, dpi=110, metadata={"Date": None} if ext == "svg" else None)
+        with atomic_path(p, overwrite=True) as tmp:
+            fig.savefig(tmp, format=ext, dpi=110,
+                        metadata={"Date": None} if ext == "svg" else None)
         paths.append(p)
     plt.close(fig)
     return paths
@@ -1092,8 +1098,7 @@ def _md_to_html(md: str) -> str:
 
 def write_outputs(data: dict, out) -> list[Path]:
     """study.md, <scene>.png/.svg and index.html in ``out`` from the results ``data``."""
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
+    out = check_output_dir(out)
     written = []
     for label in data["scenes"]:
         if scene_points(data, label):
@@ -1102,7 +1107,7 @@ def write_outputs(data: dict, out) -> list[Path]:
             except ImportError:
                 break
     md = markdown(data)
-    (out / "study.md").write_text(md)
+    write_text(out / "study.md", md, overwrite=True)
     written.append(out / "study.md")
     page = ("<!doctype html><html><head><meta charset='utf-8'><title>Accuracy vs time</title>"
             "<style>body{font-family:sans-serif;max-width:1400px;margin:auto;padding:1em}"
@@ -1110,7 +1115,7 @@ def write_outputs(data: dict, out) -> list[Path]:
             "td,th{border:1px solid #ccc;padding:2px 6px}img{max-width:100%}</style></head>"
             f"<body>{_md_to_html(md)}<p><a href='study.json'>study.json</a> (all points)</p>"
             "</body></html>\n")
-    (out / "index.html").write_text(page)
+    write_text(out / "index.html", page, overwrite=True)
     written.append(out / "index.html")
     return written
 

@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import difflib
 import json
-import os
 import time
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
@@ -34,6 +33,7 @@ import numpy as np
 
 from reference import MODES
 from reference import golden as golden_store
+from renderer.outputs import write_bytes
 from renderer.scene import SHADING_MODES, SceneError, load_scene
 
 from .rules import RULES, THRESHOLDS, Threshold
@@ -201,9 +201,13 @@ def plan_for(scene, modes=None, shadings=None) -> tuple[tuple, tuple]:
     return modes, shadings
 
 
-def _ours(renderers: dict, scene, view: int, mode: str, golden, opts: dict) -> np.ndarray:
+def _ours(renderers: dict, scene, view: int, mode: str, golden, opts: dict,
+          render=None) -> np.ndarray:
     """Our image of ``scene.cameras[view]`` at the golden's size and sampling; one
-    ``Renderer`` (upload and accelerator) per scene, size and sampling."""
+    ``Renderer`` (upload and accelerator) per scene, size and sampling. ``render(renderer,
+    view, label)`` renders it (the CLI's ``whitted.progress.render_view``: a progress bar
+    and Ctrl-C between bands) and returns a dict with the RenderResult under ``"result"``;
+    None: ``renderer.render(view)``."""
     from renderer.render import Renderer
 
     w, h = golden.meta["resolution"]
@@ -214,17 +218,22 @@ def _ours(renderers: dict, scene, view: int, mode: str, golden, opts: dict) -> n
         if mode == "converged":
             sized = sized.with_settings(seed=OUR_SEED)
         renderers[key] = Renderer(sized, spp=spp, exact=mode == "exact", **opts)
-    return np.asarray(renderers[key].render(view).image, np.float32)
+    r = renderers[key]
+    if render is None:
+        return np.asarray(r.render(view).image, np.float32)
+    label = f"{scene.name}/{scene.cameras[view].name} {scene.settings.shading} {mode}"
+    return np.asarray(render(r, view, label)["result"].image, np.float32)
 
 
 def check_scene(scene_path, stores, *, modes=None, shadings=None, views=None,
                 backend: str = "llvm", precision: str = "float32", accel: str | None = None,
-                keep_images: bool = False, progress=None) -> list[Verdict]:
+                keep_images: bool = False, progress=None, render=None) -> list[Verdict]:
     """Every verdict of one scene file against the golden ``stores`` (searched in order).
 
     modes / shadings / views: what to check (default ``plan_for``; views: every view).
     backend, precision, accel: how our renderer runs. keep_images: keep ours and the golden
-    on each verdict (for a report). progress: called with each verdict as it is made."""
+    on each verdict (for a report). progress: called with each verdict as it is made.
+    render: how our image is rendered (``_ours``)."""
     scene_path = Path(scene_path)
     shown = str(scene_path)
     opts = {"backend": backend, "precision": precision}
@@ -268,7 +277,7 @@ def check_scene(scene_path, stores, *, modes=None, shadings=None, views=None,
                     else:
                         g = found.golden
                         verdict.golden = golden_store._display(g.path)
-                        ours = _ours(renderers, scene, v, mode, g, opts)
+                        ours = _ours(renderers, scene, v, mode, g, opts, render)
                         (verdict.status, verdict.reason, verdict.excused,
                          verdict.result) = judge(ours, g, mode, ths[mode],
                                                  scene.check.get("warn"), scene)
@@ -319,14 +328,9 @@ def to_json(verdicts) -> dict:
 
 
 def _atomic_write(path: Path, data: bytes) -> None:
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    try:
-        tmp.write_bytes(data)
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
+    """A gate artefact (JSON, JUnit) through the project's one atomic writer; it is
+    replaced on every run by design."""
+    write_bytes(Path(path), data, overwrite=True)
 
 
 def write_json(verdicts, path) -> None:

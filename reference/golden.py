@@ -44,6 +44,7 @@ from pathlib import Path
 import numpy as np
 
 from renderer.film import read_exr_layers, write_exr
+from renderer.outputs import OutputError, check_output_dir, write_text
 from renderer.scene import SHADING_MODES, Scene, load_scene
 
 from . import MODES
@@ -387,24 +388,6 @@ def _progress_bar(total: int, enabled: bool):
     return step
 
 
-def _atomic_write_text(path: Path, text: str) -> None:
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    try:
-        tmp.write_text(text)
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
-
-
-def _atomic_write_exr(path: Path, image, layers) -> None:
-    tmp = path.with_name(f".{path.stem}.tmp{os.getpid()}.exr")
-    try:
-        write_exr(tmp, image, layers=layers, overwrite=True)
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
-
-
 def plan_goldens(scene_paths, *, root, modes=MODES, shadings=SHADING_MODES):
     """For each scene x shading x mode x view: (scene_path, shading, mode, view, Lookup in
     ``root`` alone). Raises ``SceneError`` for a bad scene file."""
@@ -455,12 +438,9 @@ def render_goldens(scene_paths, *, force: bool = False, spp: int = CONVERGED_SPP
         if p[4].status == "ok" and report:
             report(f"up to date: {_display(p[4].path)}")
     try:
-        root.mkdir(parents=True, exist_ok=True)
-        probe = root / f".write-test-{os.getpid()}"
-        probe.write_text("")
-        probe.unlink()
-    except OSError as e:
-        raise GoldenError(f"golden store {root}: not writable ({e.strerror or e})") from None
+        check_output_dir(root)
+    except OutputError as e:
+        raise GoldenError(f"golden store {e}") from None
 
     import mitsuba as mi
 
@@ -494,9 +474,10 @@ def render_goldens(scene_paths, *, force: bool = False, spp: int = CONVERGED_SPP
         meta = sidecar(scene, inputs, resolution=[cam.width, cam.height], spp=used_spp,
                        batch_spp=b_spp, batches=batches if mode == "converged" else 1,
                        variant=variant)
-        out.parent.mkdir(parents=True, exist_ok=True)
-        _atomic_write_exr(out, img, None if var is None else {"var": var})
-        _atomic_write_text(out.with_suffix(".json"), json.dumps(meta, indent=1) + "\n")
+        # the image first, its sidecar last: an interrupted run leaves no sidecar that
+        # vouches for a missing image (both writes are atomic: renderer.outputs)
+        write_exr(out, img, layers=None if var is None else {"var": var}, overwrite=True)
+        write_text(out.with_suffix(".json"), json.dumps(meta, indent=1) + "\n", overwrite=True)
         if report and not progress:         # with a progress bar, the bar names each file
             report(f"{'replaced' if found.status == 'stale' else 'wrote'}: {_display(out)}")
         written.append(out)
@@ -570,7 +551,7 @@ def rekey(scene_paths, *, root: Path = BUNDLED_STORE, verify=MODES,
                     new["rekeyed"] = datetime.datetime.now(datetime.timezone.utc).isoformat(
                         timespec="seconds") + (" (re-render verified identical)" if checked
                                                else " (not verified)")
-                    _atomic_write_text(side, json.dumps(new, indent=1) + "\n")
+                    write_text(side, json.dumps(new, indent=1) + "\n", overwrite=True)
                     report(f"rekeyed: {_display(side)}")
                     done.append(side)
     return done

@@ -14,6 +14,13 @@ from pathlib import Path
 
 import numpy as np
 
+from renderer.outputs import (
+    OutputError,
+    OutputExistsError,
+    check_output_file,
+    write_bytes,
+    write_text,
+)
 from renderer.scene import Scene
 
 from . import MODES
@@ -63,6 +70,73 @@ def _builtin_material_dict(scene: Scene, mat) -> dict:
     return {"type": "twosided", "bsdf": {"type": "diffuse", "reflectance": _rgb(mat.kd)}}
 
 
+def portable_problems(scene: Scene) -> list[str]:
+    """The parts of ``scene`` that stock Mitsuba plugins cannot express with the same
+    meaning, one line each naming the part, why, and the project's plugin it needs; empty
+    when ``to_mitsuba_dict(..., portable=True)`` can write it (``portable_material_dict``)."""
+    st = scene.settings
+    out = []
+    if st.shading != "physical":
+        out.append(f"settings.shading {st.shading!r}: the classic lobe (no 1/pi, light "
+                   "without falloff) has no stock BSDF → whitted_phong and the 'whitted' "
+                   "integrator (try --shading physical)")
+    if np.any(scene.ambient > 0):
+        out.append("ambient: Whitted's constant ambient term has no stock equivalent → the "
+                   "'whitted' integrator")
+    if np.any(st.background > 0):
+        out.append("settings.background: a colour seen by escaping rays that lights nothing "
+                   "(a stock 'constant' emitter would light the scene) → the 'whitted' "
+                   "integrator")
+    for i, light in enumerate(scene.lights):
+        if light.falloff != "inverse_square":
+            out.append(f"lights[{i}] ({light.name!r}): falloff 'none' (stock 'point' "
+                       "emitters fall off as 1/dist²) → the 'whitted' integrator")
+    for m in scene.materials:
+        diffuse = bool(np.any(m.kd > 0))
+        if np.any(m.ks > 0):
+            out.append(f"material {m.name!r}: Phong lobe (ks > 0) → whitted_phong")
+        elif diffuse and (m.reflective or m.transmissive):
+            out.append(f"material {m.name!r}: diffuse and specular parts in one material "
+                       "→ whitted_material")
+        elif m.transmissive and m.combination != "fresnel":
+            out.append(f"material {m.name!r}: glass with constant weights (combination "
+                       "'constant'; a stock dielectric always applies Fresnel) → "
+                       "whitted_material")
+    return out
+
+
+def portable_material_dict(mat) -> dict:
+    """The stock BSDF that means the same as ``mat`` in physical mode (``portable_problems``
+    must be empty): twosided ``diffuse`` (kd), twosided ``conductor`` with ``material =
+    "none"`` (a mirror: k_refl), ``dielectric`` (Fresnel glass: k_refl and k_refr scale the
+    reflected and refracted lobes, as MODEL.md's ``fresnel`` weights do)."""
+    if mat.transmissive:
+        return {"type": "dielectric", "int_ior": float(mat.ior), "ext_ior": 1.0,
+                "specular_reflectance": _rgb(mat.k_refl),
+                "specular_transmittance": _rgb(mat.k_refr)}
+    if mat.reflective:
+        return {"type": "twosided", "bsdf": {"type": "conductor", "material": "none",
+                                             "specular_reflectance": _rgb(mat.k_refl)}}
+    return {"type": "twosided", "bsdf": {"type": "diffuse", "reflectance": _rgb(mat.kd)}}
+
+
+def portable_integrator(scene: Scene) -> tuple[dict, str | None]:
+    """The stock integrator of a portable export and, when it does not mean the same as the
+    Whitted tree, a one-line note saying how it differs: ``direct`` for a scene without
+    mirrors or glass (the same image); ``path`` otherwise (Mitsuba has no stock Whitted
+    integrator: ``path`` adds the indirect diffuse light a Whitted image lacks and has no
+    ``min_weight`` pruning)."""
+    st = scene.settings
+    if not any(m.reflective or m.transmissive for m in scene.materials):
+        return {"type": "direct", "emitter_samples": 1, "bsdf_samples": 1}, None
+    depth = int(st.max_depth) + 2      # camera segment + max_depth bounces + the light
+    note = (f"integrator: stock 'path' (max_depth {depth}) for the mirror/glass rays; it "
+            "adds indirect diffuse light and has no min_weight pruning, so it converges to "
+            "a brighter image than the Whitted tree; the exact Whitted image needs the "
+            "project's 'whitted' integrator (export without --portable)")
+    return {"type": "path", "max_depth": depth, "rr_depth": depth}, note
+
+
 def mesh_parts(scene: Scene):
     """Per object and material: (key, object, material index, vertices float32 (V, 3),
     normals float32 (V, 3) or None, faces uint32 (F, 3) local indices)."""
@@ -109,7 +183,8 @@ def sensor_dict(scene: Scene, *, view: int = 0, spp: int = 1, mode: str = "exact
 
 
 def to_mitsuba_dict(scene: Scene, *, view: int = 0, spp: int = 1, mode: str = "exact",
-                    seed: int = 0, builtins: bool = False, meshes: str = "objects") -> dict:
+                    seed: int = 0, builtins: bool = False, meshes: str = "objects",
+                    portable: bool = False, overwrite: bool = False) -> dict:
     """A dict for ``mi.load_dict`` describing ``scene`` seen from ``cameras[view]``.
 
     mode: "exact" (one ray per pixel centre, driven by ``render_mitsuba``) or "converged"
@@ -117,7 +192,11 @@ def to_mitsuba_dict(scene: Scene, *, view: int = 0, spp: int = 1, mode: str = "e
     builtins: no plugin of ours at all: twosided ``diffuse`` BSDFs and the ``direct``
     integrator (diffuse-only physical scenes with zero ambient and background only).
     meshes: "objects" (``mi.Mesh`` objects) or a folder path string to write .ply files into
-    and reference them by file name (used by ``export_xml``).
+    (atomically; an existing one is replaced only when ``overwrite``), referenced as
+    ``<folder name>/<key>.ply``, relative to the folder's parent (``export_xml`` puts the
+    XML there).
+    portable: stock plugins only (``portable_material_dict``, ``portable_integrator``);
+    ValueError listing ``portable_problems`` when some part needs our plugins.
     """
     mi = _mi()
     if mode not in MODES:
@@ -125,7 +204,13 @@ def to_mitsuba_dict(scene: Scene, *, view: int = 0, spp: int = 1, mode: str = "e
     st = scene.settings
     where = scene.path or scene.name
     d: dict = {"type": "scene"}
-    if builtins:
+    if portable:
+        problems = portable_problems(scene)
+        if problems:
+            raise ValueError(f"{where}: not portable to stock Mitsuba plugins: "
+                             + "; ".join(problems))
+        d["integrator"] = portable_integrator(scene)[0]
+    elif builtins:
         if st.shading != "physical":
             raise ValueError(f"{where}: settings.shading must be 'physical' for builtins=True")
         if np.any(scene.ambient > 0) or np.any(st.background > 0):
@@ -149,8 +234,12 @@ def to_mitsuba_dict(scene: Scene, *, view: int = 0, spp: int = 1, mode: str = "e
     mats: dict[int, object] = {}
     for key, _, m, verts, normals, faces in mesh_parts(scene):
         if m not in mats:
-            md = (_builtin_material_dict(scene, scene.materials[m]) if builtins
-                  else material_dict(scene.materials[m], st.shading))
+            if portable:
+                md = portable_material_dict(scene.materials[m])
+            elif builtins:
+                md = _builtin_material_dict(scene, scene.materials[m])
+            else:
+                md = material_dict(scene.materials[m], st.shading)
             mats[m] = md if meshes != "objects" else mi.load_dict(md)
         if meshes == "objects":
             props = mi.Properties()
@@ -165,8 +254,8 @@ def to_mitsuba_dict(scene: Scene, *, view: int = 0, spp: int = 1, mode: str = "e
             params.update()
             d[key] = mesh
         else:
-            fname = f"{key}.ply"
-            write_ply(Path(meshes) / fname, verts, faces, normals)
+            fname = f"{Path(meshes).name}/{key}.ply"
+            write_ply(Path(meshes) / f"{key}.ply", verts, faces, normals, overwrite=overwrite)
             d[key] = {"type": "ply", "filename": fname, "face_normals": normals is None,
                       "bsdf": {"type": "ref", "id": f"mat{m}"}}
             d.setdefault("_materials", {})[f"mat{m}"] = mats[m]
@@ -262,10 +351,10 @@ def rays(o: np.ndarray, d: np.ndarray, t_max: np.ndarray | None = None):
 
 # ---- export -------------------------------------------------------------------------------
 def write_ply(path: Path, verts: np.ndarray, faces: np.ndarray,
-              normals: np.ndarray | None = None) -> None:
-    """Binary little-endian PLY: float x y z (+ nx ny nz), faces as uchar/int lists."""
+              normals: np.ndarray | None = None, *, overwrite: bool = False) -> None:
+    """Binary little-endian PLY: float x y z (+ nx ny nz), faces as uchar/int lists; written
+    atomically, an existing file replaced only when ``overwrite``."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     cols = ["x", "y", "z"] + (["nx", "ny", "nz"] if normals is not None else [])
     head = ["ply", "format binary_little_endian 1.0", f"element vertex {len(verts)}"]
     head += [f"property float {c}" for c in cols]
@@ -276,10 +365,9 @@ def write_ply(path: Path, verts: np.ndarray, faces: np.ndarray,
     frec = np.empty(len(faces), fdt)
     frec["n"] = 3
     frec["i"] = faces
-    with open(path, "wb") as f:
-        f.write(("\n".join(head) + "\n").encode())
-        f.write(np.ascontiguousarray(vdata, "<f4").tobytes())
-        f.write(frec.tobytes())
+    data = (("\n".join(head) + "\n").encode() + np.ascontiguousarray(vdata, "<f4").tobytes()
+            + frec.tobytes())
+    write_bytes(path, data, overwrite=overwrite, flag="--force")
 
 
 def _xml_value(parent, name, value):
@@ -297,7 +385,7 @@ def _xml_value(parent, name, value):
                    "perspective": "sensor", "stratified": "sampler",
                    "independent": "sampler", "hdrfilm": "film", "box": "rfilter",
                    "point": "emitter", "ply": "shape", "whitted": "integrator",
-                   "direct": "integrator"}[t]
+                   "direct": "integrator", "path": "integrator"}[t]
             _xml_object(parent, tag, value, name=name)
     elif isinstance(value, bool):
         ET.SubElement(parent, "boolean", name=name, value=str(value).lower())
@@ -335,14 +423,45 @@ def _xml_object(parent, tag, d, name=None, id=None):
     return el
 
 
-def export_xml(scene: Scene, path, *, view: int = 0, spp: int = 1,
-               mode: str = "exact") -> Path:
-    """Write ``scene`` as a Mitsuba 3 XML file at ``path`` (meshes as .ply files beside it).
-    It loads with ``mi.load_file`` once our plugins are registered for the variant in use
-    (``reference.mitsuba_variant()`` or ``reference.plugins.register()``)."""
+def export_paths(path) -> tuple[Path, Path]:
+    """Where ``export_xml(scene, path)`` writes: the XML file and its own mesh folder
+    ``<xml stem>_meshes/`` beside it, so two exports into one folder never share a mesh."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    d = to_mitsuba_dict(scene, view=view, spp=spp, mode=mode, meshes=str(path.parent))
+    return path, path.with_name(f"{path.stem}_meshes")
+
+
+def check_export(path, *, overwrite: bool = False) -> tuple[Path, Path]:
+    """Before any work: the XML and its mesh folder can be written, and neither exists
+    unless ``overwrite`` (``OutputExistsError`` naming ``--force``)."""
+    xml, mesh_dir = export_paths(path)
+    check_output_file(xml, overwrite=overwrite, flag="--force")
+    if mesh_dir.exists() and not mesh_dir.is_dir():
+        raise OutputError(f"{mesh_dir}: is a file; the export's mesh folder goes there")
+    if mesh_dir.is_dir() and any(mesh_dir.iterdir()) and not overwrite:
+        raise OutputExistsError(f"{mesh_dir}: exists (pass --force to replace the export)")
+    return xml, mesh_dir
+
+
+def export_xml(scene: Scene, path, *, view: int = 0, spp: int = 1,
+               mode: str = "exact", portable: bool = False, overwrite: bool = False) -> Path:
+    """Write ``scene`` as a Mitsuba 3 XML file at ``path``, its meshes as .ply files in a
+    folder of its own, ``<xml stem>_meshes/`` (``export_paths``). Nothing is replaced
+    unless ``overwrite`` (checked before anything is written: ``check_export``); every file
+    is written atomically, the XML last.
+
+    By default it loads with ``mi.load_file`` once our plugins are registered for the
+    variant in use (``reference.mitsuba_variant()`` or ``reference.plugins.register()``).
+    ``portable``: stock plugins only, so plain Mitsuba loads it (see ``to_mitsuba_dict``;
+    ValueError listing the parts that need our plugins).
+    """
+    xml, mesh_dir = check_export(path, overwrite=overwrite)
+    if portable:                                   # refuse before writing any mesh
+        problems = portable_problems(scene)
+        if problems:
+            raise ValueError(f"{scene.path or scene.name}: not portable to stock Mitsuba "
+                             "plugins: " + "; ".join(problems))
+    d = to_mitsuba_dict(scene, view=view, spp=spp, mode=mode, meshes=str(mesh_dir),
+                        portable=portable, overwrite=overwrite)
     root = ET.Element("scene", version="3.0.0")
     for key, md in d.pop("_materials", {}).items():
         _xml_object(root, "bsdf", md, id=key)
@@ -354,5 +473,6 @@ def export_xml(scene: Scene, path, *, view: int = 0, spp: int = 1,
             tag = "emitter" if v["type"] == "point" else "shape"
         _xml_object(root, tag, v, id=key if tag in ("emitter", "shape") else None)
     ET.indent(root)
-    path.write_text(ET.tostring(root, encoding="unicode") + "\n")
-    return path
+    write_text(xml, ET.tostring(root, encoding="unicode") + "\n", overwrite=overwrite,
+               flag="--force")
+    return xml

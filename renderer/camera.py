@@ -9,6 +9,13 @@ contiguous and the film averages them with a block reduction.
 Converged-mode jitter: one ``PCG32(size=W·H·spp, initstate=seed)`` generator (Dr.Jit adds
 ``arange(size)`` to the state and the stream, so every ray has its own sequence); ray ``k``
 draws ``ξ1`` then ``ξ2``. The same seed gives the same image on every backend.
+
+Tiles: ``primary_rays(..., first_row=y0, rows=n)`` makes only the rays of rows
+``y0 .. y0+n-1``, numbered by their index ``k`` in the whole image (the generator is seeded
+with ``initstate = seed + k0``, ``initseq = default + k0`` for the tile's first ray ``k0``,
+which is what the whole-image generator gives ray ``k0``), so a tiled render has the same
+rays, bit for bit, as one batch. ``first_row`` is an opaque ``UInt32`` so that every tile
+reuses one compiled kernel.
 """
 from __future__ import annotations
 
@@ -19,6 +26,9 @@ import numpy as np
 
 from .device import Types
 from .scene import Camera, SceneError, validate_settings
+
+#: Dr.Jit's (and the original PCG32's) default stream, ``PCG32(initseq=...)``.
+PCG32_DEFAULT_STREAM = 0xDA3E39CB94B95BDB
 
 
 @dataclass
@@ -71,17 +81,24 @@ def camera_arrays(cam: Camera, t: Types) -> CameraArrays:
 
 
 def primary_rays(cam: CameraArrays, width: int, height: int, t: Types, *,
-                 spp: int = 1, exact: bool = True, seed: int = 0):
+                 spp: int = 1, exact: bool = True, seed: int = 0, first_row=None,
+                 rows: int | None = None):
     """Camera rays for every pixel sample.
 
     Returns ``(o, d)``: Array3f of width ``width·height·spp`` (``d`` unit length), ray ``k``
     in pixel ``k // spp``. Exact mode (``spp`` must be 1): pixel centres. Converged mode:
     ``spp = k²`` stratified jittered samples per pixel. Raises SceneError
     (``validate_settings``) for any other ``spp``.
+
+    first_row, rows: only the ``rows`` image rows from ``first_row`` (a ``t.UInt32`` of
+    width 1, made opaque by the caller) on: width ``width·rows·spp``, the same rays as
+    those rows of the whole image (see the module's "Tiles").
     """
     validate_settings(spp=spp, exact=exact)
-    n = width * height * spp
+    n = width * (height if rows is None else rows) * spp
     idx = dr.arange(t.UInt32, n)
+    if first_row is not None:
+        idx = idx + first_row * (width * spp)
     if exact:
         pix = idx
         px = t.Float(pix % width) + 0.5
@@ -90,7 +107,13 @@ def primary_rays(cam: CameraArrays, width: int, height: int, t: Types, *,
         k = int(round(np.sqrt(spp)))
         pix = idx // spp
         s = idx - pix * spp
-        rng = t.PCG32(n, initstate=seed)
+        if first_row is None:
+            rng = t.PCG32(n, initstate=seed)
+        else:
+            UInt64 = dr.uint64_array_t(t.UInt32)
+            k0 = UInt64(first_row) * (width * spp)
+            rng = t.PCG32(n, initstate=UInt64(seed) + k0,
+                          initseq=UInt64(PCG32_DEFAULT_STREAM) + k0)
         xi1 = rng.next_float(t.Float)
         xi2 = rng.next_float(t.Float)
         inv_k = 1.0 / k

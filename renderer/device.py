@@ -19,6 +19,10 @@ BACKENDS = ("auto", "cuda", "llvm")
 PRECISIONS = ("float32", "float64")
 
 
+class DeviceError(RuntimeError):
+    """A backend that this machine cannot run (``--backend cuda`` without a CUDA device)."""
+
+
 @dataclass(frozen=True)
 class Types:
     backend: str            # "cuda" | "llvm" (resolved, never "auto")
@@ -49,7 +53,8 @@ def types(backend: str = "auto", precision: str = "float32") -> Types:
         import drjit.auto as auto
         backend = "cuda" if dr.backend_v(auto.Float) == dr.JitBackend.CUDA else "llvm"
     if backend == "cuda" and not dr.has_backend(dr.JitBackend.CUDA):
-        raise RuntimeError("backend 'cuda' requested but no CUDA device is available")
+        raise DeviceError("backend 'cuda' requested but no CUDA device is available "
+                          "(backend 'llvm' or 'auto' runs on the CPU)")
     m = importlib.import_module(f"drjit.{backend}")
     s = "64" if precision == "float64" else ""
     return Types(

@@ -4,7 +4,9 @@ Images are numpy float32 arrays of shape (H, W, 3), linear RGB, row 0 at the top
 EXR files hold linear float32 R, G, B channels, plus optional layers such as a per-pixel
 variance (``var.R``, ``var.G``, ``var.B``) (OpenEXR 3.x Python API); PNGs are 8-bit sRGB
 (clamped), for looking at; ``srgb_encode`` is the one linear -> sRGB conversion. Writers
-never replace an existing file unless the caller passes ``overwrite=True``.
+go through ``renderer.outputs.atomic_path`` (temporary file in the same folder, fsync,
+rename), so an interrupted or failed write leaves no partial file, and never replace an
+existing file unless the caller passes ``overwrite=True`` (``OutputExistsError``).
 """
 from __future__ import annotations
 
@@ -12,6 +14,8 @@ from pathlib import Path
 
 import drjit as dr
 import numpy as np
+
+from .outputs import atomic_path
 
 
 def develop(radiance, width: int, height: int, spp: int, t):
@@ -29,16 +33,6 @@ def _check_image(image, what: str) -> np.ndarray:
     return img
 
 
-def output_path(path, overwrite: bool) -> Path:
-    """``path`` as a Path, its folder created; FileExistsError if it exists and not
-    ``overwrite``."""
-    path = Path(path)
-    if path.exists() and not overwrite:
-        raise FileExistsError(f"{path}: exists (pass overwrite=True to replace it)")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    return path
-
-
 def write_exr(path, image, *, layers: dict | None = None, overwrite: bool = False) -> Path:
     """Write ``image`` (float (H, W, 3) linear RGB) as a float32 OpenEXR file (ZIP, scanline).
 
@@ -53,14 +47,15 @@ def write_exr(path, image, *, layers: dict | None = None, overwrite: bool = Fals
     for name, v in extra.items():
         if v.shape != img.shape:
             raise ValueError(f"{path}: layer {name!r} has shape {v.shape}, the image {img.shape}")
-    path = output_path(path, overwrite)
+    path = Path(path)
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
     channels = {c: np.ascontiguousarray(img[:, :, i]) for i, c in enumerate("RGB")}
     for name, v in extra.items():
         channels.update({f"{name}.{c}": np.ascontiguousarray(v[:, :, i])
                          for i, c in enumerate("RGB")})
-    with OpenEXR.File(header, channels) as f:
-        f.write(str(path))
+    with atomic_path(path, overwrite=overwrite, flag="overwrite=True") as tmp:
+        with OpenEXR.File(header, channels) as f:
+            f.write(str(tmp))
     return path
 
 
@@ -100,6 +95,7 @@ def write_png(path, image, *, overwrite: bool = False) -> Path:
     """Write ``image`` (linear RGB (H, W, 3)) as an 8-bit sRGB PNG."""
     import imageio.v3 as iio
     img = _check_image(image, str(path))
-    path = output_path(path, overwrite)
-    iio.imwrite(path, srgb_encode(img), extension=".png")
+    path = Path(path)
+    with atomic_path(path, overwrite=overwrite, flag="overwrite=True") as tmp:
+        iio.imwrite(tmp, srgb_encode(img), extension=".png")
     return path

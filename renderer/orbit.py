@@ -6,7 +6,8 @@ target; camera 0 is ``cam`` itself. ``render_orbit`` renders them with ONE froze
 function (``Renderer(..., freeze=True)``): the scene is uploaded and the accelerator built
 once, the first frame traces and records the kernels, and every later frame passes only a
 new ``CameraArrays`` (opaque device arrays) and replays the recording, so it costs kernel
-launches and the read-back of the image. ``write_gif`` stores the frames as an animated GIF.
+launches and the read-back of the image. ``write_gif`` stores the frames as an animated GIF
+(atomically, through ``renderer.outputs``).
 """
 from __future__ import annotations
 
@@ -20,7 +21,8 @@ import numpy as np
 
 from .accel import DEFAULT_ACCEL, DEFAULT_ROUTINE
 from .effects import EffectSet
-from .film import output_path, srgb_encode
+from .film import srgb_encode
+from .outputs import atomic_path
 from .render import Renderer
 from .scene import Camera, Scene
 
@@ -147,8 +149,9 @@ def write_gif(path, frames, *, fps: float = PLAYBACK_FPS, overwrite: bool = Fals
         raise ValueError(f"write_gif: fps: expected > 0, got {fps!r}")
     import imageio.v3 as iio
     imgs = _as_uint8(frames)
-    path = output_path(path, overwrite)
-    iio.imwrite(path, np.stack(imgs), extension=".gif", duration=1000.0 / fps, loop=0)
+    path = Path(path)
+    with atomic_path(path, overwrite=overwrite, flag="overwrite=True") as tmp:
+        iio.imwrite(tmp, np.stack(imgs), extension=".gif", duration=1000.0 / fps, loop=0)
     return path
 
 
@@ -165,6 +168,7 @@ def write_mp4(path, frames, *, fps: float = PLAYBACK_FPS, overwrite: bool = Fals
         raise RuntimeError("write_mp4: no ffmpeg plugin for imageio (install imageio-ffmpeg)")
     import imageio.v3 as iio
     imgs = _as_uint8(frames)
-    path = output_path(path, overwrite)
-    iio.imwrite(path, np.stack(imgs), extension=".mp4", fps=fps)
+    path = Path(path)
+    with atomic_path(path, overwrite=overwrite, flag="overwrite=True") as tmp:
+        iio.imwrite(tmp, np.stack(imgs), extension=".mp4", fps=fps)
     return path

@@ -23,6 +23,11 @@ from .lights import upload_lights
 from .scene import Camera, Scene, check_ranges, validate_image_size
 from .shade import SceneArrays, TraceOptions, upload_materials
 
+#: Camera rays per band of ``Renderer.render`` by backend: a band of the LLVM backend takes
+#: well under a second for simple scenes on one CPU core, so progress moves and a stop
+#: request is honoured between bands; CUDA bands are larger (launch overhead).
+TILE_SAMPLES = {"llvm": 1 << 18, "cuda": 1 << 22}
+
 
 @dataclass
 class RenderResult:
@@ -46,10 +51,12 @@ def make_frame_fn(t: Types, effects: EffectSet, options: TraceOptions, *, spp: i
     Python's collector free device memory in the middle of a later recording, which Dr.Jit
     cannot record).
     """
-    def frame(cam: CameraArrays, arrays: SceneArrays, width: int, height: int):
-        o, d = primary_rays(cam, width, height, t, spp=spp, exact=exact, seed=seed)
+    def frame(cam: CameraArrays, arrays: SceneArrays, width: int, height: int,
+              first_row=None, rows: int | None = None):
+        o, d = primary_rays(cam, width, height, t, spp=spp, exact=exact, seed=seed,
+                            first_row=first_row, rows=rows)
         radiance = trace(arrays, o, d, t, effects, options)
-        return develop(radiance, width, height, spp, t)
+        return develop(radiance, width, height if rows is None else rows, spp, t)
     return frame
 
 
@@ -115,20 +122,54 @@ class Renderer:
         dr.eval(img)
         return img
 
-    def render(self, view: int = 0) -> RenderResult:
+    def bands(self, view: int = 0, tile_samples: int | None = None) -> list[tuple[int, int]]:
+        """The bands of rows ``render(view)`` launches: ``[(first_row, rows), ...]``, each
+        at most ``tile_samples`` camera rays (at least one row); one band when the whole
+        image fits (``tile_samples`` None: ``TILE_SAMPLES`` of the backend; 0: one band)."""
+        cam = self.scene.cameras[view]
+        limit = TILE_SAMPLES[self.t.backend] if tile_samples is None else int(tile_samples)
+        per_row = cam.width * self.spp
+        if limit <= 0 or per_row * cam.height <= limit:
+            return [(0, cam.height)]
+        rows = max(1, limit // per_row)
+        return [(y, min(rows, cam.height - y)) for y in range(0, cam.height, rows)]
+
+    def render(self, view: int = 0, *, tile_samples: int | None = None, progress=None,
+               stop=None) -> RenderResult:
+        """Render ``scene.cameras[view]`` → RenderResult (image float32 (H, W, 3)).
+
+        tile_samples: camera rays per band (``bands``); the image is the same bit for bit
+            whatever the banding. progress: called as ``progress(rows_done, height)`` after
+            each band. stop: called before each band; when it returns True the render ends
+            with ``KeyboardInterrupt`` (how the CLI's Ctrl-C reaches a render running in
+            its worker thread).
+        """
         cam = self.scene.cameras[view]
         validate_image_size(cam.width, cam.height, self.spp, f"views[{view}]")
         ca = self.camera(cam)
+        bands = self.bands(view, tile_samples)
         dr.sync_thread()
         t0 = time.perf_counter()
-        img = self.frame(ca, cam.width, cam.height)
-        out = np.asarray(img.numpy(), dtype=np.float32)
+        parts = []
+        for y0, rows in bands:
+            if stop is not None and stop():
+                raise KeyboardInterrupt
+            if len(bands) == 1:
+                img = self.frame(ca, cam.width, cam.height)
+            else:
+                img = self.frame_fn(ca, self.arrays, cam.width, cam.height,
+                                    dr.opaque(self.t.UInt32, y0), rows)
+                dr.eval(img)
+            parts.append(np.asarray(img.numpy(), dtype=np.float32))
+            if progress is not None:
+                progress(y0 + rows, cam.height)
+        out = parts[0] if len(parts) == 1 else np.concatenate(parts, axis=0)
         seconds = time.perf_counter() - t0
         stats = dict(self.arrays.accel.stats())
         stats.update(backend=self.t.backend, precision=self.t.precision, spp=self.spp,
                      exact=self.exact, upload_seconds=self.upload_seconds,
                      width=cam.width, height=cam.height, view=cam.name,
-                     effects=str(self.effects))
+                     effects=str(self.effects), bands=len(bands))
         return RenderResult(image=out, effects=self.effects, seconds=seconds, stats=stats)
 
 

@@ -66,8 +66,8 @@ def test_check_exits_0_on_the_real_renderer_and_2_on_a_broken_one(user, monkeypa
     from renderer.render import Renderer
     real = Renderer.render
 
-    def five_percent_bright(self, view=0):
-        res = real(self, view)
+    def five_percent_bright(self, view=0, **kw):     # kw: the CLI's progress / stop
+        res = real(self, view, **kw)
         res.image = np.asarray(res.image) * 1.05
         return res
     monkeypatch.setattr(Renderer, "render", five_percent_bright)

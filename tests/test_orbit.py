@@ -144,7 +144,7 @@ def test_cli_render_orbit_writes_gif_and_reports_fps(tmp_path, capsys):
     gif = tmp_path / "cornell_box_front_orbit.gif"
     assert iio.imread(gif, index=None).shape[:3] == (3, 16, 16)
     before = gif.read_bytes()
-    assert main(argv) == 2                          # exists, no --overwrite
+    assert main(argv) == 4                          # exists, no --overwrite: file error
     assert gif.read_bytes() == before
     assert main(argv + ["--overwrite"]) == 0
     with pytest.raises(SystemExit):

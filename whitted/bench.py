@@ -20,6 +20,8 @@ def register(subparsers) -> None:
     p.add_argument("--quick", action="store_true", help="small sizes (smoke run)")
     p.add_argument("--parts", type=part_names, default=tuple(PARTS),
                    help=f"comma-separated subset of {','.join(PARTS)} (default all)")
+    p.add_argument("--force", action="store_true",
+                   help="replace existing bench-<backend>.json/.md and strips in --out")
     p.set_defaults(func=cmd_bench)
 
 
@@ -38,7 +40,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
     (``evaluation.bench.run``) and the exit status is 130."""
     try:
         run(args.out, backend=args.backend, scenes_dir=args.scenes, quick=args.quick,
-            parts=args.parts)
+            parts=args.parts, overwrite=args.force)
     except KeyboardInterrupt:
         return 130
     return 0

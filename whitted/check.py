@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
 from pathlib import Path
 
@@ -23,17 +22,11 @@ from reference import MODES
 from reference import golden as golden_store
 from renderer.accel import ACCELERATORS
 from renderer.device import PRECISIONS
+from renderer.outputs import check_output_dir, check_output_file
 from renderer.scene import SHADING_MODES
 
-from .options import add_backend_option
-
-EXIT_CODE_HELP = """exit codes (OpenImageIO idiff's convention; the largest over all verdicts):
-  0  PASS     every image passed its rule
-  1  WARN     passed, but a [check.warn] level of a scene file was exceeded
-  2  FAIL     an image differs from its golden beyond the rule
-  3  SIZE     an image and its golden differ in size
-  4  MISSING / STALE / ERROR: a golden is missing or out of date, or a scene, threshold
-              or golden file could not be read (the line says the command that fixes it)"""
+from .options import EXIT, EXIT_CODE_HELP, CliError, add_backend_option, scene_arg
+from .progress import render_view
 
 
 def register(subparsers) -> None:
@@ -44,7 +37,8 @@ def register(subparsers) -> None:
         description=__doc__.split("\n\n")[0].replace("``", ""), epilog=EXIT_CODE_HELP,
         formatter_class=argparse.RawDescriptionHelpFormatter)
     add_check_options(p)
-    p.add_argument("scenes", nargs="+", type=Path, help="scene files (.toml)")
+    p.add_argument("scenes", nargs="+", type=scene_arg,
+                   help="scene files (.toml) or bundled scene names")
     p.add_argument("--modes", nargs="+", choices=MODES,
                    help="comparison modes (default: the scene's [check] modes, else exact)")
     p.add_argument("--shadings", nargs="+", choices=SHADING_MODES,
@@ -81,34 +75,37 @@ def _views(values):
 def stores_for(args) -> list[Path]:
     """The stores to search: ``--goldens`` (or the configured store), then the bundled one."""
     if args.goldens is not None and args.goldens.exists() and not args.goldens.is_dir():
-        raise golden_store.GoldenError(f"--goldens {args.goldens}: not a folder")
-    return golden_store.search_stores(args.goldens)
+        raise CliError(f"--goldens {args.goldens}: not a folder", code=EXIT["file"])
+    try:
+        return golden_store.search_stores(args.goldens)
+    except golden_store.GoldenError as e:
+        raise CliError(str(e), code=EXIT["file"]) from e
 
 
 def check_outputs(args) -> None:
-    """Before any rendering: ``--report`` must not hold a report unless ``--force``, and the
-    folders of ``--json`` / ``--junit`` must be writable. Raises OSError."""
+    """Before any rendering (``renderer.outputs``'s checks): ``--report`` must not hold a
+    report unless ``--force``, and ``--json`` / ``--junit`` must be writable files (they are
+    replaced: a gate's artefacts are rewritten on every run). Raises ``OutputError``."""
     if args.report is not None:
         out = args.report
         if out.exists() and (not out.is_dir() or any(out.iterdir())) and not args.force:
-            raise FileExistsError(f"--report {out}: exists; pass --force to replace it")
+            raise CliError(f"--report {out}: exists; pass --force to replace it",
+                           code=EXIT["file"])
+        check_output_dir(out)
     for flag, value in (("--json", args.json), ("--junit", args.junit)):
         if value is None or value == "-":
             continue
-        path = Path(value)
-        if path.is_dir():
-            raise IsADirectoryError(f"{flag} {path}: is a folder, expected a file name")
-        folder = path.parent
-        while not folder.exists() and folder != folder.parent:
-            folder = folder.parent
-        if not folder.is_dir() or not os.access(folder, os.W_OK):
-            raise PermissionError(f"{flag} {path}: {folder} is not a writable folder")
+        try:
+            check_output_file(value, overwrite=True)
+        except OSError as e:
+            raise CliError(f"{flag} {e}", code=EXIT["file"]) from e
 
 
 def write_outputs(args, verdicts, title: str) -> None:
     """``--json``, ``--junit`` and ``--report`` of ``verdicts``; raises OSError."""
     if args.json == "-":
         print(json.dumps(vd.to_json(verdicts), indent=1, default=str))
+        # (stdout is a stream, not a file: nothing to write atomically)
     elif args.json:
         vd.write_json(verdicts, args.json)
     if args.junit:
@@ -125,12 +122,8 @@ def write_outputs(args, verdicts, title: str) -> None:
 
 def cmd_check(args: argparse.Namespace) -> int:
     out = sys.stderr if args.json == "-" else sys.stdout
-    try:
-        stores = stores_for(args)
-        check_outputs(args)
-    except (golden_store.GoldenError, OSError) as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 4
+    stores = stores_for(args)
+    check_outputs(args)
     if not args.quiet:
         print("goldens: " + ", ".join(golden_store._display(s) for s in stores), file=out)
 
@@ -141,11 +134,8 @@ def cmd_check(args: argparse.Namespace) -> int:
     verdicts = vd.check_scenes(args.scenes, stores, modes=args.modes, shadings=args.shadings,
                                views=_views(args.views), backend=args.backend,
                                precision=args.precision, accel=args.accel,
-                               keep_images=args.report is not None, progress=show)
+                               keep_images=args.report is not None, progress=show,
+                               render=render_view)
     print(vd.summary_line(verdicts), file=out)
-    try:
-        write_outputs(args, verdicts, title="whitted check: ours vs Mitsuba 3 goldens")
-    except OSError as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 4
+    write_outputs(args, verdicts, title="whitted check: ours vs Mitsuba 3 goldens")
     return vd.exit_code(verdicts)

@@ -25,10 +25,12 @@ from evaluation import verdict as vd
 from evaluation.report import ReportEntry, format_metrics_table, write_report
 from reference import golden
 from reference.mitsuba_scene import render_mitsuba
+from renderer.outputs import check_output_dir
 from renderer.render import Renderer
-from renderer.stats import format_operations, kernel_operations
+from renderer.stats import format_operations
 
-from .options import CliError, add_scene_options, effects_for_cli, load_for_cli
+from .options import EXIT, CliError, add_scene_options, effects_for_cli, load_for_cli
+from .progress import render_view
 
 
 def register(subparsers) -> None:
@@ -92,8 +94,10 @@ def cmd_compare(args: argparse.Namespace) -> int:
         raise CliError("goldens are exact-mode images (1 ray per pixel centre); "
                        "use --live to compare a converged (--spp) render")
     out = args.out or _default_out(scene)
-    if out.exists() and any(out.iterdir()) and not args.force:
-        raise CliError(f"report folder {out} exists; pass --force to replace it")
+    if out.exists() and out.is_dir() and any(out.iterdir()) and not args.force:
+        raise CliError(f"report folder {out} exists; pass --force to replace it",
+                       code=EXIT["file"])
+    check_output_dir(out)
 
     effects = effects_for_cli(scene, args)
     print(f"{scene.name}: {scene.face_count} triangles, {len(scene.lights)} lights, "
@@ -123,7 +127,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
                 continue
         else:
             ref, ref_seconds, ref_info = mitsuba_live(scene, v)
-        ks = kernel_operations(lambda v=v: renderer.render(v))
+        ks = render_view(renderer, v, f"{scene.name}/{cam.name}")
         res = ks["result"]
         if ref.shape != res.image.shape:
             verdict.status = "SIZE"
@@ -141,7 +145,8 @@ def cmd_compare(args: argparse.Namespace) -> int:
             print(f"{scene.name}/{cam.name}: no verdict (a converged --live render has no "
                   "variance to test against; use `whitted check --modes converged`)")
         info = {
-            "ours: kernel time": f"{ks['kernel_ms']:.2f} ms (sum of kernel execution "
+            "ours: kernel time": "not recorded (banded render)" if "kernel_ms" not in ks
+            else f"{ks['kernel_ms']:.2f} ms (sum of kernel execution "
                                  "times; the wall time above includes tracing and compilation)",
             "settings": f"{s.shading}, max_depth {s.max_depth}, min_weight {s.min_weight:g}, "
                         f"{'exact, 1 ray per pixel centre' if s.exact else f'{s.spp} spp'}",
@@ -152,7 +157,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
         entries.append(ReportEntry(
             name=f"{scene.name} / {cam.name} ({s.shading})", ours=res.image, ref=ref,
             ours_seconds=res.seconds, ref_seconds=ref_seconds, effects=str(effects),
-            operations=format_operations(ks), info=info,
+            operations=format_operations(ks) if "operations" in ks else "", info=info,
             verdict=verdict.status if s.exact else None, verdict_reason=verdict.reason,
             thresholds={k: (t.value, t.why) for k, t in th.items()} if s.exact else {}))
 

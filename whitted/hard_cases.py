@@ -20,7 +20,7 @@ from pathlib import Path
 from renderer.accel import ACCELERATORS, DEFAULT_ROUTINE, ROUTINES
 from renderer.device import PRECISIONS
 
-from .options import add_backend_option
+from .options import EXIT, CliError, add_backend_option
 
 
 def _csv(choices):
@@ -61,10 +61,10 @@ def cmd_hard_cases(args: argparse.Namespace) -> int:
     from renderer.device import types
     out = Path(args.out)
     if (out / "hard_cases.json").exists() and not args.overwrite:
-        raise FileExistsError(f"{out / 'hard_cases.json'}: exists (pass --overwrite to "
-                              "replace it)")
+        raise CliError(f"{out / 'hard_cases.json'}: exists (pass --overwrite to replace it)",
+                       code=EXIT["file"])
     if args.rays is not None and args.rays < 1:
-        raise SystemExit("error: --rays: expected an integer >= 1")
+        raise CliError("--rays: expected an integer >= 1", code=EXIT["usage"])
     backend = types(args.backend).backend
     cfg = Config(backend=backend, precisions=args.precisions, accels=args.accels,
                  routines=args.intersections, rays=args.rays, out=out, seed=args.seed,
@@ -74,7 +74,7 @@ def cmd_hard_cases(args: argparse.Namespace) -> int:
         rows = run_suite(cfg, args.cases)
     except KeyboardInterrupt:
         print("interrupted: no report written", file=sys.stderr)
-        return 130
+        return EXIT["interrupted"]
     meta = {"backend": backend, "device": _device(backend), "cases": ",".join(args.cases),
             "precisions": ",".join(args.precisions), "accels": ",".join(args.accels),
             "intersections": ",".join(args.intersections), "rays": args.rays or "table",
@@ -84,7 +84,7 @@ def cmd_hard_cases(args: argparse.Namespace) -> int:
     print(f"{len(rows)} rows, {len(red)} red; wrote {', '.join(str(p) for p in paths.values())}")
     for r in red:
         print(f"RED: {r.case} | {r.variant} | {r.criterion} | {r.measured}")
-    return 0 if not red else 1
+    return EXIT["fail"] if red else EXIT["ok"]
 
 
 def _device(backend: str) -> str:

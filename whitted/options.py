@@ -6,26 +6,49 @@ mode, accelerator, triangle routine or effect shows up on the command line witho
 here. ``--spp``, ``--max-depth`` and ``--size`` go through ``Scene.with_overrides``, the one
 place that validates them (``--spp`` alone also sets exact mode to ``spp == 1``); a bad value
 there is a ``SceneError`` naming the field, which ``whitted.cli.main`` prints as one
-``error:`` line (exit code 2).
+``error:`` line (exit code 2). ``EXIT`` is the table of exit codes (``whitted.cli``).
 """
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
+from evaluation.verdict import EXIT_CODES
 from renderer.accel import ACCELERATORS, DEFAULT_ACCEL, DEFAULT_ROUTINE, ROUTINES
 from renderer.device import BACKENDS, PRECISIONS
 from renderer.effects import FLAGS, EffectSet
 from renderer.scene import SHADING_MODES, Scene, load_scene
 
+from .data import scene_arg
 
-class CliError(SystemExit):
+#: Exit codes of every subcommand: the verdict codes of ``evaluation.verdict.EXIT_CODES``
+#: (OpenImageIO ``idiff``'s: 0 pass, 1 warn, 2 fail, 3 size, 4 missing/stale golden or file
+#: error), a bad request sharing FAIL's 2 (argparse's own usage code), and 130 for Ctrl-C.
+EXIT = {"ok": EXIT_CODES["PASS"], "warn": EXIT_CODES["WARN"], "fail": EXIT_CODES["FAIL"],
+        "usage": EXIT_CODES["FAIL"], "size": EXIT_CODES["SIZE"], "file": EXIT_CODES["MISSING"],
+        "interrupted": 130}
+
+
+#: The exit-code table of ``whitted --help`` (and ``check --help``), from ``EXIT``.
+EXIT_CODE_HELP = f"""exit codes (idiff's style; check and compare: the largest verdict's):
+  {EXIT["ok"]}    PASS: done, or every comparison passed
+  {EXIT["warn"]}    WARN: passed, but a [check.warn] level of a scene file was exceeded
+  {EXIT["fail"]}    FAIL: an image differs from its golden; or a bad request (usage, option
+       value, scene file, view, backend)
+  {EXIT["size"]}    SIZE: an image and its golden differ in size
+  {EXIT["file"]}    MISSING / STALE / ERROR: a golden is missing, out of date or unreadable (the
+       line names the command that fixes it); a file error (an output that exists or
+       cannot be written, a missing input)
+  {EXIT["interrupted"]}  interrupted (Ctrl-C); no partial file is left"""
+
+class CliError(Exception):
     """A command-line request that cannot be carried out (a view that does not exist, an
-    output that would be replaced, a golden that cannot be compared). It ends the program
-    like ``SystemExit`` with the one line ``error: <message>`` on stderr (exit status 1)."""
+    output that would be replaced, a golden that cannot be compared). ``whitted.cli.main``
+    prints the one line ``error: <message>`` on stderr and returns ``code`` (default
+    ``EXIT["usage"]``; ``EXIT["file"]`` for files, ``EXIT["size"]`` for a size mismatch)."""
 
-    def __init__(self, message: str):
-        super().__init__(f"error: {message}")
+    def __init__(self, message: str, code: int = EXIT["usage"]):
+        super().__init__(message)
+        self.code = code
 
 
 def size(text: str) -> tuple[int, int]:
@@ -47,7 +70,8 @@ def add_backend_option(p: argparse.ArgumentParser) -> None:
 
 def add_scene_options(p: argparse.ArgumentParser) -> None:
     """Options shared by every subcommand that renders a scene with our tracer."""
-    p.add_argument("scene", type=Path, help="scene file (.toml)")
+    p.add_argument("scene", type=scene_arg,
+                   help="scene file (.toml), or a bundled scene's name (whitted data)")
     p.add_argument("--view", default="0", help="view index, view name, or 'all' (default 0)")
     p.add_argument("--size", type=size, help="override the resolution, e.g. 512x512")
     p.add_argument("--shading", choices=SHADING_MODES, help="override the shading mode")

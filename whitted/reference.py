@@ -7,8 +7,18 @@ import sys
 from pathlib import Path
 
 from reference import golden
-from reference.mitsuba_scene import export_xml
+from reference.mitsuba_scene import (
+    check_export,
+    export_paths,
+    export_xml,
+    portable_integrator,
+    portable_problems,
+)
+from renderer.outputs import check_output_dir
 from renderer.scene import SHADING_MODES, load_scene
+
+from .data import scene_arg
+from .options import EXIT, CliError, select_views
 
 
 def register(subparsers) -> None:
@@ -22,7 +32,8 @@ def register(subparsers) -> None:
         "store is read-only here (its developers use `python -m reference.golden "
         "--bundled`). Modes and shadings default to the scene's [check] table, else exact "
         "mode in both shadings.")
-    p.add_argument("scenes", nargs="+", type=Path, help="scene .toml files")
+    p.add_argument("scenes", nargs="+", type=scene_arg,
+                   help="scene .toml files (or bundled scene names)")
     p.add_argument("--goldens", type=Path, metavar="DIR", help="the golden store to write")
     p.add_argument("--update", action="store_true",
                    help="render what is missing or stale, keep what is up to date (the "
@@ -44,14 +55,25 @@ def register(subparsers) -> None:
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_reference)
 
-    p = subparsers.add_parser("export", help="write a scene as a Mitsuba 3 XML file",
-                              description="Write a Mitsuba 3 XML scene (meshes as .ply "
-                              "beside it); it loads with mi.load_file once the "
-                              "harness's plugins (reference/plugins.py) are registered.")
-    p.add_argument("scene", type=Path, help="scene .toml file")
+    p = subparsers.add_parser(
+        "export", help="write a scene as a Mitsuba 3 XML file (meshes in a folder of its own)",
+        description="Write a Mitsuba 3 XML scene, its meshes as .ply files in "
+        "<xml stem>_meshes/ beside it. By default it loads with mi.load_file once the "
+        "harness's plugins (reference/plugins.py) are registered; --portable writes stock "
+        "plugins only (plain Mitsuba loads it) or says which parts need ours. Nothing is "
+        "replaced without --force.")
+    p.add_argument("scene", type=scene_arg, help="scene .toml file or bundled scene name")
     p.add_argument("--mitsuba-xml", type=Path, required=True, help="output .xml path")
-    p.add_argument("--view", type=int, default=0)
+    p.add_argument("--view", default="0", help="view index or name (default 0)")
     p.add_argument("--shading", choices=SHADING_MODES, default=None)
+    p.add_argument("--portable", action="store_true",
+                   help="stock Mitsuba plugins only (diffuse, conductor, dielectric, point, "
+                        "direct/path): physical shading, no ambient or background")
+    p.add_argument("--spp", type=int, default=None,
+                   help="samples per pixel of the exported sampler (a perfect square; "
+                        "default: the scene's, 16 with --portable)")
+    p.add_argument("--force", action="store_true",
+                   help="replace an existing export (the XML and its mesh folder)")
     p.set_defaults(func=cmd_export)
 
 
@@ -61,10 +83,10 @@ def cmd_reference(args: argparse.Namespace) -> int:
     store, source = (args.goldens, "--goldens") if args.goldens else \
         golden.configured_store()
     if store is None:
-        print("error: no golden store to write: pass --goldens DIR, set $WHITTED_GOLDENS or "
-              "add `goldens = \"DIR\"` to [tool.whitted] in pyproject.toml (the bundled store "
-              "is read-only)", file=sys.stderr)
-        return 4
+        raise CliError("no golden store to write: pass --goldens DIR, set $WHITTED_GOLDENS or "
+                       "add `goldens = \"DIR\"` to [tool.whitted] in pyproject.toml (the "
+                       "bundled store is read-only)", code=EXIT["file"])
+    check_output_dir(store)                 # before any rendering: the store can be written
     written = 0
     try:
         for path in args.scenes:
@@ -74,8 +96,7 @@ def cmd_reference(args: argparse.Namespace) -> int:
                 converged_size=args.converged_size, modes=modes, shadings=shadings,
                 progress=not args.quiet, root=store, report=None if args.quiet else print))
     except golden.GoldenError as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 4
+        raise CliError(str(e), code=EXIT["file"]) from e
     print(f"wrote {written} golden images into {store}" + (f" (from {source})"
                                                           if source != "--goldens" else ""))
     return 0
@@ -83,6 +104,31 @@ def cmd_reference(args: argparse.Namespace) -> int:
 
 def cmd_export(args: argparse.Namespace) -> int:
     scene = load_scene(args.scene, shading=args.shading)
-    out = export_xml(scene, args.mitsuba_xml, view=args.view)
-    print(f"wrote {out}")
+    if args.spp is not None:
+        scene = scene.with_overrides(spp=args.spp)
+    views = select_views(scene, args.view)
+    if len(views) != 1:
+        raise CliError("--view: export writes one view; name one index or view name")
+    check_export(args.mitsuba_xml, overwrite=args.force)
+    if args.portable:
+        problems = portable_problems(scene)
+        if problems:
+            raise CliError(f"{args.scene}: --portable: these parts need the project's "
+                           "Mitsuba plugins (reference/plugins.py):\n  "
+                           + "\n  ".join(problems) + "\nexport without --portable to keep "
+                           "them")
+    s = scene.settings
+    spp = s.spp if not s.exact else (16 if args.portable else 1)
+    mode = "converged" if args.portable or not s.exact else "exact"
+    out = export_xml(scene, args.mitsuba_xml, view=views[0], spp=spp, mode=mode,
+                     portable=args.portable, overwrite=args.force)
+    print(f"wrote {out} and its meshes in {export_paths(out)[1]}/")
+    if args.portable:
+        note = portable_integrator(scene)[1]
+        print("portable: stock Mitsuba plugins only (mi.load_file needs no plugin of ours)")
+        if note:
+            print(f"warning: {note}", file=sys.stderr)
+    else:
+        print("note: loads in Mitsuba once reference.plugins.register() has run "
+              "(whitted integrator, whitted_material, whitted_phong)")
     return 0

@@ -1,5 +1,12 @@
 """``whitted render SCENE.toml``: render with the Dr.Jit tracer → EXR + sRGB PNG per view, or
-with ``--orbit N`` an animated GIF (and MP4 when imageio has ffmpeg) per view."""
+with ``--orbit N`` an animated GIF (and MP4 when imageio has ffmpeg) per view.
+
+``--out`` is a folder (default ``out/``; files ``<scene>_<view>.exr`` and ``.png``), or, for
+one view, a file: ``--out image.exr`` writes only that EXR, ``--out image.png`` only that
+PNG, ``--out clip.gif`` (with ``--orbit``) only that GIF. Every output is checked before
+rendering (``renderer.outputs``: the folder can be made and written, no file there unless
+``--overwrite``) and written atomically. Large renders run in bands with a progress bar.
+"""
 from __future__ import annotations
 
 import argparse
@@ -8,10 +15,17 @@ from pathlib import Path
 
 from renderer.film import write_exr, write_png
 from renderer.orbit import PLAYBACK_FPS, mp4_available, render_orbit, write_gif, write_mp4
+from renderer.outputs import check_output_file
 from renderer.render import Renderer
-from renderer.stats import format_operations, kernel_operations
+from renderer.stats import format_operations
 
-from .options import add_scene_options, effects_for_cli, load_for_cli
+from .options import CliError, add_scene_options, effects_for_cli, load_for_cli
+from .progress import render_view
+
+#: ``--out`` suffixes that name one output file, and what writes them.
+FILE_SUFFIXES = {".exr": "EXR image", ".png": "sRGB PNG image", ".gif": "orbit GIF"}
+#: Image suffixes that are not written (``--out x.jpg`` is refused, not made a folder).
+OTHER_IMAGE_SUFFIXES = (".jpg", ".jpeg", ".tif", ".tiff", ".hdr", ".bmp", ".webp", ".mp4")
 
 
 def register(subparsers) -> None:
@@ -19,7 +33,9 @@ def register(subparsers) -> None:
     p = subparsers.add_parser("render",
                               help="render a scene with the Dr.Jit tracer (EXR + sRGB PNG)")
     add_scene_options(p)
-    p.add_argument("--out", default="out", help="output folder (default out/)")
+    p.add_argument("--out", default="out",
+                   help="output folder (default out/), or for one view a .exr or .png file "
+                        "(a .gif file with --orbit)")
     p.add_argument("--overwrite", action="store_true", help="replace existing output files")
     p.add_argument("--orbit", type=orbit_count, metavar="N",
                    help="render N frames on a circle around the view's target with one frozen "
@@ -40,16 +56,44 @@ def orbit_count(text: str) -> int:
 
 
 def refuse_existing(paths, overwrite: bool) -> None:
-    """Raise ``FileExistsError`` before rendering if an output exists and ``overwrite`` is
-    off (``whitted.cli.main`` prints it and returns 2)."""
+    """Before rendering: every output path can be written (``outputs.check_output_file``:
+    its folder made and writable, no file there unless ``overwrite``). Raises
+    ``OutputError`` (``whitted.cli.main`` prints it and returns 4)."""
     for path in paths:
-        if path.exists() and not overwrite:
-            raise FileExistsError(f"{path}: exists (pass --overwrite to replace it)")
+        check_output_file(path, overwrite=overwrite, flag="--overwrite")
+
+
+def output_files(scene, views: list[int], out: Path, orbit: bool) -> list[dict]:
+    """Per view, the files ``--out`` asks for: ``{"exr": path, "png": path}`` (or
+    ``{"gif": ..., "mp4": ...}`` for an orbit), only the named one when ``--out`` is a
+    file. Raises ``CliError`` (usage) for a file ``--out`` with several views or the wrong
+    kind of file."""
+    suffix = out.suffix.lower()
+    if suffix in OTHER_IMAGE_SUFFIXES:
+        raise CliError(f"--out {out}: {suffix} files are not written; name a folder, or a "
+                       f"{', '.join(FILE_SUFFIXES)} file")
+    if suffix not in FILE_SUFFIXES:
+        names = [f"{scene.name}_{scene.cameras[v].name}" for v in views]
+        if orbit:
+            mp4 = mp4_available()
+            return [{"gif": out / f"{n}_orbit.gif",
+                     **({"mp4": out / f"{n}_orbit.mp4"} if mp4 else {})} for n in names]
+        return [{"exr": out / f"{n}.exr", "png": out / f"{n}.png"} for n in names]
+    if (suffix == ".gif") != bool(orbit):
+        raise CliError(f"--out {out}: " + ("an orbit is written as a .gif file or into a "
+                                           "folder" if orbit else ".gif is written only with "
+                                           "--orbit"))
+    if len(views) != 1:
+        raise CliError(f"--out {out} names one file but {len(views)} views are selected; "
+                       "name a folder, or pick one view with --view")
+    return [{suffix[1:]: out}]
 
 
 def cmd_render(args: argparse.Namespace) -> int:
     scene, views = load_for_cli(args)
     effects = effects_for_cli(scene, args)
+    files = output_files(scene, views, Path(args.out), bool(args.orbit))
+    refuse_existing((p for f in files for p in f.values()), args.overwrite)
     print(f"{scene.name}: {scene.face_count} triangles, {len(scene.objects)} objects, "
           f"{len(scene.lights)} lights, shading {scene.settings.shading}")
     print(f"effects: {effects}")
@@ -61,45 +105,42 @@ def cmd_render(args: argparse.Namespace) -> int:
     elif args.effects == "all":
         print("note: --effects all traces every effect (the general kernel): same image, "
               "more work")
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
     if args.orbit:
-        return render_orbit_views(scene, views, effects, args, out)
-    stems = [out / f"{scene.name}_{scene.cameras[v].name}" for v in views]
-    refuse_existing((s.with_suffix(ext) for s in stems for ext in (".exr", ".png")),
-                    args.overwrite)
+        return render_orbit_views(scene, views, effects, args, files)
     # one upload / accelerator build for every view
     renderer = Renderer(scene, backend=args.backend, precision=args.precision,
                         accel=args.accel, intersection=args.intersection, effects=effects)
-    for v, stem in zip(views, stems):
+    for v, f in zip(views, files):
         cam = scene.cameras[v]
-        ks = kernel_operations(lambda v=v: renderer.render(v))
+        ks = render_view(renderer, v, f"{scene.name}/{cam.name}")
         res = ks["result"]
-        write_exr(stem.with_suffix(".exr"), res.image, overwrite=args.overwrite)
-        write_png(stem.with_suffix(".png"), res.image, overwrite=args.overwrite)
-        print(f"  view {cam.name}: {cam.width}x{cam.height}, {res.seconds * 1e3:.1f} ms "
-              f"→ {stem}.exr, {stem}.png")
-        print(f"    kernels: {format_operations(ks)}, {ks['kernel_ms']:.2f} ms kernel time")
+        if "exr" in f:
+            write_exr(f["exr"], res.image, overwrite=args.overwrite)
+        if "png" in f:
+            write_png(f["png"], res.image, overwrite=args.overwrite)
+        bands = res.stats.get("bands", 1)
+        print(f"  view {cam.name}: {cam.width}x{cam.height}, {res.seconds * 1e3:.1f} ms"
+              f"{f' in {bands} bands' if bands > 1 else ''} → "
+              f"{', '.join(map(str, f.values()))}")
+        if "operations" in ks:
+            print(f"    kernels: {format_operations(ks)}, {ks['kernel_ms']:.2f} ms kernel time")
     return 0
 
 
-def render_orbit_views(scene, views, effects, args: argparse.Namespace, out: Path) -> int:
+def render_orbit_views(scene, views, effects, args: argparse.Namespace, files) -> int:
     """``render --orbit N``: per view, N frames on a circle around its target from one frozen
     frame function (renderer/orbit.py) → an animated GIF (and MP4 when imageio has ffmpeg)."""
-    for v in views:
+    for v, f in zip(views, files):
         cam = scene.cameras[v]
-        stem = out / f"{scene.name}_{cam.name}_orbit"
-        paths = [stem.with_suffix(".gif")] + ([stem.with_suffix(".mp4")] if mp4_available() else [])
-        refuse_existing(paths, args.overwrite)
         res = render_orbit(scene, args.orbit, view=v, backend=args.backend,
                            precision=args.precision, accel=args.accel,
                            intersection=args.intersection, effects=effects)
-        write_gif(paths[0], res.frames, fps=PLAYBACK_FPS, overwrite=args.overwrite)
-        if len(paths) > 1:
-            write_mp4(paths[1], res.frames, fps=PLAYBACK_FPS, overwrite=args.overwrite)
+        write_gif(f["gif"], res.frames, fps=PLAYBACK_FPS, overwrite=args.overwrite)
+        if "mp4" in f:
+            write_mp4(f["mp4"], res.frames, fps=PLAYBACK_FPS, overwrite=args.overwrite)
         print(f"  view {cam.name}: orbit of {args.orbit} frames at {cam.width}x{cam.height}: "
               f"first (traced) frame {res.first_frame_ms:.1f} ms, frozen frames median "
               f"{res.frozen_frame_ms_median:.2f} ms, {res.fps:.1f} frames/s over frames "
               f"1..{args.orbit - 1} (recordings: {res.recordings}) → "
-              f"{', '.join(map(str, paths))}")
+              f"{', '.join(map(str, f.values()))}")
     return 0

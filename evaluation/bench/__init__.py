@@ -32,6 +32,8 @@ import subprocess
 import time
 from pathlib import Path
 
+from renderer.outputs import check_output_file
+
 from . import effects, peer, seed_table, throughput, whitted_frame
 from .part import Context, Part, jsonable, write_atomic
 
@@ -75,11 +77,12 @@ def device_info(backend: str) -> dict:
 
 
 def run(out_dir, *, backend: str = "auto", scenes_dir="scenes", quick: bool = False,
-        parts=tuple(PARTS)) -> dict:
+        parts=tuple(PARTS), overwrite: bool = False) -> dict:
     """Run the parts named in ``parts`` (in ``PARTS`` order) and write
     ``bench-<backend>.json`` and ``.md`` (``-quick`` appended to the tag when ``quick``)
-    in ``out_dir``. Returns the result: device, quick, date and each part's rows under its
-    key.
+    in ``out_dir``. Existing files there are replaced only when ``overwrite``, checked before
+    the study runs (``OutputExistsError``). Returns the result: device, quick, date and each
+    part's rows under its key.
 
     The files are rewritten (atomically) after each part and at each part's checkpoints
     (``Context.save_rows``); on Ctrl-C (or ``timeout -s INT``) they are written with what
@@ -94,11 +97,12 @@ def run(out_dir, *, backend: str = "auto", scenes_dir="scenes", quick: bool = Fa
         raise ValueError(f"parts: unknown {unknown}; expected some of {list(PARTS)}")
     backend = types(backend).backend
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    tag = backend + ("-quick" if quick else "")
+    for ext in (".json", ".md"):        # before the study, not after its minutes of work
+        check_output_file(out / f"bench-{tag}{ext}", overwrite=overwrite, flag="--force")
     info = device_info(backend)
     print(f"bench on {info.get('device')} ({backend})", flush=True)
     result = {"device": info, "quick": quick, "date": time.strftime("%Y-%m-%d %H:%M:%S")}
-    tag = backend + ("-quick" if quick else "")
 
     def save() -> None:
         write_atomic(out / f"bench-{tag}.json", json.dumps(jsonable(result), indent=1))
@@ -115,7 +119,8 @@ def run(out_dir, *, backend: str = "auto", scenes_dir="scenes", quick: bool = Fa
         for part in PARTS.values():
             if part.name in parts:
                 ctx = Context(backend=backend, scenes_dir=Path(scenes_dir), out_dir=out,
-                              quick=quick, checkpoint=checkpoint(part.key))
+                              quick=quick, checkpoint=checkpoint(part.key),
+                              overwrite=overwrite)
                 result[part.key] = part.run(ctx)
                 save()
     except KeyboardInterrupt:

@@ -6,12 +6,13 @@ part's ``key`` in ``bench-<backend>.json`` and the lines in ``bench-<backend>.md
 """
 from __future__ import annotations
 
-import os
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+
+from renderer.outputs import write_text
 
 
 @dataclass(frozen=True)
@@ -20,7 +21,8 @@ class Context:
 
     backend: "cuda" | "llvm" (resolved, never "auto"); scenes_dir: the folder holding the
     scene files; out_dir: the output folder (exists when a part runs); quick: smoke sizes;
-    checkpoint: ``checkpoint(rows)`` saves a part's rows so far (``save_rows``).
+    checkpoint: ``checkpoint(rows)`` saves a part's rows so far (``save_rows``);
+    overwrite: a part may replace its existing output files (``whitted bench --force``).
     """
 
     backend: str
@@ -28,6 +30,7 @@ class Context:
     out_dir: Path
     quick: bool = False
     checkpoint: Callable[[list[dict]], None] | None = None
+    overwrite: bool = False
 
     def save_rows(self, rows: list[dict]) -> None:
         """Write the running part's rows so far with the result (a long part calls this
@@ -81,11 +84,11 @@ def jsonable(x):
 
 
 def write_atomic(path: Path, text: str) -> None:
-    """Write ``text`` to ``path`` through a temporary file in the same folder and a rename,
-    so a reader (or a run cut off mid-write) never sees half a file."""
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    tmp.write_text(text)
-    os.replace(tmp, path)
+    """Write ``text`` to ``path`` through the project's atomic writer
+    (``renderer.outputs``: a temporary file in the same folder, fsync, rename), so a reader
+    (or a run cut off mid-write) never sees half a file. Replaces ``path``: the callers
+    checked before the run that they may (``evaluation.bench.run``)."""
+    write_text(path, text, overwrite=True)
 
 
 def table(title: str, columns: list[str], align: str, rows: list[list[str]]) -> list[str]:

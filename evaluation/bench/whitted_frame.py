@@ -21,10 +21,10 @@ from .part import Context, Part, table
 
 
 def whitted_frame(scene, *, backend: str, frames: int = 20, accel: str = "bvh",
-                  strip_path=None) -> dict:
+                  strip_path=None, overwrite: bool = False) -> dict:
     """Our frozen Whitted frame (timed) vs Mitsuba's exact render of ``scene`` through the
     harness's integrator (not timed), with the image difference; ``strip_path``: where to
-    write the PNG strip (None: none)."""
+    write the PNG strip (None: none; an existing one is replaced only when ``overwrite``)."""
     from reference import mitsuba_variant
     from reference.mitsuba_scene import load, render_exact
     ours = frozen_frame_ms(scene, backend=backend, accel=accel, frames=frames)
@@ -32,7 +32,7 @@ def whitted_frame(scene, *, backend: str, frames: int = 20, accel: str = "bvh",
     ref = render_exact(load(scene, view=0, mode="exact", spp=1))
     m = image_difference(ours["image"], ref)
     if strip_path is not None:
-        write_strip(strip_path, ours["image"], ref)
+        write_strip(strip_path, ours["image"], ref, overwrite=overwrite)
     cam = scene.cameras[0]
     return {"scene": scene.name, "size": [cam.width, cam.height],
             "depth": scene.settings.max_depth,
@@ -41,13 +41,17 @@ def whitted_frame(scene, *, backend: str, frames: int = 20, accel: str = "bvh",
             "difference": m}
 
 
-def write_strip(path, ours, ref) -> None:
-    """PNG: ours | Mitsuba | outlier pixels (white), sRGB."""
+def write_strip(path, ours, ref, *, overwrite: bool = False) -> None:
+    """PNG: ours | Mitsuba | outlier pixels (white), sRGB (atomic; an existing file is
+    replaced only when ``overwrite``)."""
     import imageio.v3 as iio
 
     from renderer.film import srgb_encode
+    from renderer.outputs import atomic_path
     mask = np.repeat(outlier_mask(ours, ref)[..., None], 3, -1).astype(np.uint8) * 255
-    iio.imwrite(path, np.concatenate([srgb_encode(ours), srgb_encode(ref), mask], 1))
+    with atomic_path(path, overwrite=overwrite, flag="--force") as tmp:
+        iio.imwrite(tmp, np.concatenate([srgb_encode(ours), srgb_encode(ref), mask], 1),
+                    extension=".png")
 
 
 def run(ctx: Context) -> list[dict]:
@@ -57,7 +61,8 @@ def run(ctx: Context) -> list[dict]:
     for name in SEED_SCENES:
         sc = load_scene(ctx.scene_path(name)).with_size(ctx.frame_size)
         r = whitted_frame(sc, backend=ctx.backend, frames=ctx.frames,
-                          strip_path=ctx.out_dir / f"whitted-{name}-{ctx.backend}.png")
+                          strip_path=ctx.out_dir / f"whitted-{name}-{ctx.backend}.png",
+                          overwrite=ctx.overwrite)
         rows.append(r)
         print(f"  whitted {name:16s} ours {r['ours_frozen_ms']:.3f} ms  rmse vs Mitsuba "
               f"{r['difference']['rmse']:.2e}", flush=True)

@@ -1,0 +1,113 @@
+"""Every bad request ends with one clear line and a documented exit code (whitted/cli.py):
+2 for a bad option or scene, 4 for a file or golden problem; warnings are one line; and
+``--version`` answers."""
+from __future__ import annotations
+
+import subprocess
+import sys
+import warnings
+from pathlib import Path
+
+import drjit as dr
+import pytest
+
+from whitted.cli import main
+
+ROOT = Path(__file__).resolve().parents[1]
+SCENE = str(ROOT / "scenes" / "cornell_box.toml")
+
+
+def _one_error_line(err: str) -> str:
+    lines = [line for line in err.strip().splitlines() if line]
+    assert "Traceback" not in err
+    return lines[-1]
+
+
+@pytest.mark.parametrize("option,value", [("--intersection", "foo"), ("--effect-off", "foo"),
+                                          ("--accel", "foo"), ("--size", "0x3")])
+def test_bad_option_value_is_a_usage_error(option, value, capsys):
+    with pytest.raises(SystemExit) as e:
+        main(["render", SCENE, option, value])
+    assert e.value.code == 2
+    last = _one_error_line(capsys.readouterr().err)
+    assert f"argument {option}" in last and value in last
+
+
+@pytest.mark.skipif(dr.has_backend(dr.JitBackend.CUDA), reason="this machine has CUDA")
+def test_cuda_backend_without_a_gpu_is_one_line(tmp_path, capsys):
+    assert main(["render", SCENE, "--backend", "cuda", "--out", str(tmp_path)]) == 2
+    assert _one_error_line(capsys.readouterr().err) == (
+        "error: backend 'cuda' requested but no CUDA device is available (backend 'llvm' "
+        "or 'auto' runs on the CPU)")
+
+
+def test_view_that_does_not_exist_is_a_usage_error(tmp_path, capsys):
+    assert main(["render", SCENE, "--view", "99", "--out", str(tmp_path)]) == 2
+    assert _one_error_line(capsys.readouterr().err).startswith("error: --view: expected")
+
+
+def test_missing_scene_file_is_one_line(tmp_path, capsys):
+    assert main(["render", str(tmp_path / "nope.toml"), "--out", str(tmp_path)]) == 2
+    last = _one_error_line(capsys.readouterr().err)
+    assert last.startswith("error: ") and "nope.toml" in last
+
+
+def test_reference_replaces_a_stale_golden_only_with_force(tmp_path, capsys):
+    """The golden store keeps what is up to date (exit 0, nothing rewritten) and refuses to
+    replace a stale golden without --force: exit 4, one line naming --force, files kept."""
+    pytest.importorskip("mitsuba")
+    root = tmp_path / "goldens"
+    scene = tmp_path / "analytic_quad.toml"
+    text = (ROOT / "scenes" / "analytic_quad.toml").read_text()
+    scene.write_text(text)
+    argv = ["reference", str(scene), "--goldens", str(root), "--size", "8",
+            "--modes", "exact", "--shadings", "classic", "--quiet"]
+    assert main(argv) == 0
+    stored = {p: p.read_bytes() for p in root.rglob("*.*")}
+    assert len([p for p in stored if p.suffix == ".exr"]) == 3
+    assert main(argv) == 0                              # up to date: kept as it is
+    assert {p: p.read_bytes() for p in root.rglob("*.*")} == stored
+    scene.write_text(text.replace("ambient = 0.0", "ambient = 0.1"))   # now stale
+    capsys.readouterr()
+    assert main(argv) == 4
+    last = _one_error_line(capsys.readouterr().err)
+    assert last.startswith("error: ") and "stale" in last and "--force" in last
+    assert {p: p.read_bytes() for p in root.rglob("*.*")} == stored
+
+
+def test_warnings_are_one_line_without_source(tmp_path, monkeypatch, capsys):
+    import whitted.render as cmd
+    original = cmd.load_for_cli
+
+    def warn_then_load(args):
+        warnings.warn("something odd\n  about this scene", UserWarning, stacklevel=1)
+        return original(args)
+    monkeypatch.setattr(cmd, "load_for_cli", warn_then_load)
+    with warnings.catch_warnings():
+        warnings.simplefilter("always")
+        assert main(["render", SCENE, "--size", "8x8", "--backend", "llvm",
+                     "--out", str(tmp_path)]) == 0
+    err = capsys.readouterr().err
+    assert err.strip().splitlines() == ["warning: something odd about this scene (UserWarning)"]
+
+
+def test_version():
+    run = subprocess.run([sys.executable, "-m", "whitted", "--version"], cwd=ROOT,
+                         capture_output=True, text=True, timeout=60)
+    assert run.returncode == 0 and run.stdout.startswith("whitted 0.")
+
+
+def test_one_exit_code_table():
+    """``options.EXIT`` (every command) and ``evaluation.verdict.EXIT_CODES`` (check and
+    compare's verdicts) agree, and ``whitted --help`` shows every code."""
+    from evaluation.verdict import EXIT_CODES
+    from whitted.cli import build_parser
+    from whitted.options import EXIT
+    assert (EXIT["ok"], EXIT["warn"], EXIT["fail"], EXIT["size"]) == tuple(
+        EXIT_CODES[s] for s in ("PASS", "WARN", "FAIL", "SIZE"))
+    assert EXIT["file"] == EXIT_CODES["MISSING"] == EXIT_CODES["STALE"] == EXIT_CODES["ERROR"]
+    assert EXIT["usage"] == 2 and EXIT["interrupted"] == 130     # argparse's, the shell's
+    text = build_parser().format_help()
+    for status, code in EXIT_CODES.items():
+        assert f"\n  {code} " in text and status in text
+    assert "\n  130 " in text
