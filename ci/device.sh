@@ -3,7 +3,9 @@
 # wheels from .whl/ (made by ../shared/tools/device-wheels.sh plus the test/report extras)
 # into a venv that sees the machine's own numpy/pillow, then run what is asked:
 #   bash ci/device.sh tests         the test suite's CUDA cases
+#   bash ci/device.sh run ARGS      whitted ARGS (any subcommand)
 #   bash ci/device.sh bench [ARGS]  whitted bench --backend cuda ARGS (results to $OUT)
+#   bash ci/device.sh run ARGS      whitted ARGS
 set -uo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 # The machine's own Python is the one with numpy and pillow (PyTorch's venv).
@@ -23,4 +25,5 @@ what=${1:-tests}; shift || true
 case "$what" in
   tests) "$py" -m pytest -q -x -k cuda -p no:cacheprovider "$@" tests/ ;;
   bench) "$py" -m whitted bench --backend cuda --out "${OUT:-results}" --force "$@" ;;
+  run) "$py" -m whitted "$@" ;;
 esac
