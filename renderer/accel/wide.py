@@ -63,7 +63,7 @@ WIDTHS = (4, 8)
 class WideArrays:
     """A wide BVH on the host.
 
-    width: children per node; boxes: float32 (N, 6, width) SoA child boxes (lo xyz, hi xyz
+    width: children per node; boxes: (N, 6, width) SoA child boxes in the binary boxes' dtype (lo xyz, hi xyz
     rows; NaN in empty slots); refs: uint32 (N, width) child references (wide-node index or
     packed leaf; ``DONE`` in empty slots); levels: wide levels; max_stack: the most stack
     entries a closest-hit traversal can hold; convert_seconds.
@@ -124,7 +124,7 @@ def collapse(a: BVHArrays, width: int = 4, stack_size: int = STACK_SIZE) -> Wide
     while frontier.size:
         M = frontier.size
         refs = np.full((M, width), DONE, np.int64)
-        boxes = np.full((M, width, 6), np.nan, np.float32)
+        boxes = np.full((M, width, 6), np.nan, a.boxes.dtype)
         refs[:, :2] = ch[frontier]
         boxes[:, :2] = bx[frontier]
         # a box at infinity (the binary tree's never-hit child of a single-leaf root)
@@ -368,14 +368,17 @@ class WideBVH(Accelerator):
     info: dict = field(default_factory=dict, repr=False)
 
     @classmethod
-    def build(cls, scene, t: Types, *, width: int = 4, quantized: bool = True,
+    def build(cls, scene, t: Types, *, width: int = 4, quantized: bool | None = None,
               intersection: str = DEFAULT_ROUTINE, leaf_size: int = LEAF_SIZE,
               bins: int = BINS, binary: BVHArrays | None = None,
               **build_options) -> "WideBVH":
         """``binary``: a binary build of ``scene`` to convert (else one is built with
         ``leaf_size``, ``bins`` and ``build_options``); ``quantized``: 8-bit child boxes
-        (``quantize``), else float32 SoA boxes."""
+        (``quantize``; default for float32), else SoA boxes of the precision (default for
+        float64)."""
         triangle_routine(intersection)
+        if quantized is None:  # 8-bit boxes are fitted to float32 boxes: float64 keeps floats
+            quantized = not t.is_double
         a = binary if binary is not None else build_bvh(
             scene.vertices, scene.faces, leaf_size=leaf_size, bins=bins, **build_options)
         a = replace(a, boxes=traversal_boxes(a, scene, t, intersection))
