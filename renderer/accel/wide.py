@@ -63,10 +63,11 @@ WIDTHS = (4, 8)
 class WideArrays:
     """A wide BVH on the host.
 
-    width: children per node; boxes: (N, 6, width) SoA child boxes in the binary boxes' dtype (lo xyz, hi xyz
-    rows; NaN in empty slots); refs: uint32 (N, width) child references (wide-node index or
-    packed leaf; ``DONE`` in empty slots); levels: wide levels; max_stack: the most stack
-    entries a closest-hit traversal can hold; convert_seconds.
+    width: children per node; boxes: (N, 6, width) SoA child boxes in the binary boxes'
+    dtype (lo xyz, hi xyz rows; NaN in empty slots); refs: uint32 (N, width) child
+    references (wide-node index or packed leaf; ``DONE`` in empty slots); levels: wide
+    levels; max_stack: the most stack entries a closest-hit traversal can hold;
+    convert_seconds.
     """
 
     width: int
