@@ -4,6 +4,7 @@
 # into a venv that sees the machine's own numpy/pillow, then run what is asked:
 #   bash ci/device.sh tests         the test suite's CUDA cases
 #   bash ci/device.sh run ARGS      whitted ARGS (any subcommand)
+#   bash ci/device.sh py ARGS       python ARGS
 #   bash ci/device.sh bench [ARGS]  whitted bench --backend cuda ARGS (results to $OUT)
 #   bash ci/device.sh run ARGS      whitted ARGS
 set -uo pipefail
@@ -26,4 +27,5 @@ case "$what" in
   tests) "$py" -m pytest -q -x -k cuda -p no:cacheprovider "$@" tests/ ;;
   bench) "$py" -m whitted bench --backend cuda --out "${OUT:-results}" --force "$@" ;;
   run) "$py" -m whitted "$@" ;;
+  py) "$py" "$@" ;;
 esac

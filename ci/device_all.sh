@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # One combined run on a lent GPU machine (see ci/device.sh for the set-up it shares):
-#   bash ci/device_all.sh STEP...      steps: tests hard bench peer
+#   bash ci/device_all.sh STEP...      steps: tests hard bench peer routine
 # Each step has its own time limit (SIGINT first, so partial results are written) and its
 # own folder under $OUT; logs go to $OUT/<step>.log.
 set -uo pipefail
@@ -23,6 +23,8 @@ for s in "$@"; do
              --out "$out/hard" --overwrite ;;
     bench) step bench 300 env OUT="$out/bench" bash ci/device.sh bench --parts throughput ;;
     peer)  step peer 280 env OUT="$out/peer" bash ci/device.sh bench --parts peer ;;
+    routine) step routine 200 bash ci/device.sh py -m evaluation.routine_cost --backend cuda \
+               --out "$out/routine" ;;
     *) echo "unknown step $s" >&2; exit 2 ;;
   esac
 done
