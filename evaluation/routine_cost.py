@@ -42,7 +42,8 @@ def measure(scene, backend: str, width: int, height: int, repeats: int) -> list[
                 dr.eval(h.t, h.prim, h.found)
             tm = kernel_ms(query, warmup=2, repeats=repeats)
             h = acc.intersect(ray, on)
-            prims[r] = np.where(h.found.numpy(), acc.tris.order.numpy()[h.prim.numpy()], -1)
+            order = acc.tris.order.numpy().astype(np.int64)
+            prims[r] = np.where(h.found.numpy(), order[h.prim.numpy()], -1)
             row[r] = n / (tm["kernel_ms"] * 1e-3) / 1e6
         ref = prims[next(iter(prims))]
         row["same_triangle"] = min(float(np.mean(p == ref)) for p in prims.values())
