@@ -571,7 +571,7 @@ def run_study(scene_args, out, *, profile: Profile | str = "cpu", backend: str =
         done = 0
         stopped = False
         try:
-            for i, rec in progress(ex.map(run_point, items), len(items), desc="study",
+            for _i, rec in progress(ex.map(run_point, items), len(items), desc="study",
                                    enabled=show_progress):
                 data["points"][rec["key"]] = rec
                 if data["meta"].get("device") is None:
@@ -780,8 +780,9 @@ def factor_sentences(data: dict, label: str) -> dict:
         fastest = min(line, key=time_of)
         same = len({tuple(p["image_sha256"]) for p in line}) == 1
         slow = max(line, key=time_of)
+        ratio = time_of(slow) / time_of(fastest)
         out["accel"] = (f"{'same image from every accelerator' if same else 'IMAGES DIFFER'}; "
-                        f"{fastest['settings']['accel']} is {time_of(slow) / time_of(fastest):.1f}× "
+                        f"{fastest['settings']['accel']} is {ratio:.1f}× "
                         f"faster than {slow['settings']['accel']}.")
     line = factor_line(data, label, "intersection")
     if len(line) == 1:
@@ -930,7 +931,8 @@ def markdown(data: dict) -> str:
         for ref in REFS:
             rows = equal_time_rows(pts, default, ref)
             if rows:
-                out.append(f"Equal time (vs {ref}): the best setting within each kernel-time budget")
+                out.append(f"Equal time (vs {ref}): the best setting within each "
+                           "kernel-time budget")
                 out.append("")
                 out.append(_md_table(["budget ms", "best setting", "kernel ms", "relMSE (± std)",
                                       "RMSE", "mean FLIP"],
@@ -958,7 +960,8 @@ def markdown(data: dict) -> str:
                          *[f"{_fmt(err_of(p, r))} ± {_fmt(p['errors'][r]['relmse']['std'], 2)}"
                            if p["errors"].get(r) else "–" for r in REFS],
                          *[_fmt(err_of(p, r, "rmse")) for r in REFS],
-                         _fmt(err_of(p, "golden", "flip_mean")), _fmt(err_of(p, "golden", "flip_p95")),
+                         _fmt(err_of(p, "golden", "flip_mean")),
+                         _fmt(err_of(p, "golden", "flip_p95")),
                          _fmt(err_of(p, "golden", "de2000_mean"))])
         out.append(_md_table(["setting (★ Pareto)", "kernel ms", "frozen wall ms", "compile ms",
                               "trace ms", "relMSE golden", "relMSE own", "RMSE golden",
@@ -985,10 +988,13 @@ def plot_scene(data: dict, label: str, out: Path, metric: str = "relmse") -> lis
     fig, axes = plt.subplots(1, len(refs) + 1, figsize=(5.2 * (len(refs) + 1), 4.4),
                              squeeze=False)
     axes = axes[0]
+    default = data["scenes"][label]["default"]
     for ax, ref in zip(axes, refs):
-        grid = [p for p in pts if len(differs(p["settings"], data["scenes"][label]["default"])) > 1]
+        def ys(points, ref=ref):
+            return [max(err_of(p, ref, metric), 1e-12) for p in points]
+        grid = [p for p in pts if len(differs(p["settings"], default)) > 1]
         if grid:
-            ax.scatter([time_of(p) for p in grid], [max(err_of(p, ref, metric), 1e-12) for p in grid],
+            ax.scatter([time_of(p) for p in grid], ys(grid),
                        s=9, color="0.75", label="spp × depth grid", zorder=1)
         for f in FACTORS:
             if f in MODEL_FACTORS:
@@ -1009,9 +1015,9 @@ def plot_scene(data: dict, label: str, out: Path, metric: str = "relmse") -> lis
                                 xytext=(3, 3), textcoords="offset points")
         front = pareto(pts, ref, metric)
         if front:
-            ax.step([time_of(p) for p in front], [max(err_of(p, ref, metric), 1e-12) for p in front],
+            ax.step([time_of(p) for p in front], ys(front),
                     where="post", color="k", lw=1, ls="--", zorder=4, label="Pareto front")
-            ax.scatter([time_of(p) for p in front], [max(err_of(p, ref, metric), 1e-12) for p in front],
+            ax.scatter([time_of(p) for p in front], ys(front),
                        s=40, facecolors="none", edgecolors="k", zorder=5)
         g = data["scenes"][label].get("golden", {})
         if ref == "golden" and g.get("noise_rmse") and metric == "rmse":
@@ -1028,10 +1034,11 @@ def plot_scene(data: dict, label: str, out: Path, metric: str = "relmse") -> lis
     for ref, c in (("golden", "k"), ("own", "tab:gray")):
         sel = [p for p in line if p["errors"].get(ref)]
         if sel:
-            ax.scatter([time_of(p) for p in sel], [max(err_of(p, ref, metric), 1e-12) for p in sel],
-                       color=c, marker="*", s=60, label=f"vs {ref}")
-            for p in sel:
-                ax.annotate(p["settings"]["combination"], (time_of(p), max(err_of(p, ref, metric), 1e-12)),
+            yv = [max(err_of(p, ref, metric), 1e-12) for p in sel]
+            ax.scatter([time_of(p) for p in sel], yv, color=c, marker="*", s=60,
+                       label=f"vs {ref}")
+            for p, y in zip(sel, yv):
+                ax.annotate(p["settings"]["combination"], (time_of(p), y),
                             fontsize=7, xytext=(3, 3), textcoords="offset points")
     ax.set_xscale("log")
     ax.set_yscale("log")
