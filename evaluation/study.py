@@ -76,6 +76,9 @@ REL_EPS = 1e-2
 #: Fraction of the worst pixels dropped by the trimmed relMSE.
 TRIM = 1e-3
 METRICS = ("rmse", "relmse", "relmse_trim", "flip_mean", "flip_p95", "de2000_mean")
+#: Metrics that need an optional package, and the package (skipped, with a note, without it:
+#: the GPU hosts have no network and colour-science is not among the wheels carried there).
+OPTIONAL_METRICS = {"de2000_mean": "colour"}
 REFS = ("golden", "own")
 FACTORS = ("spp", "max_depth", "min_weight", "precision", "combination", "intersection",
            "accel", "effects")
@@ -273,8 +276,23 @@ def ref_spec(info: dict, profile: Profile, combination: str, backend: str) -> di
 # =========================================================================================
 # Error metrics
 # =========================================================================================
+def metrics_available() -> tuple[tuple, list[str]]:
+    """The metrics this process can compute and a note for each one skipped."""
+    import importlib.util
+    have, notes = [], []
+    for m in METRICS:
+        mod = OPTIONAL_METRICS.get(m)
+        if mod and importlib.util.find_spec(mod) is None:
+            notes.append(f"{m} skipped: the Python package {mod!r} (colour-science) is not "
+                         "installed")
+        else:
+            have.append(m)
+    return tuple(have), notes
+
+
 def error_metrics(img: np.ndarray, ref: np.ndarray) -> dict:
-    """The study's metrics of ``img`` against ``ref`` (float (H, W, 3) linear RGB)."""
+    """The study's metrics of ``img`` against ``ref`` (float (H, W, 3) linear RGB); the
+    optional ones (``OPTIONAL_METRICS``) only where their package is installed."""
     a = np.nan_to_num(np.asarray(img, np.float64), nan=0.0, posinf=0.0, neginf=0.0)
     r = np.asarray(ref, np.float64)
     d2 = (a - r) ** 2
@@ -282,10 +300,12 @@ def error_metrics(img: np.ndarray, ref: np.ndarray) -> dict:
     drop = int(math.ceil(TRIM * rel.size))
     kept = np.sort(rel)[: rel.size - drop] if drop < rel.size else rel
     fmap, fmean = flip_error(a.astype(np.float32), r.astype(np.float32))
-    return {"rmse": float(np.sqrt(d2.mean())), "relmse": float(rel.mean()),
-            "relmse_trim": float(kept.mean()), "flip_mean": float(fmean),
-            "flip_p95": float(np.percentile(fmap, 95)),
-            "de2000_mean": float(delta_e2000(a, r).mean())}
+    out = {"rmse": float(np.sqrt(d2.mean())), "relmse": float(rel.mean()),
+           "relmse_trim": float(kept.mean()), "flip_mean": float(fmean),
+           "flip_p95": float(np.percentile(fmap, 95))}
+    if "de2000_mean" in metrics_available()[0]:
+        out["de2000_mean"] = float(delta_e2000(a, r).mean())
+    return out
 
 
 def summarize(values: list[float]) -> dict:
@@ -461,7 +481,7 @@ def run_point(item) -> dict:
             errors[name] = None
             continue
         per = [error_metrics(img, ref) for img in images]
-        errors[name] = {m: summarize([p[m] for p in per]) for m in METRICS}
+        errors[name] = {m: summarize([p[m] for p in per]) for m in METRICS if m in per[0]}
     timing = {k: facts.pop(k) for k in list(facts) if k in (
         "first_frame_ms", "compile_ms", "trace_ms", "freeze_record_ms", "kernel_ms",
         "kernel_ms_min", "frozen_wall_ms", "frozen_cpu_ms", "repeats", "warmup", "cache_hits",
@@ -518,7 +538,8 @@ def run_study(scene_args, out, *, profile: Profile | str = "cpu", backend: str =
     specs, scenes = build_sweep(scene_args, prof, backend=backend, shading=shading)
     data["meta"].update(profile=asdict(prof) | {"name": profile if isinstance(profile, str)
                                                 else "custom"},
-                        backend=backend, metrics=list(METRICS), rel_eps=REL_EPS, trim=TRIM)
+                        backend=backend, metrics=list(metrics_available()[0]),
+                        metric_notes=metrics_available()[1], rel_eps=REL_EPS, trim=TRIM)
     t_start = time.perf_counter()
     with make_executor(workers, scheduler) as ex:
         data["meta"]["executor"] = ex.describe()
@@ -612,7 +633,7 @@ def time_of(p: dict) -> float:
 
 def err_of(p: dict, ref: str, metric: str = "relmse") -> float | None:
     e = p["errors"].get(ref)
-    return None if e is None else float(e[metric]["mean"])
+    return None if e is None or metric not in e else float(e[metric]["mean"])
 
 
 def scene_points(data: dict, label: str) -> list[dict]:
@@ -878,6 +899,8 @@ def markdown(data: dict) -> str:
                f"{prof.get('seeds')}, own reference {prof.get('ref_spp')} spp; time = kernel "
                f"time of the frozen frame (median of {prof.get('repeats')} after "
                f"{prof.get('warmup')} warm-up). Executor: {meta.get('executor')}.")
+    for note in meta.get("metric_notes", []):
+        out.append(f"Note: {note}.")
     runs = meta.get("runs", [])
     if runs:
         out.append("Runs: " + "; ".join(f"{r['date']} {r['points']} points in {r['wall_s']} s"

@@ -160,3 +160,18 @@ def test_executors_map_everything():
     with InProcess() as ex:
         assert sorted(ex.map(abs, items)) == [(i, i) for i in items]
     assert isinstance(make_executor(0), InProcess)
+
+
+def test_de2000_is_skipped_with_a_note_without_colour_science(monkeypatch):
+    import importlib.util
+    real = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec",
+                        lambda name, *a: None if name == "colour" else real(name, *a))
+    have, notes = study.metrics_available()
+    assert "de2000_mean" not in have and "rmse" in have
+    assert len(notes) == 1 and "colour" in notes[0]
+    g = np.random.default_rng(1).random((8, 8, 3))
+    m = study.error_metrics(g, g * 0.5)
+    assert "de2000_mean" not in m and m["rmse"] > 0
+    md = study.markdown({"meta": {"metric_notes": notes}, "scenes": {}, "points": {}})
+    assert "de2000_mean skipped" in md
