@@ -362,6 +362,7 @@ def device_info(backend: str) -> dict:
             "python": platform.python_version(), "host": platform.node(),
             "cores": os.cpu_count(), "platform": platform.platform()}
     if backend == "cuda":
+        info["cuda_visible_devices"] = os.environ.get("CUDA_VISIBLE_DEVICES")
         try:
             import subprocess
             q = subprocess.run(["nvidia-smi", "--query-gpu=name,driver_version,memory.total",
@@ -541,7 +542,10 @@ def run_study(scene_args, out, *, profile: Profile | str = "cpu", backend: str =
                         backend=backend, metrics=list(metrics_available()[0]),
                         metric_notes=metrics_available()[1], rel_eps=REL_EPS, trim=TRIM)
     t_start = time.perf_counter()
-    with make_executor(workers, scheduler) as ex:
+    # CUDA on a local cluster: one GPU per worker (evaluation.executor); a scheduler's own
+    # workers already have their placement.
+    gpu_kw = {"gpus": "auto"} if backend == "cuda" and workers and not scheduler else {}
+    with make_executor(workers, scheduler, **gpu_kw) as ex:
         data["meta"]["executor"] = ex.describe()
         # ---- references: goldens (here) and own high-spp renders (executor, cached) -------
         goldens, owns, todo = {}, {}, []

@@ -175,3 +175,35 @@ def test_de2000_is_skipped_with_a_note_without_colour_science(monkeypatch):
     assert "de2000_mean" not in m and m["rmse"] > 0
     md = study.markdown({"meta": {"metric_notes": notes}, "scenes": {}, "points": {}})
     assert "de2000_mean skipped" in md
+
+
+def test_gpu_assignment_one_gpu_per_worker_rank():
+    from evaluation.executor import gpu_for_worker, visible_gpus
+    smi = "GPU 0: NVIDIA H200 (UUID: a)\nGPU 1: NVIDIA H200 (UUID: b)\n" \
+          "GPU 2: NVIDIA H200 (UUID: c)\nGPU 3: NVIDIA H200 (UUID: d)\n"
+    assert visible_gpus({}, smi) == ["0", "1", "2", "3"]
+    assert visible_gpus({}, "") == []
+    assert visible_gpus({"CUDA_VISIBLE_DEVICES": "2,5"}, smi) == ["2", "5"]
+    assert visible_gpus({"CUDA_VISIBLE_DEVICES": ""}, smi) == []
+    gpus = visible_gpus({}, smi)
+    assert [gpu_for_worker(r, gpus) for r in range(4)] == ["0", "1", "2", "3"]
+    assert [gpu_for_worker(r, ["2", "5"]) for r in range(4)] == ["2", "5", "2", "5"]
+    with pytest.raises(ValueError):
+        gpu_for_worker(0, [])
+
+
+def test_dask_workers_each_see_their_own_gpu():
+    # No GPU here: fake two and check what each worker process sees before any task runs.
+    pytest.importorskip("dask.distributed")
+    from evaluation.executor import DaskExecutor
+    with DaskExecutor(workers=2, gpus=["0", "1"]) as ex:
+        env = ex.worker_env()
+        assert sorted(env.items()) == [(0, "0"), (1, "1")]
+        assert ex.describe()["gpus"] == ["0", "1"]
+        assert sorted(r for _, r in ex.map(_cuda_env, range(2))) in (["0", "1"], ["0", "0"],
+                                                                   ["1", "1"])
+
+
+def _cuda_env(_):
+    import os
+    return os.environ.get("CUDA_VISIBLE_DEVICES")
