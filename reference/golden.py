@@ -101,25 +101,11 @@ def _progress_bar(total: int, enabled: bool):
     return step
 
 
-def render_goldens(scene_paths, *, force: bool = False, spp: int = CONVERGED_SPP,
-                   batches: int = CONVERGED_BATCHES, size: int = DEFAULT_SIZE,
-                   converged_size: int | None = CONVERGED_SIZE, modes=MODES,
-                   shadings=SHADING_MODES, progress: bool = True,
-                   root: Path = GOLDEN_DIR) -> list[Path]:
-    """Render every scene × view × shading × mode with Mitsuba into ``root``.
-
-    spp: converged samples per pixel in total (``batches`` independent renders of
-    ``spp // batches`` each, for the per-pixel variance). size: image height in pixels
-    (width follows the camera's aspect); converged_size: the same for converged goldens
-    (None: ``size``). Existing goldens are kept unless ``force``.
-    Returns the written EXR paths.
-    """
-    import mitsuba as mi
-
-    from . import mitsuba_variant
-    from .mitsuba_scene import render_converged_with_variance, render_mitsuba
-
-    variant = mitsuba_variant()
+def golden_jobs(scene_paths, *, spp: int = CONVERGED_SPP, batches: int = CONVERGED_BATCHES,
+                size: int = DEFAULT_SIZE, converged_size: int | None = CONVERGED_SIZE,
+                modes=MODES, shadings=SHADING_MODES, root: Path = GOLDEN_DIR) -> list[dict]:
+    """One picklable spec (plain dict of str / int) per scene × shading × mode × view: what
+    ``render_golden_job`` needs to render and write that golden in any process."""
     jobs = []
     for scene_path in scene_paths:
         for shading in shadings:
@@ -128,37 +114,84 @@ def render_goldens(scene_paths, *, force: bool = False, spp: int = CONVERGED_SPP
                 h = size if mode == "exact" or converged_size is None else converged_size
                 scene = _resize(load_scene(scene_path, shading=shading), h)
                 for v, cam in enumerate(scene.cameras):
-                    jobs.append((scene_path, name, scene, v, cam, shading, mode))
-    units = sum(batches if j[6] == "converged" else 1 for j in jobs)
-    step = _progress_bar(units, progress)
-    written = []
-    for scene_path, name, scene, v, cam, shading, mode in jobs:
-        out = golden_path(name, cam.name, shading, mode, root)
-        label = f"{name}/{out.name}"
-        if out.exists() and not force:
-            raise GoldenError(f"{_rel(out)} exists; pass force=True "
-                              f"({regenerate_command(scene_path)}) to overwrite it")
-        var, b_spp = None, 1
-        if mode == "exact":
-            img = render_mitsuba(scene, view=v, mode="exact")
-            step(label)
-            used_spp = 1
-        else:
-            img, var, b_spp = render_converged_with_variance(
-                scene, view=v, spp=spp, batches=batches, progress=lambda label=label: step(label))
-            used_spp = spp
-        write_exr(out, img, layers=None if var is None else {"var": var}, overwrite=True)
-        meta = {
-            "scene": _rel(Path(scene_path)), "view": v, "view_name": cam.name, "shading": shading,
-            "mode": mode, "spp": used_spp, "batch_spp": b_spp,
-            "batches": batches if mode == "converged" else 1,
-            "resolution": [cam.width, cam.height], "mitsuba_version": mi.__version__,
-            "variant": variant, "max_depth": scene.settings.max_depth,
-            "sources": source_hashes(scene),
-            "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
-        }
-        out.with_suffix(".json").write_text(json.dumps(meta, indent=1) + "\n")
-        written.append(out)
+                    jobs.append({"scene": str(scene_path), "shading": shading, "mode": mode,
+                                 "view": v, "height": h, "spp": spp, "batches": batches,
+                                 "out": str(golden_path(name, cam.name, shading, mode, root))})
+    return jobs
+
+
+def render_golden_job(job: dict, step=None) -> str:
+    """Render one golden (a ``golden_jobs`` spec) with Mitsuba and write its EXR and sidecar;
+    returns the EXR path. ``step(label)`` is called per unit of work (one per batch of a
+    converged golden). The executor task of ``render_goldens``."""
+    import mitsuba as mi
+
+    from . import mitsuba_variant
+    from .mitsuba_scene import render_converged_with_variance, render_mitsuba
+
+    variant = mitsuba_variant()
+    step = step or (lambda label="": None)
+    scene_path, v, mode, batches = job["scene"], job["view"], job["mode"], job["batches"]
+    scene = _resize(load_scene(scene_path, shading=job["shading"]), job["height"])
+    cam = scene.cameras[v]
+    out = Path(job["out"])
+    label = f"{Path(scene_path).stem}/{out.name}"
+    var, b_spp = None, 1
+    if mode == "exact":
+        img = render_mitsuba(scene, view=v, mode="exact")
+        step(label)
+        used_spp = 1
+    else:
+        img, var, b_spp = render_converged_with_variance(
+            scene, view=v, spp=job["spp"], batches=batches,
+            progress=lambda label=label: step(label))
+        used_spp = job["spp"]
+    write_exr(out, img, layers=None if var is None else {"var": var}, overwrite=True)
+    meta = {
+        "scene": _rel(Path(scene_path)), "view": v, "view_name": cam.name,
+        "shading": job["shading"], "mode": mode, "spp": used_spp, "batch_spp": b_spp,
+        "batches": batches if mode == "converged" else 1,
+        "resolution": [cam.width, cam.height], "mitsuba_version": mi.__version__,
+        "variant": variant, "max_depth": scene.settings.max_depth,
+        "sources": source_hashes(scene),
+        "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+    }
+    out.with_suffix(".json").write_text(json.dumps(meta, indent=1) + "\n")
+    return str(out)
+
+
+def render_goldens(scene_paths, *, force: bool = False, spp: int = CONVERGED_SPP,
+                   batches: int = CONVERGED_BATCHES, size: int = DEFAULT_SIZE,
+                   converged_size: int | None = CONVERGED_SIZE, modes=MODES,
+                   shadings=SHADING_MODES, progress: bool = True,
+                   root: Path = GOLDEN_DIR, executor=None) -> list[Path]:
+    """Render every scene × view × shading × mode with Mitsuba into ``root``.
+
+    spp: converged samples per pixel in total (``batches`` independent renders of
+    ``spp // batches`` each, for the per-pixel variance). size: image height in pixels
+    (width follows the camera's aspect); converged_size: the same for converged goldens
+    (None: ``size``). Existing goldens are kept unless ``force`` (checked before anything
+    is rendered). executor: an ``evaluation.executor`` object (``.map(fn, items)`` yielding
+    ``(index, result)``, e.g. Dask workers, one GPU each) to render the jobs on; None: here,
+    one after another. The files are the same either way.
+    Returns the written EXR paths (in job order).
+    """
+    jobs = golden_jobs(scene_paths, spp=spp, batches=batches, size=size,
+                       converged_size=converged_size, modes=modes, shadings=shadings, root=root)
+    if not force:
+        for job in jobs:
+            if Path(job["out"]).exists():
+                raise GoldenError(f"{_rel(Path(job['out']))} exists; pass force=True "
+                                  f"({regenerate_command(job['scene'])}) to overwrite it")
+    units = [batches if j["mode"] == "converged" else 1 for j in jobs]
+    step = _progress_bar(sum(units), progress)
+    if executor is None:
+        return [Path(render_golden_job(job, step)) for job in jobs]
+    written = [None] * len(jobs)
+    for i, path in executor.map(render_golden_job, jobs):
+        written[i] = Path(path)
+        for _ in range(units[i]):
+            step(Path(path).name)
     return written
 
 

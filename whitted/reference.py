@@ -30,6 +30,10 @@ def register(subparsers) -> None:
     p.add_argument("--shadings", nargs="+", default=list(SHADING_MODES),
                    choices=SHADING_MODES)
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--workers", type=int, default=0,
+                   help="render the goldens on a Dask LocalCluster of N worker processes "
+                        "(one GPU each where there are GPUs; default: in this process)")
+    p.add_argument("--scheduler", help="render the goldens on an existing Dask scheduler")
     p.set_defaults(func=cmd_reference)
 
     p = subparsers.add_parser("export", help="write a scene as a Mitsuba 3 XML file",
@@ -44,10 +48,17 @@ def register(subparsers) -> None:
 
 
 def cmd_reference(args: argparse.Namespace) -> int:
-    paths = golden.render_goldens(
-        args.scenes, force=args.force, spp=args.spp, batches=args.batches, size=args.size,
-        converged_size=args.converged_size, modes=tuple(args.modes),
-        shadings=tuple(args.shadings), progress=not args.quiet)
+    # Same executor as `whitted study`: each job (scene, shading, mode, view) is a picklable
+    # spec rendered by reference.golden.render_golden_job in whichever process runs it.
+    from evaluation.executor import make_executor, visible_gpus
+    workers, scheduler = getattr(args, "workers", 0), getattr(args, "scheduler", None)
+    kw = {"gpus": "auto"} if workers and not scheduler and visible_gpus() else {}
+    with make_executor(workers, scheduler, **kw) as ex:
+        paths = golden.render_goldens(
+            args.scenes, force=args.force, spp=args.spp, batches=args.batches, size=args.size,
+            converged_size=args.converged_size, modes=tuple(args.modes),
+            shadings=tuple(args.shadings), progress=not args.quiet,
+            executor=None if ex.name == "in-process" else ex)
     print(f"wrote {len(paths)} golden images")
     return 0
 
