@@ -207,3 +207,20 @@ def test_dask_workers_each_see_their_own_gpu():
 def _cuda_env(_):
     import os
     return os.environ.get("CUDA_VISIBLE_DEVICES")
+
+
+def test_report_carries_the_study_page(tiny, tmp_path):
+    from evaluation.report import ReportEntry, write_report
+    out, _ = tiny
+    img = np.zeros((4, 4, 3), np.float32)
+    index = write_report(tmp_path / "rep", [ReportEntry("box / front", img, img)], title="t",
+                         studies=[out, tmp_path / "not-a-study"])
+    text = index.read_text()
+    name = out.name
+    assert f'href="study/{name}/index.html"' in text and "Accuracy vs time" in text
+    for f in ("index.html", "study.json", "study.md", "cornell_box.png", "cornell_box.svg"):
+        assert (tmp_path / "rep" / "study" / name / f).read_bytes() == (out / f).read_bytes()
+    assert not (tmp_path / "rep" / "study" / name / "cache").exists()
+    assert "not-a-study" not in text
+    plain = write_report(tmp_path / "rep2", [ReportEntry("x", img, img)], title="t")
+    assert "Accuracy vs time" not in plain.read_text()
