@@ -1160,5 +1160,35 @@ def strip_timings(data: dict) -> dict:
     return pts
 
 
+def diff_runs(a: dict, b: dict) -> list[str]:
+    """What differs between two runs of the same sweep, timings aside (``strip_timings``):
+    one line per differing point and field; [] when they agree."""
+    sa, sb = strip_timings(a), strip_timings(b)
+    out = [f"only in the first run: {k}" for k in sorted(set(sa) - set(sb))]
+    out += [f"only in the second run: {k}" for k in sorted(set(sb) - set(sa))]
+    for k in sorted(set(sa) & set(sb)):
+        for f in sorted(set(sa[k]) | set(sb[k])):
+            if sa[k].get(f) != sb[k].get(f):
+                out.append(f"{k}: {f} differs")
+    return out
+
+
+def executor_check(scene_args, out, *, profile="tiny", backend: str = "llvm",
+                   workers: int = 1, log=print) -> bool:
+    """Run the same sweep in-process and on ``workers`` Dask workers (one GPU each on
+    CUDA) into ``out/in-process`` and ``out/dask``; print and return whether the JSON
+    agrees minus timings (the executor changes where points run, never what they are)."""
+    kw = dict(profile=profile, backend=backend, show_progress=False, outputs=False,
+              log=lambda *a: None)
+    here = run_study(scene_args, Path(out) / "in-process", **kw)
+    there = run_study(scene_args, Path(out) / "dask", workers=workers, **kw)
+    diffs = diff_runs(here, there)
+    ex = there["meta"].get("executor", {})
+    log(f"executor check ({backend}, {len(here['points'])} points, Dask {ex}): "
+        + ("JSON minus timings EQUAL to in-process" if not diffs
+           else f"{len(diffs)} DIFFERENCES:\n  " + "\n  ".join(diffs[:20])))
+    return not diffs
+
+
 if __name__ == "__main__":  # pragma: no cover
     sys.exit("run the study with `whitted study` or `python -m whitted.study`")
