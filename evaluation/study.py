@@ -832,9 +832,17 @@ def _median(xs):
     return statistics.median(xs) if xs else None
 
 
+def p_cpu_time(p: dict) -> bool:
+    """Whether cost ratios of ``p`` use the process's CPU time per frozen frame instead of
+    the kernel time: on the LLVM backend, where a shared machine makes kernel (wall) times
+    include waiting for a core while CPU time does not."""
+    return p.get("device", {}).get("backend") == "llvm"
+
+
 def summary_sentences(data: dict) -> list[str]:
     """What each factor costs, one sentence per factor: the median over scenes of the error
-    and time ratios of one step away from the default (the README's section)."""
+    and time ratios of one step away from the default (the README's section). On the LLVM
+    backend the time ratio is of CPU time per frame where both points have it."""
     rows = {}
 
     def step(name, factor, value_of, metric="rmse", ref="own"):
@@ -848,10 +856,14 @@ def summary_sentences(data: dict) -> list[str]:
             if base is None or other is None or other is base:
                 continue
             r = "golden" if ref == "golden" and base["errors"].get("golden") else "own"
+            cpu = [p["timing"].get("frozen_cpu_ms") for p in (other, base)]
+            if p_cpu_time(base) and all(cpu):
+                t, unit = _ratio(cpu[0], cpu[1]), "CPU time"
+            else:
+                t, unit = _ratio(time_of(other), time_of(base)), "time"
             rows.setdefault(name, []).append(
-                (_ratio(err_of(other, r, metric), err_of(base, r, metric)),
-                 _ratio(time_of(other), time_of(base)),
-                 other["image_sha256"] == base["image_sha256"], r))
+                (_ratio(err_of(other, r, metric), err_of(base, r, metric)), t,
+                 other["image_sha256"] == base["image_sha256"], r, unit))
 
     step("4× spp", "spp", lambda d: d["spp"] * 4)
     step("¼ spp", "spp", lambda d: d["spp"] // 4)
@@ -879,9 +891,36 @@ def summary_sentences(data: dict) -> list[str]:
             what = f"{metric} vs {ref} ÷{1 / e:.2f}"
         else:
             what = f"{metric} vs {ref} ×{e:.2f}"
-        out.append(f"{name}: {what} at {_fmt(t)}× time (median of {len(rs)} scene"
+        units = {r[4] for r in rs}
+        unit = units.pop() if len(units) == 1 else "time (CPU time where measured)"
+        out.append(f"{name}: {what} at {_fmt(t)}× {unit} (median of {len(rs)} scene"
                    f"{'s' if len(rs) > 1 else ''})")
     return out
+
+
+def readme_section(data: dict, folder: str) -> str:
+    """The README's "What each factor costs" block for the run in ``data`` (committed in
+    ``folder``): the device named, one sentence per factor (``summary_sentences``)."""
+    meta = data["meta"]
+    dev = meta.get("device") or {}
+    prof = meta.get("profile", {})
+    pts = list(data["points"].values())
+    loads = [p["timing"].get("loadavg_1m") for p in pts if p["timing"].get("loadavg_1m")]
+    total = len(pts) + len(meta.get("missing", []))
+    head = (f"On the **{dev.get('device', '?')}** ({meta.get('backend')} backend, Dr.Jit "
+            f"{dev.get('drjit')}; {', '.join(data['scenes'])} at {prof.get('size')} px high, "
+            f"{len(prof.get('seeds', []))} seeds; {len(pts)} of {total} points measured), "
+            f"one step away from each scene's default ({prof.get('default_spp')} spp, the "
+            "scene's depth and cut-off, "
+            "float32, BVH), median over the scenes of the error and time ratios (on LLVM: CPU "
+            "time per frame where measured)")
+    if loads and max(loads) > (dev.get("cores") or 1):
+        head += (f"; the machine was shared (load average {min(loads):.0f}–{max(loads):.0f} "
+                 f"on {dev.get('cores')} cores), so time ratios are uncertain by a factor "
+                 "of ~2–3; the errors do not depend on it")
+    lines = [head + f" (tables and plots: `{folder}/study.md`):", ""]
+    lines += [f"- {x}." for x in summary_sentences(data)]
+    return "\n".join(lines) + "\n"
 
 
 # =========================================================================================
@@ -915,7 +954,9 @@ def markdown(data: dict) -> str:
     if lines:
         out += ["", "## What each factor costs", "",
                 "One step away from each scene's default; ratios are the median over scenes of "
-                "(error, kernel time) relative to the default.", ""]
+                "(error, kernel time; on LLVM the process's CPU time per frame where measured, "
+                "which waiting for a core on a shared machine does not inflate) relative to the "
+                "default.", ""]
         out += [f"- {x}." for x in lines]
         out.append("")
     loads = [p["timing"].get("loadavg_1m") for p in data["points"].values()]
