@@ -40,8 +40,9 @@ def register(subparsers) -> None:
                         help="render Mitsuba's image now with the reference harness")
     p.add_argument("--force", action="store_true", help="replace an existing report folder")
     p.add_argument("--study", type=Path, action="append",
-                   help="accuracy-vs-time study folder to carry as the report's study page "
-                        "(repeatable; default: every results/study/*/ with an index.html)")
+                   help="accuracy-vs-time study folder (whitted study --out, e.g. "
+                        "results/study/cpu) to carry as the report's 'Accuracy vs time' page "
+                        "(repeatable)")
     p.set_defaults(source="golden", func=cmd_compare)
 
 
@@ -122,11 +123,8 @@ def cmd_compare(args: argparse.Namespace) -> int:
             ours_seconds=res.seconds, ref_seconds=ref_seconds, effects=str(effects),
             operations=format_operations(ks), info=info))
 
-    studies = args.study if getattr(args, "study", None) is not None else sorted(
-        p.parent for p in (Path(__file__).resolve().parent.parent / "results" / "study")
-        .glob("*/index.html"))
     index = write_report(out, entries, title=f"{scene.name}: ours vs Mitsuba 3 ({s.shading})",
-                         overwrite=args.force, studies=studies)
+                         overwrite=args.force, studies=getattr(args, "study", None) or ())
     print(format_metrics_table(entries))
     print(f"report: {index}")
     return 0
