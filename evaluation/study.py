@@ -31,7 +31,8 @@ Every point is rendered in converged mode (stratified jitter, ``spp`` samples pe
 
 Metrics per image (``error_metrics``): RMSE, relMSE (``(a-r)^2 / (r^2 + eps)``, eps 0.01)
 and relMSE trimmed at 0.1 % (the worst 0.1 % of pixels dropped), mean and 95th percentile
-HDR-FLIP, mean CIEDE2000. A point stores the per-seed values and mean / std / min / max.
+HDR-FLIP, mean CIEDE2000 (only where colour-science is installed; else skipped with a note in
+the results). A point stores the per-seed values and mean / std / min / max.
 
 Time per point (one seed): the first traced frame's wall time with Dr.Jit's compile time
 (codegen + backend, from the kernel history) reported apart; then the frame wrapped in

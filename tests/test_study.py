@@ -88,6 +88,11 @@ def test_pareto_front_and_tables(tiny):
     errs = [r["relmse"] for r in rows]
     assert errs == sorted(errs, reverse=True)
     assert "spp" in study.factor_sentences(data, "cornell_box")
+    # README block: the device named, one sentence per factor; on LLVM the cost is CPU time
+    lines = study.summary_sentences(data)
+    assert any(x.startswith("4× spp") and "CPU time" in x for x in lines)
+    block = study.readme_section(data, "results/study/x")
+    assert data["meta"]["device"]["device"] in block and block.count("\n- ") == len(lines)
 
 
 def test_resumed_sweep_equals_uninterrupted(tiny, tmp_path):
