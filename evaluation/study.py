@@ -917,10 +917,15 @@ def readme_section(data: dict, folder: str) -> str:
             "time per frame where measured)")
     if loads and max(loads) > (dev.get("cores") or 1):
         head += (f"; the machine was shared (load average {min(loads):.0f}–{max(loads):.0f} "
-                 f"on {dev.get('cores')} cores), so time ratios are uncertain by a factor "
-                 "of ~2–3; the errors do not depend on it")
-    lines = [head + f" (tables and plots: `{folder}/study.md`):", ""]
-    lines += [f"- {x}." for x in summary_sentences(data)]
+                 f"on {dev.get('cores')} cores): ratios of kernel time (marked \"time\") "
+                 "are uncertain by a factor of ~2–3, those of CPU time much less; the errors "
+                 "do not depend on it")
+    import textwrap
+    wrap = textwrap.TextWrapper(width=100, break_long_words=False, break_on_hyphens=False)
+    lines = wrap.wrap(head + f" (tables and plots: `{folder}/study.md`):") + [""]
+    wrap.subsequent_indent = "  "
+    for x in summary_sentences(data):
+        lines += wrap.wrap(f"- {x}.")
     return "\n".join(lines) + "\n"
 
 
