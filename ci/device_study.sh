@@ -9,8 +9,8 @@
 #    gets the GPU through CUDA_VISIBLE_DEVICES); prints whether the JSON agrees minus timings;
 # 3. the study itself (profile $PROFILE, default gpu: the seed scenes and the glass bunny)
 #    with --budget-minutes set from the time left, under `timeout`, then the tables, plots
-#    and HTML from whatever study.json holds (a run cut short resumes from it later:
-#    unpack the tarball into results/study/ and run the same command there);
+#    and HTML from whatever study.json holds (a run cut short resumes: unpack the tarball's
+#    study/LABEL into results/study/LABEL, commit, and run the same command again);
 # 4. packs everything into $OUT/study-LABEL.tar.gz (plus the two logs: three files).
 #
 # Environment: OUT (default /tmp/study-out), BACKEND (cuda), PROFILE (gpu), TOTAL_S (400:
@@ -63,6 +63,10 @@ grep -E "executor check|error|Error" "$checklog" | tail -5
 echo "executor check: exit $rc ($(left) s left)"
 
 # ---- 3. the study, under a hard timeout; budget = time left minus report, pack, slack -----
+# A committed partial run (results/study/LABEL/study.json) is resumed, not repeated.
+mkdir -p "$work/study"
+[ -f "results/study/$label/study.json" ] && cp -r "results/study/$label" "$work/study/" \
+  && echo "study: resuming results/study/$label"
 hard=$(( $(left) - 45 ))
 budget=$(( hard - 60 ))
 if [ "$budget" -gt 30 ]; then
