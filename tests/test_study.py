@@ -1,6 +1,6 @@
 """The accuracy-vs-time study (evaluation.study) on a tiny sweep: the facts its plots rest on.
 
-One tiny sweep (cornell_box at 16 x 16, spp 1/4/16 and the three accelerators, 5 seeds) is
+One tiny sweep (cornell_box at 16 x 16, spp 1/4/16 and every accelerator, 5 seeds) is
 run once in-process; the other tests check facts of it, re-run it (resumed, on Dask) and
 compare, or render single points.
 """
@@ -16,6 +16,7 @@ import pytest
 # ---- project imports (the one block to rename at merge) ------------------------------------
 from evaluation import study
 from evaluation.executor import InProcess, make_executor
+from renderer.accel import ACCELERATORS
 from renderer.render import Renderer
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -44,7 +45,8 @@ def tiny(tmp_path_factory):
 def test_sweep_is_complete_and_written(tiny):
     out, data = tiny
     assert not data["meta"]["missing"]
-    assert len(data["points"]) == 5          # default (4 spp), spp 1 and 16, brute, boxes
+    # default (4 spp, bvh), spp 1 and 16, and every other accelerator
+    assert len(data["points"]) == 3 + len(ACCELERATORS) - 1
     for name in ("study.json", "study.md", "index.html", "cornell_box.png", "cornell_box.svg"):
         assert (out / name).exists(), name
     p = next(iter(data["points"].values()))
@@ -70,7 +72,7 @@ def test_more_spp_never_raises_golden_error(tiny):
 def test_accelerators_give_the_same_image(tiny):
     _, data = tiny
     line = study.factor_line(data, "cornell_box", "accel")
-    assert {p["settings"]["accel"] for p in line} == {"brute", "boxes", "bvh"}
+    assert {p["settings"]["accel"] for p in line} == set(ACCELERATORS)
     assert len({tuple(p["image_sha256"]) for p in line}) == 1
 
 
@@ -99,7 +101,7 @@ def test_resumed_sweep_equals_uninterrupted(tiny, tmp_path):
     _, full = tiny
     part = study.run_study(SCENES, tmp_path, profile=TINY, max_points=2, show_progress=False,
                            outputs=False, log=lambda *a: None)
-    assert len(part["points"]) == 2 and len(part["meta"]["missing"]) == 3
+    assert len(part["points"]) == 2 and len(part["meta"]["missing"]) == len(full["points"]) - 2
     resumed = study.run_study(SCENES, tmp_path, profile=TINY, show_progress=False,
                               outputs=False, log=lambda *a: None)
     assert study.strip_timings(resumed) == study.strip_timings(full)
@@ -148,7 +150,8 @@ def test_seed_is_the_settings_seed():
     images, _ = study.render_seeds(spec)
     sc = study.prepare_scene(spec)
     sc = replace(sc, settings=replace(sc.settings, seed=3))
-    img = Renderer(sc, backend="llvm", accel="bvh").render(0).image
+    img = Renderer(sc, backend="llvm", accel="bvh",
+                   intersection=spec["intersection"]).render(0).image
     assert np.array_equal(images[0], img)
 
 
