@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from renderer.film import srgb_encode, write_exr
-from renderer.outputs import atomic_path, check_output_dir, write_text
+from renderer.outputs import atomic_path, check_output_dir, write_bytes, write_text
 
 from .metrics import abs_error_heatmap, colormap_stops, flip_error, flip_heatmap, metrics
 
@@ -327,8 +327,48 @@ def _notes_html(notes) -> str:
             f"{rows}</table>")
 
 
+#: Files of a study folder (``evaluation.study.write_outputs``) that the report carries.
+STUDY_FILES = ("index.html", "study.md", "study.json", "*.png", "*.svg")
+
+
+def study_section(out_dir: str | Path, study_dirs) -> str:
+    """The report's "Accuracy vs time" page: each study folder (``whitted study --out DIR``:
+    index.html, study.md, study.json, one PNG/SVG plot per scene) is copied to
+    ``out_dir/study/<folder name>/`` and linked, its first plot shown; returns the HTML
+    section ('' when there is none)."""
+    esc = html.escape
+    items = []
+    for d in study_dirs:
+        d = Path(d)
+        if not (d / "index.html").exists():
+            continue
+        dest = Path(out_dir) / "study" / d.name
+        dest.mkdir(parents=True, exist_ok=True)
+        for pattern in STUDY_FILES:
+            for f in sorted(d.glob(pattern)):
+                write_bytes(dest / f.name, f.read_bytes(), overwrite=True)
+        title = d.name
+        md = d / "study.md"
+        if md.exists():
+            first = md.read_text(encoding="utf-8").splitlines()[:1]
+            title = first[0].lstrip("# ").strip() if first else d.name
+        plots = sorted(dest.glob("*.png"))
+        img = (f'<a href="study/{esc(d.name)}/index.html"><img src="study/{esc(d.name)}/'
+               f'{esc(plots[0].name)}" alt="{esc(title)}" style="max-width:100%"></a>'
+               if plots else "")
+        items.append(f'<li><a href="study/{esc(d.name)}/index.html">{esc(title)}</a> '
+                     f'(<a href="study/{esc(d.name)}/study.json">study.json</a>){img}</li>')
+    if not items:
+        return ""
+    return ('<section class="entry" id="accuracy-vs-time"><h2>Accuracy vs time</h2>'
+            "<p>What each setting (spp, depth, cut-off, precision, intersection routine, "
+            "accelerator, effect kernel) costs in kernel time and buys in error against the "
+            "Mitsuba golden and our own high-spp render (<code>whitted study</code>):</p><ul>"
+            + "".join(items) + "</ul></section>")
+
+
 def write_report(out_dir: str | Path, entries: list[ReportEntry], *, title: str,
-                 overwrite: bool = False, notes=()) -> Path:
+                 overwrite: bool = False, notes=(), studies=()) -> Path:
     """Write the HTML report and per-entry PNGs into ``out_dir``; return the page's path.
 
     entries: the comparisons, in page order; an entry without metrics gets them computed
@@ -337,6 +377,8 @@ def write_report(out_dir: str | Path, entries: list[ReportEntry], *, title: str,
         ``FileExistsError``.
     notes: (status, name, reason) of verdicts without images (a missing or stale golden),
         listed first.
+    studies: accuracy-vs-time study folders (``whitted study --out``) to carry as the
+        report's "Accuracy vs time" page (``study_section``).
     """
     out = Path(out_dir)
     if out.exists() and any(out.iterdir()) and not overwrite:
@@ -391,6 +433,7 @@ def write_report(out_dir: str | Path, entries: list[ReportEntry], *, title: str,
         '<p class="hint">Hover over ours or Mitsuba to see the other image in its place; '
         "click to pin the swap.</p>"
         + "".join(sections)
+        + study_section(out, studies)
         + f"</main><script>{_JS}</script></body></html>\n"
     )
     index = out / "index.html"

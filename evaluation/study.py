@@ -31,7 +31,8 @@ Every point is rendered in converged mode (stratified jitter, ``spp`` samples pe
 
 Metrics per image (``error_metrics``): RMSE, relMSE (``(a-r)^2 / (r^2 + eps)``, eps 0.01)
 and relMSE trimmed at 0.1 % (the worst 0.1 % of pixels dropped), mean and 95th percentile
-HDR-FLIP, mean CIEDE2000. A point stores the per-seed values and mean / std / min / max.
+HDR-FLIP, mean CIEDE2000 (only where colour-science is installed; else skipped with a note in
+the results). A point stores the per-seed values and mean / std / min / max.
 
 Time per point (one seed): the first traced frame's wall time with Dr.Jit's compile time
 (codegen + backend, from the kernel history) reported apart; then the frame wrapped in
@@ -77,6 +78,9 @@ REL_EPS = 1e-2
 #: Fraction of the worst pixels dropped by the trimmed relMSE.
 TRIM = 1e-3
 METRICS = ("rmse", "relmse", "relmse_trim", "flip_mean", "flip_p95", "de2000_mean")
+#: Metrics that need an optional package, and the package (skipped, with a note, without it:
+#: the GPU hosts have no network and colour-science is not among the wheels carried there).
+OPTIONAL_METRICS = {"de2000_mean": "colour"}
 REFS = ("golden", "own")
 FACTORS = ("spp", "max_depth", "min_weight", "precision", "combination", "intersection",
            "accel", "effects")
@@ -274,8 +278,23 @@ def ref_spec(info: dict, profile: Profile, combination: str, backend: str) -> di
 # =========================================================================================
 # Error metrics
 # =========================================================================================
+def metrics_available() -> tuple[tuple, list[str]]:
+    """The metrics this process can compute and a note for each one skipped."""
+    import importlib.util
+    have, notes = [], []
+    for m in METRICS:
+        mod = OPTIONAL_METRICS.get(m)
+        if mod and importlib.util.find_spec(mod) is None:
+            notes.append(f"{m} skipped: the Python package {mod!r} (colour-science) is not "
+                         "installed")
+        else:
+            have.append(m)
+    return tuple(have), notes
+
+
 def error_metrics(img: np.ndarray, ref: np.ndarray) -> dict:
-    """The study's metrics of ``img`` against ``ref`` (float (H, W, 3) linear RGB)."""
+    """The study's metrics of ``img`` against ``ref`` (float (H, W, 3) linear RGB); the
+    optional ones (``OPTIONAL_METRICS``) only where their package is installed."""
     a = np.nan_to_num(np.asarray(img, np.float64), nan=0.0, posinf=0.0, neginf=0.0)
     r = np.asarray(ref, np.float64)
     d2 = (a - r) ** 2
@@ -283,10 +302,12 @@ def error_metrics(img: np.ndarray, ref: np.ndarray) -> dict:
     drop = int(math.ceil(TRIM * rel.size))
     kept = np.sort(rel)[: rel.size - drop] if drop < rel.size else rel
     fmap, fmean = flip_error(a.astype(np.float32), r.astype(np.float32))
-    return {"rmse": float(np.sqrt(d2.mean())), "relmse": float(rel.mean()),
-            "relmse_trim": float(kept.mean()), "flip_mean": float(fmean),
-            "flip_p95": float(np.percentile(fmap, 95)),
-            "de2000_mean": float(delta_e2000(a, r).mean())}
+    out = {"rmse": float(np.sqrt(d2.mean())), "relmse": float(rel.mean()),
+           "relmse_trim": float(kept.mean()), "flip_mean": float(fmean),
+           "flip_p95": float(np.percentile(fmap, 95))}
+    if "de2000_mean" in metrics_available()[0]:
+        out["de2000_mean"] = float(delta_e2000(a, r).mean())
+    return out
 
 
 def summarize(values: list[float]) -> dict:
@@ -343,6 +364,7 @@ def device_info(backend: str) -> dict:
             "python": platform.python_version(), "host": platform.node(),
             "cores": os.cpu_count(), "platform": platform.platform()}
     if backend == "cuda":
+        info["cuda_visible_devices"] = os.environ.get("CUDA_VISIBLE_DEVICES")
         try:
             import subprocess
             q = subprocess.run(["nvidia-smi", "--query-gpu=name,driver_version,memory.total",
@@ -462,7 +484,7 @@ def run_point(item) -> dict:
             errors[name] = None
             continue
         per = [error_metrics(img, ref) for img in images]
-        errors[name] = {m: summarize([p[m] for p in per]) for m in METRICS}
+        errors[name] = {m: summarize([p[m] for p in per]) for m in METRICS if m in per[0]}
     timing = {k: facts.pop(k) for k in list(facts) if k in (
         "first_frame_ms", "compile_ms", "trace_ms", "freeze_record_ms", "kernel_ms",
         "kernel_ms_min", "frozen_wall_ms", "frozen_cpu_ms", "repeats", "warmup", "cache_hits",
@@ -515,9 +537,13 @@ def run_study(scene_args, out, *, profile: Profile | str = "cpu", backend: str =
     specs, scenes = build_sweep(scene_args, prof, backend=backend, shading=shading)
     data["meta"].update(profile=asdict(prof) | {"name": profile if isinstance(profile, str)
                                                 else "custom"},
-                        backend=backend, metrics=list(METRICS), rel_eps=REL_EPS, trim=TRIM)
+                        backend=backend, metrics=list(metrics_available()[0]),
+                        metric_notes=metrics_available()[1], rel_eps=REL_EPS, trim=TRIM)
     t_start = time.perf_counter()
-    with make_executor(workers, scheduler) as ex:
+    # CUDA on a local cluster: one GPU per worker (evaluation.executor); a scheduler's own
+    # workers already have their placement.
+    gpu_kw = {"gpus": "auto"} if backend == "cuda" and workers and not scheduler else {}
+    with make_executor(workers, scheduler, **gpu_kw) as ex:
         data["meta"]["executor"] = ex.describe()
         # ---- references: goldens (here) and own high-spp renders (executor, cached) -------
         goldens, owns, todo = {}, {}, []
@@ -609,7 +635,7 @@ def time_of(p: dict) -> float:
 
 def err_of(p: dict, ref: str, metric: str = "relmse") -> float | None:
     e = p["errors"].get(ref)
-    return None if e is None else float(e[metric]["mean"])
+    return None if e is None or metric not in e else float(e[metric]["mean"])
 
 
 def scene_points(data: dict, label: str) -> list[dict]:
@@ -777,9 +803,9 @@ def factor_sentences(data: dict, label: str) -> dict:
         fastest = min(line, key=time_of)
         same = len({tuple(p["image_sha256"]) for p in line}) == 1
         slow = max(line, key=time_of)
+        ratio = time_of(slow) / time_of(fastest)
         out["accel"] = (f"{'same image from every accelerator' if same else 'IMAGES DIFFER'}; "
-                        f"{fastest['settings']['accel']} is "
-                        f"{time_of(slow) / time_of(fastest):.1f}× "
+                        f"{fastest['settings']['accel']} is {ratio:.1f}× "
                         f"faster than {slow['settings']['accel']}.")
     line = factor_line(data, label, "intersection")
     if len(line) == 1:
@@ -804,9 +830,17 @@ def _median(xs):
     return statistics.median(xs) if xs else None
 
 
+def p_cpu_time(p: dict) -> bool:
+    """Whether cost ratios of ``p`` use the process's CPU time per frozen frame instead of
+    the kernel time: on the LLVM backend, where a shared machine makes kernel (wall) times
+    include waiting for a core while CPU time does not."""
+    return p.get("device", {}).get("backend") == "llvm"
+
+
 def summary_sentences(data: dict) -> list[str]:
     """What each factor costs, one sentence per factor: the median over scenes of the error
-    and time ratios of one step away from the default (the README's section)."""
+    and time ratios of one step away from the default (the README's section). On the LLVM
+    backend the time ratio is of CPU time per frame where both points have it."""
     rows = {}
 
     def step(name, factor, value_of, metric="rmse", ref="own"):
@@ -820,10 +854,14 @@ def summary_sentences(data: dict) -> list[str]:
             if base is None or other is None or other is base:
                 continue
             r = "golden" if ref == "golden" and base["errors"].get("golden") else "own"
+            cpu = [p["timing"].get("frozen_cpu_ms") for p in (other, base)]
+            if p_cpu_time(base) and all(cpu):
+                t, unit = _ratio(cpu[0], cpu[1]), "CPU time"
+            else:
+                t, unit = _ratio(time_of(other), time_of(base)), "time"
             rows.setdefault(name, []).append(
-                (_ratio(err_of(other, r, metric), err_of(base, r, metric)),
-                 _ratio(time_of(other), time_of(base)),
-                 other["image_sha256"] == base["image_sha256"], r))
+                (_ratio(err_of(other, r, metric), err_of(base, r, metric)), t,
+                 other["image_sha256"] == base["image_sha256"], r, unit))
 
     step("4× spp", "spp", lambda d: d["spp"] * 4)
     step("¼ spp", "spp", lambda d: d["spp"] // 4)
@@ -851,9 +889,41 @@ def summary_sentences(data: dict) -> list[str]:
             what = f"{metric} vs {ref} ÷{1 / e:.2f}"
         else:
             what = f"{metric} vs {ref} ×{e:.2f}"
-        out.append(f"{name}: {what} at {_fmt(t)}× time (median of {len(rs)} scene"
+        units = {r[4] for r in rs}
+        unit = units.pop() if len(units) == 1 else "time (CPU time where measured)"
+        out.append(f"{name}: {what} at {_fmt(t)}× {unit} (median of {len(rs)} scene"
                    f"{'s' if len(rs) > 1 else ''})")
     return out
+
+
+def readme_section(data: dict, folder: str) -> str:
+    """The README's "What each factor costs" block for the run in ``data`` (committed in
+    ``folder``): the device named, one sentence per factor (``summary_sentences``)."""
+    meta = data["meta"]
+    dev = meta.get("device") or {}
+    prof = meta.get("profile", {})
+    pts = list(data["points"].values())
+    loads = [p["timing"].get("loadavg_1m") for p in pts if p["timing"].get("loadavg_1m")]
+    total = len(pts) + len(meta.get("missing", []))
+    head = (f"On the **{dev.get('device', '?')}** ({meta.get('backend')} backend, Dr.Jit "
+            f"{dev.get('drjit')}; {', '.join(data['scenes'])} at {prof.get('size')} px high, "
+            f"{len(prof.get('seeds', []))} seeds; {len(pts)} of {total} points measured), "
+            f"one step away from each scene's default ({prof.get('default_spp')} spp, the "
+            "scene's depth and cut-off, "
+            "float32, BVH), median over the scenes of the error and time ratios (on LLVM: CPU "
+            "time per frame where measured)")
+    if loads and max(loads) > (dev.get("cores") or 1):
+        head += (f"; the machine was shared (load average {min(loads):.0f}–{max(loads):.0f} "
+                 f"on {dev.get('cores')} cores): ratios of kernel time (marked \"time\") "
+                 "are uncertain by a factor of ~2–3, those of CPU time much less; the errors "
+                 "do not depend on it")
+    import textwrap
+    wrap = textwrap.TextWrapper(width=100, break_long_words=False, break_on_hyphens=False)
+    lines = wrap.wrap(head + f" (tables and plots: `{folder}/study.md`):") + [""]
+    wrap.subsequent_indent = "  "
+    for x in summary_sentences(data):
+        lines += wrap.wrap(f"- {x}.")
+    return "\n".join(lines) + "\n"
 
 
 # =========================================================================================
@@ -875,6 +945,8 @@ def markdown(data: dict) -> str:
                f"{prof.get('seeds')}, own reference {prof.get('ref_spp')} spp; time = kernel "
                f"time of the frozen frame (median of {prof.get('repeats')} after "
                f"{prof.get('warmup')} warm-up). Executor: {meta.get('executor')}.")
+    for note in meta.get("metric_notes", []):
+        out.append(f"Note: {note}.")
     runs = meta.get("runs", [])
     if runs:
         out.append("Runs: " + "; ".join(f"{r['date']} {r['points']} points in {r['wall_s']} s"
@@ -885,7 +957,9 @@ def markdown(data: dict) -> str:
     if lines:
         out += ["", "## What each factor costs", "",
                 "One step away from each scene's default; ratios are the median over scenes of "
-                "(error, kernel time) relative to the default.", ""]
+                "(error, kernel time; on LLVM the process's CPU time per frame where measured, "
+                "which waiting for a core on a shared machine does not inflate) relative to the "
+                "default.", ""]
         out += [f"- {x}." for x in lines]
         out.append("")
     loads = [p["timing"].get("loadavg_1m") for p in data["points"].values()]
@@ -985,11 +1059,13 @@ def plot_scene(data: dict, label: str, out: Path, metric: str = "relmse") -> lis
     fig, axes = plt.subplots(1, len(refs) + 1, figsize=(5.2 * (len(refs) + 1), 4.4),
                              squeeze=False)
     axes = axes[0]
+    default = data["scenes"][label]["default"]
     for ax, ref in zip(axes, refs):
-        grid = [p for p in pts if len(differs(p["settings"], data["scenes"][label]["default"])) > 1]
+        def ys(points, ref=ref):
+            return [max(err_of(p, ref, metric), 1e-12) for p in points]
+        grid = [p for p in pts if len(differs(p["settings"], default)) > 1]
         if grid:
-            ax.scatter([time_of(p) for p in grid],
-                       [max(err_of(p, ref, metric), 1e-12) for p in grid],
+            ax.scatter([time_of(p) for p in grid], ys(grid),
                        s=9, color="0.75", label="spp × depth grid", zorder=1)
         for f in FACTORS:
             if f in MODEL_FACTORS:
@@ -1010,11 +1086,9 @@ def plot_scene(data: dict, label: str, out: Path, metric: str = "relmse") -> lis
                                 xytext=(3, 3), textcoords="offset points")
         front = pareto(pts, ref, metric)
         if front:
-            ax.step([time_of(p) for p in front],
-                    [max(err_of(p, ref, metric), 1e-12) for p in front],
+            ax.step([time_of(p) for p in front], ys(front),
                     where="post", color="k", lw=1, ls="--", zorder=4, label="Pareto front")
-            ax.scatter([time_of(p) for p in front],
-                       [max(err_of(p, ref, metric), 1e-12) for p in front],
+            ax.scatter([time_of(p) for p in front], ys(front),
                        s=40, facecolors="none", edgecolors="k", zorder=5)
         g = data["scenes"][label].get("golden", {})
         if ref == "golden" and g.get("noise_rmse") and metric == "rmse":
@@ -1031,11 +1105,11 @@ def plot_scene(data: dict, label: str, out: Path, metric: str = "relmse") -> lis
     for ref, c in (("golden", "k"), ("own", "tab:gray")):
         sel = [p for p in line if p["errors"].get(ref)]
         if sel:
-            ax.scatter([time_of(p) for p in sel], [max(err_of(p, ref, metric), 1e-12) for p in sel],
-                       color=c, marker="*", s=60, label=f"vs {ref}")
-            for p in sel:
-                ax.annotate(p["settings"]["combination"],
-                            (time_of(p), max(err_of(p, ref, metric), 1e-12)),
+            yv = [max(err_of(p, ref, metric), 1e-12) for p in sel]
+            ax.scatter([time_of(p) for p in sel], yv, color=c, marker="*", s=60,
+                       label=f"vs {ref}")
+            for p, y in zip(sel, yv):
+                ax.annotate(p["settings"]["combination"], (time_of(p), y),
                             fontsize=7, xytext=(3, 3), textcoords="offset points")
     ax.set_xscale("log")
     ax.set_yscale("log")
@@ -1129,6 +1203,36 @@ def strip_timings(data: dict) -> dict:
                   if kk not in ("timing", "seconds", "pid", "device")}
         pts[k]["facts"] = {kk: v for kk, v in p["facts"].items() if kk != "upload_s"}
     return pts
+
+
+def diff_runs(a: dict, b: dict) -> list[str]:
+    """What differs between two runs of the same sweep, timings aside (``strip_timings``):
+    one line per differing point and field; [] when they agree."""
+    sa, sb = strip_timings(a), strip_timings(b)
+    out = [f"only in the first run: {k}" for k in sorted(set(sa) - set(sb))]
+    out += [f"only in the second run: {k}" for k in sorted(set(sb) - set(sa))]
+    for k in sorted(set(sa) & set(sb)):
+        for f in sorted(set(sa[k]) | set(sb[k])):
+            if sa[k].get(f) != sb[k].get(f):
+                out.append(f"{k}: {f} differs")
+    return out
+
+
+def executor_check(scene_args, out, *, profile="tiny", backend: str = "llvm",
+                   workers: int = 1, log=print) -> bool:
+    """Run the same sweep in-process and on ``workers`` Dask workers (one GPU each on
+    CUDA) into ``out/in-process`` and ``out/dask``; print and return whether the JSON
+    agrees minus timings (the executor changes where points run, never what they are)."""
+    kw = dict(profile=profile, backend=backend, show_progress=False, outputs=False,
+              log=lambda *a: None)
+    here = run_study(scene_args, Path(out) / "in-process", **kw)
+    there = run_study(scene_args, Path(out) / "dask", workers=workers, **kw)
+    diffs = diff_runs(here, there)
+    ex = there["meta"].get("executor", {})
+    log(f"executor check ({backend}, {len(here['points'])} points, Dask {ex}): "
+        + ("JSON minus timings EQUAL to in-process" if not diffs
+           else f"{len(diffs)} DIFFERENCES:\n  " + "\n  ".join(diffs[:20])))
+    return not diffs
 
 
 if __name__ == "__main__":  # pragma: no cover

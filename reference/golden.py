@@ -25,7 +25,10 @@ changed and the command that re-renders it; with neither it is *missing*.
 
 **Writing** (``render_goldens``): only what is missing or stale is rendered; a stale file is
 replaced only with ``force``; every file is written to a temporary name in its folder and
-renamed (atomic).
+renamed (atomic). The work is a list of picklable jobs (``golden_jobs``: only what is missing
+or stale, each carrying its store and content key), each rendered and written by
+``render_golden_job`` in this process or on an executor's workers (``render_goldens(...,
+executor=)``, ``whitted reference --workers N``); the files are the same either way.
 """
 from __future__ import annotations
 
@@ -403,12 +406,115 @@ def plan_goldens(scene_paths, *, root, modes=MODES, shadings=SHADING_MODES):
     return plan
 
 
+def _check_store(root: Path, bundled: bool) -> None:
+    """Refuse the bundled store unless ``bundled``, and a file where the store should be."""
+    if is_bundled(root) and not bundled:
+        raise GoldenError(f"the bundled golden store {_display(root)} is read-only; give a "
+                          "store of your own (--goldens DIR, $WHITTED_GOLDENS or "
+                          "[tool.whitted] goldens in pyproject.toml)")
+    if Path(root).exists() and not Path(root).is_dir():
+        raise GoldenError(f"golden store {root}: exists and is not a folder")
+
+
+def golden_jobs(scene_paths, *, spp: int = CONVERGED_SPP, batches: int = CONVERGED_BATCHES,
+                size: int = DEFAULT_SIZE, converged_size: int | None = CONVERGED_SIZE,
+                modes=MODES, shadings=SHADING_MODES, root: Path = BUNDLED_STORE,
+                bundled: bool = False, force: bool = False, plan=None) -> list[dict]:
+    """The goldens of every scene x shading x mode x view that are missing or stale in the
+    store ``root``, one picklable spec each (a plain dict of str / int / bool): what
+    ``render_golden_job`` needs to render and write that golden in any process, the sidecar's
+    content key included (the job checks it against the scene it loads).
+
+    An up-to-date golden gets no job; a stale one is a ``GoldenError`` unless ``force``;
+    the bundled store is refused unless ``bundled``. plan: ``plan_goldens``'s answer when
+    the caller already has it (else it is made here)."""
+    root = Path(root)
+    _check_store(root, bundled)
+    if plan is None:
+        plan = plan_goldens(scene_paths, root=root, modes=modes, shadings=shadings)
+    stale = [p for p in plan if p[4].status == "stale"]
+    if stale and not force:
+        lines = "; ".join(p[4].message.split("; re-render")[0] for p in stale[:3])
+        more = f" (and {len(stale) - 3} more)" if len(stale) > 3 else ""
+        raise GoldenError(f"{lines}{more}; pass --force to replace "
+                          f"{'it' if len(stale) == 1 else 'them'}")
+    jobs = []
+    for scene_path, shading, mode, v, found in plan:
+        if found.status == "ok":
+            continue
+        h = size if mode == "exact" or converged_size is None else converged_size
+        scene = _resize(load_scene(scene_path, shading=shading), h)
+        out = golden_path(scene.name, scene.cameras[v].name, shading, mode, root)
+        replaces = found.path if found.status == "stale" and found.path else None
+        jobs.append({
+            "scene": str(scene_path), "shading": shading, "mode": mode, "view": v,
+            "height": h, "spp": spp, "batches": batches,
+            "root": str(root), "bundled": bool(bundled), "out": str(out),
+            "status": found.status,
+            "replaces": str(replaces) if replaces is not None and replaces != out else "",
+            "content_key": content_key(golden_inputs(scene, view=v, shading=shading,
+                                                     mode=mode)),
+        })
+    return jobs
+
+
+def render_golden_job(job: dict, step=None) -> str:
+    """Render one golden (a ``golden_jobs`` spec) with Mitsuba and write its EXR, then its
+    format-2 sidecar (both atomic, ``renderer.outputs``); a stale golden of the same key
+    under another name is removed afterwards. Returns the EXR path. ``step(label)`` is
+    called per unit of work (one per batch of a converged golden). The executor task of
+    ``render_goldens``; raises ``GoldenError`` when the scene's inputs no longer match the
+    planned content key (it changed since the plan) or the store is the bundled one and
+    the job does not say ``bundled``."""
+    import mitsuba as mi
+
+    from . import mitsuba_variant
+    from .mitsuba_scene import render_converged_with_variance, render_mitsuba
+
+    root = Path(job["root"])
+    _check_store(root, job.get("bundled", False))
+    variant = mitsuba_variant()
+    step = step or (lambda label="": None)
+    scene_path, v, mode, batches = job["scene"], job["view"], job["mode"], job["batches"]
+    shading = job["shading"]
+    scene = _resize(load_scene(scene_path, shading=shading), job["height"])
+    cam = scene.cameras[v]
+    out = Path(job["out"])
+    inputs = golden_inputs(scene, view=v, shading=shading, mode=mode, mitsuba=mi.__version__)
+    if content_key(inputs) != job["content_key"]:
+        raise GoldenError(f"{_display(Path(scene_path))}: its inputs changed since the goldens "
+                          f"were planned ({out.name}); run the command again")
+    label = f"{scene.name}/{out.name}"
+    var, b_spp = None, 1
+    if mode == "exact":
+        img = render_mitsuba(scene, view=v, mode="exact")
+        step(label)
+        used_spp = 1
+    else:
+        img, var, b_spp = render_converged_with_variance(
+            scene, view=v, spp=job["spp"], batches=batches,
+            progress=lambda label=label: step(label))
+        used_spp = job["spp"]
+    meta = sidecar(scene, inputs, resolution=[cam.width, cam.height], spp=used_spp,
+                   batch_spp=b_spp, batches=batches if mode == "converged" else 1,
+                   variant=variant)
+    # the image first, its sidecar last: an interrupted run leaves no sidecar that vouches
+    # for a missing image (both writes are atomic: renderer.outputs)
+    write_exr(out, img, layers=None if var is None else {"var": var}, overwrite=True)
+    write_text(out.with_suffix(".json"), json.dumps(meta, indent=1) + "\n", overwrite=True)
+    if job.get("replaces"):
+        old = Path(job["replaces"])
+        old.unlink(missing_ok=True)
+        old.with_suffix(".json").unlink(missing_ok=True)
+    return str(out)
+
+
 def render_goldens(scene_paths, *, force: bool = False, spp: int = CONVERGED_SPP,
                    batches: int = CONVERGED_BATCHES, size: int = DEFAULT_SIZE,
                    converged_size: int | None = CONVERGED_SIZE, modes=MODES,
                    shadings=SHADING_MODES, progress: bool = True,
                    root: Path = BUNDLED_STORE, bundled: bool = False,
-                   report=None) -> list[Path]:
+                   report=None, executor=None) -> list[Path]:
     """Render the goldens of every scene x view x shading x mode into the store ``root`` that
     are missing there or stale; an up-to-date golden is kept, a stale one is replaced only
     with ``force`` (else ``GoldenError`` before anything is rendered).
@@ -417,23 +523,18 @@ def render_goldens(scene_paths, *, force: bool = False, spp: int = CONVERGED_SPP
     ``spp // batches`` each, for the per-pixel variance). size: image height in pixels (width
     follows the camera's aspect); converged_size: the same for converged goldens (None:
     ``size``). bundled: allow ``root`` to be the bundled store (a developer action).
-    report: called with one line per golden kept or written. Returns the written EXR paths.
+    report: called with one line per golden kept or written. executor: an
+    ``evaluation.executor`` object (``.map(fn, items)`` yielding ``(index, result)``, e.g.
+    Dask workers, one GPU each) to render the jobs (``golden_jobs``) on; None: here, one
+    after another. The files are the same either way. Returns the written EXR paths (in
+    job order).
     """
     root = Path(root)
-    if is_bundled(root) and not bundled:
-        raise GoldenError(f"the bundled golden store {_display(root)} is read-only; give a "
-                          "store of your own (--goldens DIR, $WHITTED_GOLDENS or "
-                          "[tool.whitted] goldens in pyproject.toml)")
-    if root.exists() and not root.is_dir():
-        raise GoldenError(f"golden store {root}: exists and is not a folder")
+    _check_store(root, bundled)
     plan = plan_goldens(scene_paths, root=root, modes=modes, shadings=shadings)
-    stale = [p for p in plan if p[4].status == "stale"]
-    if stale and not force:
-        lines = "; ".join(p[4].message.split("; re-render")[0] for p in stale[:3])
-        more = f" (and {len(stale) - 3} more)" if len(stale) > 3 else ""
-        raise GoldenError(f"{lines}{more}; pass --force to replace "
-                          f"{'it' if len(stale) == 1 else 'them'}")
-    todo = [p for p in plan if p[4].status != "ok"]
+    jobs = golden_jobs(scene_paths, spp=spp, batches=batches, size=size,
+                       converged_size=converged_size, modes=modes, shadings=shadings,
+                       root=root, bundled=bundled, force=force, plan=plan)
     for p in plan:
         if p[4].status == "ok" and report:
             report(f"up to date: {_display(p[4].path)}")
@@ -442,45 +543,20 @@ def render_goldens(scene_paths, *, force: bool = False, spp: int = CONVERGED_SPP
     except OutputError as e:
         raise GoldenError(f"golden store {e}") from None
 
-    import mitsuba as mi
-
-    from . import mitsuba_variant
-    from .mitsuba_scene import render_converged_with_variance, render_mitsuba
-
-    variant = mitsuba_variant()
-    units = sum(batches if p[2] == "converged" else 1 for p in todo)
-    step = _progress_bar(units, progress)
-    written = []
-    for scene_path, shading, mode, v, found in todo:
-        h = size if mode == "exact" or converged_size is None else converged_size
-        scene = _resize(load_scene(scene_path, shading=shading), h)
-        cam = scene.cameras[v]
-        out = golden_path(scene.name, cam.name, shading, mode, root)
-        if found.status == "stale" and found.path != out and found.path.exists():
-            found.path.unlink()
-            found.path.with_suffix(".json").unlink(missing_ok=True)
-        label = f"{scene.name}/{out.name}"
-        var, b_spp = None, 1
-        if mode == "exact":
-            img = render_mitsuba(scene, view=v, mode="exact")
-            step(label)
-            used_spp = 1
-        else:
-            img, var, b_spp = render_converged_with_variance(
-                scene, view=v, spp=spp, batches=batches, progress=lambda label=label: step(label))
-            used_spp = spp
-        inputs = golden_inputs(scene, view=v, shading=shading, mode=mode,
-                               mitsuba=mi.__version__)
-        meta = sidecar(scene, inputs, resolution=[cam.width, cam.height], spp=used_spp,
-                       batch_spp=b_spp, batches=batches if mode == "converged" else 1,
-                       variant=variant)
-        # the image first, its sidecar last: an interrupted run leaves no sidecar that
-        # vouches for a missing image (both writes are atomic: renderer.outputs)
-        write_exr(out, img, layers=None if var is None else {"var": var}, overwrite=True)
-        write_text(out.with_suffix(".json"), json.dumps(meta, indent=1) + "\n", overwrite=True)
+    def done(job, path):
         if report and not progress:         # with a progress bar, the bar names each file
-            report(f"{'replaced' if found.status == 'stale' else 'wrote'}: {_display(out)}")
-        written.append(out)
+            report(f"{'replaced' if job['status'] == 'stale' else 'wrote'}: {_display(path)}")
+        return path
+
+    units = [batches if j["mode"] == "converged" else 1 for j in jobs]
+    step = _progress_bar(sum(units), progress)
+    if executor is None:
+        return [done(job, Path(render_golden_job(job, step))) for job in jobs]
+    written = [None] * len(jobs)
+    for i, path in executor.map(render_golden_job, jobs):
+        written[i] = done(jobs[i], Path(path))
+        for _ in range(units[i]):
+            step(Path(path).name)
     return written
 
 

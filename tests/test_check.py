@@ -318,3 +318,34 @@ def test_mitsuba_version_is_part_of_the_key_when_installed(user, monkeypatch):
     monkeypatch.setattr(golden, "mitsuba_version", lambda: None)   # not installed: not checked
     assert golden.find_golden(s, view=0, shading="classic", mode="exact",
                               stores=[store]).status == "ok"
+
+
+def test_reference_on_dask_workers_writes_the_same_store(user, tmp_path, capsys):
+    """`whitted reference --workers N` goes through the same store logic: the files equal
+    the in-process store's, an up-to-date store renders nothing, a stale golden is refused
+    without --force before a worker starts, and the bundled store stays read-only."""
+    pytest.importorskip("dask.distributed")
+    _, scene, store = user
+    mine = tmp_path / "dask_store"
+    args = ["reference", "--goldens", str(mine), "--size", "24", "--quiet", str(scene)]
+    assert main(args + ["--workers", "2"]) == 0
+    capsys.readouterr()
+    ours, theirs = _tree_hashes(store), _tree_hashes(mine)
+    exrs = {k: v for k, v in ours.items() if k.endswith(".exr")}
+    assert exrs and exrs == {k: v for k, v in theirs.items() if k.endswith(".exr")}
+    for side in mine.rglob("*.json"):           # the same format-2 sidecars but the date
+        a = json.loads(side.read_text())
+        b = json.loads((store / side.relative_to(mine)).read_text())
+        a.pop("date"), b.pop("date")
+        assert a == b and a["format"] == 2
+    assert _check(scene, "--goldens", mine) == 0
+    assert main(args + ["--workers", "2"]) == 0
+    assert "wrote 0 golden images" in capsys.readouterr().out
+    edited = tmp_path / "quad.toml"
+    edited.write_text(scene.read_text().replace("\nkd = 0.5", "\nkd = 0.4"))
+    before = _tree_hashes(mine)
+    assert main(args[:-1] + [str(edited), "--workers", "2"]) == 4
+    assert "pass --force" in capsys.readouterr().err
+    assert _tree_hashes(mine) == before
+    assert main(args + ["--workers", "-1"]) == 2
+    assert "--workers" in capsys.readouterr().err

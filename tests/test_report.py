@@ -175,3 +175,36 @@ def test_compare_cli_takes_mitsuba_image_from_golden(tmp_path, capsys):
                  "brute", "--out", str(tmp_path / "cmp8"), "--goldens", str(root)]) == 3
     assert "SIZE" in capsys.readouterr().out and "image is 16x16, ours 8x8" in \
         (tmp_path / "cmp8" / "index.html").read_text()
+
+
+def test_report_carries_notes_and_the_study_page_together(tmp_path):
+    """write_report(notes=, studies=): the verdict notes first, the committed CPU study as
+    the "Accuracy vs time" section, its files copied byte for byte (atomically: no
+    temporary file left), a folder that is not a study skipped."""
+    study_dir = Path(__file__).resolve().parents[1] / "results" / "study" / "cpu"
+    out = tmp_path / "report"
+    index = write_report(out, [_entry()], title="t",
+                         notes=[("STALE", "box / side (classic)", "golden is stale")],
+                         studies=[study_dir, tmp_path / "not_a_study"])
+    page = index.read_text()
+    assert page.index("golden is stale") < page.index("Accuracy vs time")
+    assert 'href="study/cpu/index.html"' in page and 'href="study/cpu/study.json"' in page
+    copied = sorted(p.name for p in (out / "study" / "cpu").iterdir())
+    assert "index.html" in copied and "study.json" in copied and "cornell_box.png" in copied
+    for name in copied:
+        assert not name.startswith("."), name
+        assert (out / "study" / "cpu" / name).read_bytes() == (study_dir / name).read_bytes()
+    assert not (out / "study" / "not_a_study").exists()
+    plain = write_report(tmp_path / "plain", [_entry()], title="t").read_text()
+    assert "Accuracy vs time" not in plain
+
+
+def test_compare_cli_refuses_a_study_folder_that_is_not_one(tmp_path, capsys):
+    from whitted.cli import main
+    out = tmp_path / "cmp"
+    assert main(["compare", str(SCENES / "analytic_quad.toml"), "--view", "top", "--size",
+                 "16x16", "--accel", "brute", "--out", str(out), "--live",
+                 "--study", str(tmp_path / "nothing")]) == 4
+    err = capsys.readouterr().err
+    assert "--study" in err and "nothing" in err and len(err.strip().splitlines()) == 1
+    assert not (out / "index.html").exists()

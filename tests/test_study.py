@@ -1,6 +1,6 @@
 """The accuracy-vs-time study (evaluation.study) on a tiny sweep: the facts its plots rest on.
 
-One tiny sweep (cornell_box at 16 x 16, spp 1/4/16 and the three accelerators, 5 seeds) is
+One tiny sweep (cornell_box at 16 x 16, spp 1/4/16 and every accelerator, 5 seeds) is
 run once in-process; the other tests check facts of it, re-run it (resumed, on Dask) and
 compare, or render single points.
 """
@@ -16,6 +16,7 @@ import pytest
 # ---- project imports (the one block to rename at merge) ------------------------------------
 from evaluation import study
 from evaluation.executor import InProcess, make_executor
+from renderer.accel import ACCELERATORS
 from renderer.render import Renderer
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -44,7 +45,8 @@ def tiny(tmp_path_factory):
 def test_sweep_is_complete_and_written(tiny):
     out, data = tiny
     assert not data["meta"]["missing"]
-    assert len(data["points"]) == 5          # default (4 spp), spp 1 and 16, brute, boxes
+    # default (4 spp, bvh), spp 1 and 16, and every other accelerator
+    assert len(data["points"]) == 3 + len(ACCELERATORS) - 1
     for name in ("study.json", "study.md", "index.html", "cornell_box.png", "cornell_box.svg"):
         assert (out / name).exists(), name
     p = next(iter(data["points"].values()))
@@ -70,7 +72,7 @@ def test_more_spp_never_raises_golden_error(tiny):
 def test_accelerators_give_the_same_image(tiny):
     _, data = tiny
     line = study.factor_line(data, "cornell_box", "accel")
-    assert {p["settings"]["accel"] for p in line} == {"brute", "boxes", "bvh"}
+    assert {p["settings"]["accel"] for p in line} == set(ACCELERATORS)
     assert len({tuple(p["image_sha256"]) for p in line}) == 1
 
 
@@ -88,13 +90,18 @@ def test_pareto_front_and_tables(tiny):
     errs = [r["relmse"] for r in rows]
     assert errs == sorted(errs, reverse=True)
     assert "spp" in study.factor_sentences(data, "cornell_box")
+    # README block: the device named, one sentence per factor; on LLVM the cost is CPU time
+    lines = study.summary_sentences(data)
+    assert any(x.startswith("4× spp") and "CPU time" in x for x in lines)
+    block = study.readme_section(data, "results/study/x")
+    assert data["meta"]["device"]["device"] in block and block.count("\n- ") == len(lines)
 
 
 def test_resumed_sweep_equals_uninterrupted(tiny, tmp_path):
     _, full = tiny
     part = study.run_study(SCENES, tmp_path, profile=TINY, max_points=2, show_progress=False,
                            outputs=False, log=lambda *a: None)
-    assert len(part["points"]) == 2 and len(part["meta"]["missing"]) == 3
+    assert len(part["points"]) == 2 and len(part["meta"]["missing"]) == len(full["points"]) - 2
     resumed = study.run_study(SCENES, tmp_path, profile=TINY, show_progress=False,
                               outputs=False, log=lambda *a: None)
     assert study.strip_timings(resumed) == study.strip_timings(full)
@@ -143,7 +150,8 @@ def test_seed_is_the_settings_seed():
     images, _ = study.render_seeds(spec)
     sc = study.prepare_scene(spec)
     sc = replace(sc, settings=replace(sc.settings, seed=3))
-    img = Renderer(sc, backend="llvm", accel="bvh").render(0).image
+    img = Renderer(sc, backend="llvm", accel="bvh",
+                   intersection=spec["intersection"]).render(0).image
     assert np.array_equal(images[0], img)
 
 
@@ -160,3 +168,67 @@ def test_executors_map_everything():
     with InProcess() as ex:
         assert sorted(ex.map(abs, items)) == [(i, i) for i in items]
     assert isinstance(make_executor(0), InProcess)
+
+
+def test_de2000_is_skipped_with_a_note_without_colour_science(monkeypatch):
+    import importlib.util
+    real = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec",
+                        lambda name, *a: None if name == "colour" else real(name, *a))
+    have, notes = study.metrics_available()
+    assert "de2000_mean" not in have and "rmse" in have
+    assert len(notes) == 1 and "colour" in notes[0]
+    g = np.random.default_rng(1).random((8, 8, 3))
+    m = study.error_metrics(g, g * 0.5)
+    assert "de2000_mean" not in m and m["rmse"] > 0
+    md = study.markdown({"meta": {"metric_notes": notes}, "scenes": {}, "points": {}})
+    assert "de2000_mean skipped" in md
+
+
+def test_gpu_assignment_one_gpu_per_worker_rank():
+    from evaluation.executor import gpu_for_worker, visible_gpus
+    smi = "GPU 0: NVIDIA H200 (UUID: a)\nGPU 1: NVIDIA H200 (UUID: b)\n" \
+          "GPU 2: NVIDIA H200 (UUID: c)\nGPU 3: NVIDIA H200 (UUID: d)\n"
+    assert visible_gpus({}, smi) == ["0", "1", "2", "3"]
+    assert visible_gpus({}, "") == []
+    assert visible_gpus({"CUDA_VISIBLE_DEVICES": "2,5"}, smi) == ["2", "5"]
+    assert visible_gpus({"CUDA_VISIBLE_DEVICES": ""}, smi) == []
+    gpus = visible_gpus({}, smi)
+    assert [gpu_for_worker(r, gpus) for r in range(4)] == ["0", "1", "2", "3"]
+    assert [gpu_for_worker(r, ["2", "5"]) for r in range(4)] == ["2", "5", "2", "5"]
+    with pytest.raises(ValueError):
+        gpu_for_worker(0, [])
+
+
+def test_dask_workers_each_see_their_own_gpu():
+    # No GPU here: fake two and check what each worker process sees before any task runs.
+    pytest.importorskip("dask.distributed")
+    from evaluation.executor import DaskExecutor
+    with DaskExecutor(workers=2, gpus=["0", "1"]) as ex:
+        env = ex.worker_env()
+        assert sorted(env.items()) == [(0, "0"), (1, "1")]
+        assert ex.describe()["gpus"] == ["0", "1"]
+        assert sorted(r for _, r in ex.map(_cuda_env, range(2))) in (["0", "1"], ["0", "0"],
+                                                                   ["1", "1"])
+
+
+def _cuda_env(_):
+    import os
+    return os.environ.get("CUDA_VISIBLE_DEVICES")
+
+
+def test_report_carries_the_study_page(tiny, tmp_path):
+    from evaluation.report import ReportEntry, write_report
+    out, _ = tiny
+    img = np.zeros((4, 4, 3), np.float32)
+    index = write_report(tmp_path / "rep", [ReportEntry("box / front", img, img)], title="t",
+                         studies=[out, tmp_path / "not-a-study"])
+    text = index.read_text()
+    name = out.name
+    assert f'href="study/{name}/index.html"' in text and "Accuracy vs time" in text
+    for f in ("index.html", "study.json", "study.md", "cornell_box.png", "cornell_box.svg"):
+        assert (tmp_path / "rep" / "study" / name / f).read_bytes() == (out / f).read_bytes()
+    assert not (tmp_path / "rep" / "study" / name / "cache").exists()
+    assert "not-a-study" not in text
+    plain = write_report(tmp_path / "rep2", [ReportEntry("x", img, img)], title="t")
+    assert "Accuracy vs time" not in plain.read_text()

@@ -50,6 +50,10 @@ def register(subparsers) -> None:
                    help="golden store searched before the bundled one (default "
                         "$WHITTED_GOLDENS or [tool.whitted] goldens in pyproject.toml)")
     p.add_argument("--force", action="store_true", help="replace an existing report folder")
+    p.add_argument("--study", type=Path, action="append",
+                   help="accuracy-vs-time study folder (whitted study --out, e.g. "
+                        "results/study/cpu) to carry as the report's 'Accuracy vs time' page "
+                        "(repeatable)")
     p.set_defaults(source="golden", func=cmd_compare)
 
 
@@ -98,6 +102,10 @@ def cmd_compare(args: argparse.Namespace) -> int:
         raise CliError(f"report folder {out} exists; pass --force to replace it",
                        code=EXIT["file"])
     check_output_dir(out)
+    for d in getattr(args, "study", None) or ():
+        if not (Path(d) / "index.html").is_file():
+            raise CliError(f"--study {d}: not a study folder (no index.html; `whitted study "
+                           "--out DIR` makes one)", code=EXIT["file"])
 
     effects = effects_for_cli(scene, args)
     print(f"{scene.name}: {scene.face_count} triangles, {len(scene.lights)} lights, "
@@ -165,7 +173,8 @@ def cmd_compare(args: argparse.Namespace) -> int:
              if x.status in ("MISSING", "STALE", "ERROR", "SIZE")]
     entries.sort(key=lambda e: -vd.EXIT_CODES.get(e.verdict or "PASS", 0))
     index = write_report(out, entries, title=f"{scene.name}: ours vs Mitsuba 3 ({s.shading})",
-                         overwrite=args.force, notes=notes)
+                         overwrite=args.force, notes=notes,
+                         studies=getattr(args, "study", None) or ())
     if entries:
         print(format_metrics_table(entries))
     print(f"report: {index}")

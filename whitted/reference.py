@@ -53,6 +53,10 @@ def register(subparsers) -> None:
     p.add_argument("--shadings", nargs="+", choices=SHADING_MODES,
                    help="default: the scene's [check] shadings, else both")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--workers", type=int, default=0,
+                   help="render the goldens on a Dask LocalCluster of N worker processes "
+                        "(one GPU each where there are GPUs; default: in this process)")
+    p.add_argument("--scheduler", help="render the goldens on an existing Dask scheduler")
     p.set_defaults(func=cmd_reference)
 
     p = subparsers.add_parser(
@@ -78,6 +82,7 @@ def register(subparsers) -> None:
 
 
 def cmd_reference(args: argparse.Namespace) -> int:
+    from evaluation.executor import make_executor, visible_gpus
     from evaluation.verdict import plan_for
 
     store, source = (args.goldens, "--goldens") if args.goldens else \
@@ -86,15 +91,36 @@ def cmd_reference(args: argparse.Namespace) -> int:
         raise CliError("no golden store to write: pass --goldens DIR, set $WHITTED_GOLDENS or "
                        "add `goldens = \"DIR\"` to [tool.whitted] in pyproject.toml (the "
                        "bundled store is read-only)", code=EXIT["file"])
+    workers, scheduler = getattr(args, "workers", 0) or 0, getattr(args, "scheduler", None)
+    if workers < 0:
+        raise CliError(f"--workers: expected 0 (this process) or more, got {workers}")
     check_output_dir(store)                 # before any rendering: the store can be written
     written = 0
     try:
+        # plan every scene first: a stale golden without --force (or a bundled store) is
+        # refused before any worker starts or anything renders
+        plans = []
         for path in args.scenes:
             modes, shadings = plan_for(load_scene(path), args.modes, args.shadings)
-            written += len(golden.render_goldens(
-                [path], force=args.force, spp=args.spp, batches=args.batches, size=args.size,
-                converged_size=args.converged_size, modes=modes, shadings=shadings,
-                progress=not args.quiet, root=store, report=None if args.quiet else print))
+            plans.append((path, modes, shadings))
+            golden.golden_jobs([path], size=args.size, converged_size=args.converged_size,
+                               modes=modes, shadings=shadings, root=store, force=args.force)
+        # Same executor as `whitted study`: each job (scene, shading, mode, view) is a
+        # picklable spec rendered by reference.golden.render_golden_job wherever it runs.
+        kw = {"gpus": "auto"} if workers and not scheduler and visible_gpus() else {}
+        try:
+            ex = make_executor(workers, scheduler, **kw)
+        except (RuntimeError, ValueError, OSError) as e:
+            where = "--scheduler" if scheduler else "--workers"
+            raise CliError(f"{where}: {e}") from e
+        with ex:
+            for path, modes, shadings in plans:
+                written += len(golden.render_goldens(
+                    [path], force=args.force, spp=args.spp, batches=args.batches,
+                    size=args.size, converged_size=args.converged_size, modes=modes,
+                    shadings=shadings, progress=not args.quiet, root=store,
+                    report=None if args.quiet else print,
+                    executor=None if ex.name == "in-process" else ex))
     except golden.GoldenError as e:
         raise CliError(str(e), code=EXIT["file"]) from e
     print(f"wrote {written} golden images into {store}" + (f" (from {source})"

@@ -5,6 +5,7 @@
     whitted study --workers 4 ...            # Dask LocalCluster of 4 worker processes
     whitted study --scheduler tcp://host:8786 ...
     whitted study --report-only --out DIR    # re-write markdown, plots, HTML from DIR/study.json
+    whitted study --check-executor --workers 1 --profile tiny --out DIR   # Dask == in-process
 
 Also runnable without the CLI as ``python -m whitted.study ...``. A SCENE is a path, a
 name under ``scenes/`` or ``PATH@OFFSET`` (the scene translated far from the origin).
@@ -41,6 +42,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--report-only", action="store_true",
                    help="only write markdown, plots and HTML from OUT/study.json")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument("--check-executor", action="store_true",
+                   help="run the sweep in-process and on --workers Dask workers (default 1) "
+                        "into OUT/in-process and OUT/dask; exit 1 unless the JSON agrees "
+                        "minus timings")
 
 
 def run(args) -> int:
@@ -73,6 +78,10 @@ def run(args) -> int:
         changes["grid"] = False
     changes.pop("name")
     profile = replace(prof, **changes) if changes else args.profile
+    if args.check_executor:
+        ok = study.executor_check(args.scenes, args.out, profile=profile, backend=args.backend,
+                                  workers=args.workers or 1)
+        return 0 if ok else 1
     study.run_study(args.scenes, args.out, profile=profile, backend=args.backend,
                     shading=args.shading, workers=args.workers, scheduler=args.scheduler,
                     budget_s=args.budget_minutes * 60 if args.budget_minutes else None,
