@@ -154,6 +154,7 @@ def render_goldens(scene_paths, *, force: bool = False, spp: int = CONVERGED_SPP
             "batches": batches if mode == "converged" else 1,
             "resolution": [cam.width, cam.height], "mitsuba_version": mi.__version__,
             "variant": variant, "max_depth": scene.settings.max_depth,
+            "spawn": "mitsuba",           # secondary/shadow rays: si.spawn_ray(_to)
             "sources": source_hashes(scene),
             "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
         }
