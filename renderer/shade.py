@@ -16,6 +16,7 @@ import drjit as dr
 import numpy as np
 
 from .accel import ClosestHit, Ray
+from .accel import triangle as triangle_layout
 from .accel.triangle import load as load_triangle
 from .accel.triangle import unit_roundoff
 from .device import Types, array3
@@ -148,8 +149,8 @@ SHADOW_END_OPS = 16
 class SurfacePoint:
     """What shading needs at a hit (arrays of the batch width).
 
-    p: Array3f position, ``v0 + u e1 + v e2`` from the hit's barycentrics;
-    p_err: Array3f per-axis bound on the rounding error of ``p`` (off the triangle's plane);
+    p: Array3f position (``hit_point``);
+    p_err: Array3f per-axis bound on the distance of ``p`` from the triangle's plane;
     ng: Array3f unit geometric normal (winding order);
     ns: Array3f unit shading normal (interpolated for smooth faces, else ``ng``);
     material: UInt32 material index.
@@ -162,23 +163,54 @@ class SurfacePoint:
     material: object = None
 
 
+def _packs_vertices(accel) -> bool:
+    """Whether ``accel.tri_data`` holds raw vertices ``p0, p1, p2`` (a routine whose entry
+    in ``renderer.accel.triangle.LAYOUTS`` is "vertices") rather than ``v0, e1, e2``."""
+    layouts = getattr(triangle_layout, "LAYOUTS", {})
+    return layouts.get(getattr(accel, "intersection", ""), "edges") == "vertices"
+
+
+def hit_point(accel, ray: Ray, hit: ClosestHit, ng, t: Types):
+    """The hit point and a per-axis bound on its distance from the triangle's plane,
+    ``(p, p_err)`` (Array3f each; ``ng`` the hit triangle's unit normal).
+
+    Two estimates, each good at one thing: the barycentric point ``p_b`` (edges layout
+    ``v0 + u e1 + v e2``, two FMAs; vertices layout ``(1-u-v) p0 + u p1 + v p2``, pbrt-v4)
+    lies on the plane up to the rounding of that sum, whatever error ``u, v`` carry, with
+    the bound ``γ_7 (|t0| + |t1| + |t2|)`` over its three terms (which grows with the
+    coordinates the sum cancels, so a point near the origin on a huge triangle gets the
+    larger offset its rays need); the ray's point ``o + t d`` is where along the plane the
+    ray arrived (``u e1`` on a 1e5-wide floor is off by ulp(1e5) in the plane, ``o + t d``
+    is not). ``p`` is the ray's point moved along ``N_g`` onto the plane through ``p_b``,
+    so it keeps the ray's position in the plane and the barycentric bound off it, plus the
+    roundings of the move (``γ_2 |p| + γ_5 |move|``)."""
+    double = t.is_double
+    a, b, c = load_triangle(t, accel.tri_data, hit.prim, hit.found)
+    if _packs_vertices(accel):
+        t0, t1, t2 = a * (1.0 - hit.u - hit.v), b * hit.u, c * hit.v
+        p_b = t0 + t1 + t2
+    else:
+        t0, t1, t2 = a, b * hit.u, c * hit.v
+        p_b = dr.fma(c, hit.v, dr.fma(b, hit.u, a))
+    p_r = dr.fma(ray.d, hit.t, ray.o)
+    move = dr.dot(p_b - p_r, ng)
+    p = dr.fma(ng, move, p_r)
+    p_err = (gamma(POINT_ERROR_OPS, double) * (dr.abs(t0) + dr.abs(t1) + dr.abs(t2))
+             + gamma(2, double) * dr.abs(p) + gamma(5, double) * dr.abs(move))
+    return p, p_err
+
+
 def surface_point(accel, ray: Ray, hit: ClosestHit, t: Types, fx: EffectSet) -> SurfacePoint:
     """Gather the hit triangle's data once (``accel``: the accelerator; its ``tri_data``
-    packed triangles and ``tris`` shading attributes). The point is recomputed from the
-    barycentrics rather than ``o + t d``: it then lies on the triangle up to two roundings,
-    with an error bound that scales with the triangle's own coordinates (``o + t d`` inherits
-    the error of ``t``, which grows with the ray's length; Mitsuba's meshes do the same). The
-    normal interpolation is traced only with ``fx.smooth_normals``."""
+    packed triangles and ``tris`` shading attributes); the point and its error bound come
+    from ``hit_point``. The normal interpolation is traced only with
+    ``fx.smooth_normals``."""
     tris = accel.tris
     A3 = type(ray.o)
     UInt32 = type(hit.prim)
     m = hit.found
-    v0, e1, e2 = load_triangle(t, accel.tri_data, hit.prim, m)
-    a = e1 * hit.u
-    b = e2 * hit.v
-    p = dr.fma(e2, hit.v, dr.fma(e1, hit.u, v0))
-    p_err = gamma(POINT_ERROR_OPS, t.is_double) * (dr.abs(v0) + dr.abs(a) + dr.abs(b))
     ng = dr.gather(A3, tris.ng, hit.prim, m)
+    p, p_err = hit_point(accel, ray, hit, ng, t)
     ns = ng
     if dr.hint(fx.smooth_normals, mode="scalar"):
         sm = dr.gather(type(m), tris.smooth, hit.prim, m)
