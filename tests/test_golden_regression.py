@@ -40,7 +40,30 @@ def _ours_converged(scene, view, golden, **kw):
                   exact=False, spp=spp, **kw).image
 
 
-@pytest.mark.parametrize("case", cases(modes=("exact",)), ids=lambda c: c.name)
+#: Exact cases that fail the rule because the golden is wrong at a few pixels: Mitsuba
+#: spawns secondary rays (1 + max|p|) x 8.9e-5 off the surface (si.spawn_ray), ours by the
+#: hit's own error bound (~1e-7), and a glass path that starts that much higher leaves the
+#: glass elsewhere. At every hard pixel of these cases the float64 oracle (offsets -> 0,
+#: tests/oracle.py) sides with us: ours within 1.2e-3 of it, Mitsuba off by 0.11-0.77
+#: (results/offsets/hard_pixels_vs_oracle.txt). Strict: once a case passes, drop it here.
+MITSUBA_OFFSET_CASES = {
+    "cornell_sphere-v0-physical-exact", "cornell_sphere-v2-classic-exact",
+    "cornell_sphere-v2-physical-exact", "platonic_solids-v0-physical-exact",
+    "platonic_solids-v1-physical-exact", "platonic_solids-v2-physical-exact",
+}
+
+
+def _exact_params():
+    out = []
+    for c in cases(modes=("exact",)):
+        marks = ([pytest.mark.xfail(strict=True, reason="golden off by Mitsuba's spawn offset "
+                                    "at 1-4 glass pixels (oracle-checked)")]
+                 if c.name in MITSUBA_OFFSET_CASES else [])
+        out.append(pytest.param(c, marks=marks, id=c.name))
+    return out
+
+
+@pytest.mark.parametrize("case", _exact_params())
 def test_exact_matches_golden(case):
     g = _golden(case)
     scene = _scene_at(case.scene, case.shading, g)
