@@ -81,7 +81,8 @@ def main(argv=None) -> int:
                   np.concatenate([a, b, mask], 1), overwrite=True)
     lines = [f"# Mitsuba {a_var} against {b_var} (exact mode, {args.size} rows, "
              f"{args.shading}): pixels differing by > {TOL:g}", "",
-             "| scene | view | spawn | pixels > 1e-2 | share | max abs |", "|---|---|---|---|---|---|"]
+             "| scene | view | spawn | pixels > 1e-2 | share | max abs |",
+             "|---|---|---|---|---|---|"]
     for r in rows:
         lines.append(f"| {r['scene']} | {r['view']} | {r['spawn']} | {r['over']} "
                      f"| {100 * r['over'] / r['pixels']:.3f} % | {r['max_abs']:.3g} |")

@@ -83,7 +83,7 @@ def test_translation_invariance(shift):
     bound = _bound(sc, T)
     print(f"shift {shift:g}: {res}, relMSE bound {bound:.1e}")
     assert res["bad"] == 0, f"moved by {shift:g}: {res['bad']} acne/leak pixels ({res})"
-    assert res["rel_mse"] <= bound, f"moved by {shift:g}: relMSE {res['rel_mse']:.2e} > {bound:.1e}"
+    assert res["rel_mse"] <= bound, f"moved by {shift:g}: relMSE {res['rel_mse']:.2e}"
 
 
 @pytest.mark.parametrize("scale", SCALES)
@@ -93,7 +93,7 @@ def test_scale_invariance(scale):
     bound = _bound(sc, np.zeros(3))
     print(f"scale {scale:g}: {res}, relMSE bound {bound:.1e}")
     assert res["bad"] == 0, f"scaled by {scale:g}: {res['bad']} acne/leak pixels ({res})"
-    assert res["rel_mse"] <= bound, f"scaled by {scale:g}: relMSE {res['rel_mse']:.2e} > {bound:.1e}"
+    assert res["rel_mse"] <= bound, f"scaled by {scale:g}: relMSE {res['rel_mse']:.2e}"
 
 
 @pytest.mark.parametrize("shift", [1e5, 1e6, 1e7])
