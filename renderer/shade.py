@@ -228,11 +228,11 @@ def _next_float_away(x, up):
     ±0 step to the smallest subnormal of the right sign)."""
     F = type(x)
     U = dr.uint_array_t(F)
-    x = dr.select(x == 0, dr.select(up, F(0.0), F(-0.0)), x)
     bits = dr.reinterpret_array(U, x)
-    grow = (x >= 0) == up                   # the magnitude grows: one ulp more
-    bits = dr.select(grow, bits + 1, bits - 1)
-    return dr.reinterpret_array(F, bits)
+    grow = (x > 0) == up                    # the magnitude grows: one ulp more
+    stepped = dr.reinterpret_array(F, dr.select(grow, bits + 1, bits - 1))
+    tiny = dr.reinterpret_array(F, dr.full(U, 1, dr.width(x)))   # smallest subnormal
+    return dr.select(x == 0, dr.select(up, tiny, -tiny), stepped)
 
 
 def offset_origin(sp: SurfacePoint, direction, eps=None):

@@ -114,3 +114,16 @@ if __name__ == "__main__":
     for s in (0.0, 1 / 7, 2 / 7, 3 / 7, 1.0):
         h, n = self_hits(scale=s)
         print(f"margin {7 * s:.0f} roundings: {h} self-hits of {n} spawned rays")
+
+
+@pytest.mark.parametrize("precision", ["float32", "float64"])
+def test_next_float_away(precision):
+    """One float up or down from ±0, ±1 and ±tiny values, against numpy's nextafter."""
+    t = types("llvm", precision)
+    dt = np.float64 if t.is_double else np.float32
+    x = np.array([0.0, -0.0, 1.0, -1.0, 1e-30, -1e-30, 3e5, -3e5], dt)
+    for up in (True, False):
+        got = np.array(shade._next_float_away(t.Float(x), t.Bool(np.full(len(x), up))))
+        want = np.nextafter(x, dt(np.inf if up else -np.inf))
+        assert np.all(np.isfinite(got)), got
+        np.testing.assert_array_equal(got, want)
