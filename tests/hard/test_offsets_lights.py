@@ -83,7 +83,7 @@ def shadow_endpoint_errors(**settings) -> dict:
     img = render(scene, backend="llvm").image[..., 0].astype(np.float64)
     clear, expected, shadow = _floor_pixels(scene)
     lit = clear & ~shadow
-    rel = np.abs(img - expected) / expected
+    rel = np.abs(img - expected) / np.where(expected > 0, expected, 1.0)
     return dict(lit=int(lit.sum()), shadowed=int((clear & shadow).sum()),
                 max_rel_lit=float(rel[lit].max()),
                 falsely_dark=int((lit & (img < 0.5 * expected)).sum()),
