@@ -19,8 +19,8 @@ store falls back to ``$WHITTED_GOLDENS`` / ``[tool.whitted] goldens``; the bundl
 always searched last.
 
 From test code, a test that takes ``whitted_case`` is run once per case of the scenes named by
-its ``@pytest.mark.whitted(scenes=[...], goldens=..., modes=..., shadings=..., xfail={stem:
-reason})`` marker (or of the configured folder; ``xfail`` marks a scene's cases as expected,
+its ``@pytest.mark.whitted(scenes=[...], goldens=..., modes=..., shadings=..., xfail={stem or case
+id: reason})`` marker (or of the configured folder; ``xfail`` marks a scene's cases as expected,
 strictly, to fail); ``whitted_case.verdict()`` returns the ``Verdict`` and
 ``whitted_case.check()`` fails the test unless it is PASS or WARN.
 """
@@ -149,8 +149,11 @@ def pytest_generate_tests(metafunc):
     cases = []
     for s in scenes:
         cases += cases_of(s, goldens=goldens, backend=backend, **kw)
-    params = [pytest.param(c, marks=[pytest.mark.xfail(strict=True, reason=xfail[c.scene.stem])]
-                           if c.scene.stem in xfail else [], id=c.id) for c in cases]
+    def marks(c):
+        key = c.id if c.id in xfail else c.scene.stem
+        return [pytest.mark.xfail(strict=True, reason=xfail[key])] if key in xfail else []
+
+    params = [pytest.param(c, marks=marks(c), id=c.id) for c in cases]
     metafunc.parametrize("whitted_case", params)
 
 

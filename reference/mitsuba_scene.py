@@ -182,9 +182,22 @@ def sensor_dict(scene: Scene, *, view: int = 0, spp: int = 1, mode: str = "exact
     }
 
 
+#: The offset rule the reference used before it spawned rays natively (fraction of the
+#: scene diagonal); ``spawn="fixed"`` only.
+FIXED_RAY_EPSILON = 1e-4
+
+
+def fixed_ray_offset(scene: Scene) -> float:
+    """Absolute offset of ``spawn="fixed"``: the scene's ``ray_epsilon`` override, else
+    ``FIXED_RAY_EPSILON``, times the scene diagonal."""
+    eps = scene.settings.ray_epsilon
+    return float((FIXED_RAY_EPSILON if eps is None else eps) * max(scene.diagonal, 1e-30))
+
+
 def to_mitsuba_dict(scene: Scene, *, view: int = 0, spp: int = 1, mode: str = "exact",
                     seed: int = 0, builtins: bool = False, meshes: str = "objects",
-                    portable: bool = False, overwrite: bool = False) -> dict:
+                    portable: bool = False, overwrite: bool = False,
+                    spawn: str = "mitsuba") -> dict:
     """A dict for ``mi.load_dict`` describing ``scene`` seen from ``cameras[view]``.
 
     mode: "exact" (one ray per pixel centre, driven by ``render_mitsuba``) or "converged"
@@ -197,6 +210,10 @@ def to_mitsuba_dict(scene: Scene, *, view: int = 0, spp: int = 1, mode: str = "e
     XML there).
     portable: stock plugins only (``portable_material_dict``, ``portable_integrator``);
     ValueError listing ``portable_problems`` when some part needs our plugins.
+    spawn: how the ``whitted`` integrator spawns secondary and shadow rays: "mitsuba"
+    (Mitsuba's own ``spawn_ray`` / ``spawn_ray_to``: the goldens) or "fixed" (an absolute
+    offset of ``FIXED_RAY_EPSILON`` × scene diagonal, or the scene's own ``ray_epsilon``
+    override: only to study the reference, ``evaluation/speckles.py``).
     """
     mi = _mi()
     if mode not in MODES:
@@ -220,7 +237,8 @@ def to_mitsuba_dict(scene: Scene, *, view: int = 0, spp: int = 1, mode: str = "e
         d["integrator"] = {
             "type": "whitted", "max_depth": int(st.max_depth),
             "min_weight": float(st.min_weight), "shading": st.shading,
-            "ray_offset": float(scene.ray_offset), "background": _rgb(st.background),
+            "spawn": spawn, "ray_offset": fixed_ray_offset(scene),
+            "background": _rgb(st.background),
             "ambient": _rgb(scene.ambient),
             "falloff_none": ",".join(f"light{i}" for i, light in enumerate(scene.lights)
                                      if light.falloff == "none")}
@@ -285,10 +303,11 @@ def render_exact(mi_scene) -> np.ndarray:
 
 
 def render_mitsuba(scene: Scene, *, view: int = 0, mode: str = "exact", spp: int = 1,
-                   seed: int = 0, builtins: bool = False) -> np.ndarray:
-    """Render ``scene`` with Mitsuba. Returns float32 (H, W, 3) linear RGB."""
+                   seed: int = 0, builtins: bool = False, spawn: str = "mitsuba") -> np.ndarray:
+    """Render ``scene`` with Mitsuba (``spawn``: see ``to_mitsuba_dict``). Returns float32
+    (H, W, 3) linear RGB."""
     mi = _mi()
-    sc = load(scene, view=view, mode=mode, spp=spp, seed=seed, builtins=builtins)
+    sc = load(scene, view=view, mode=mode, spp=spp, seed=seed, builtins=builtins, spawn=spawn)
     if mode == "exact" and not builtins:
         return render_exact(sc)
     return np.array(mi.render(sc, spp=spp, seed=seed), dtype=np.float32)[..., :3]

@@ -22,11 +22,20 @@ BSDFs (Fresnel term, refracted direction, radiance compression). What is ours:
 ``whitted`` (integrator)
     The deterministic Whitted tree of docs/MODEL.md, evaluated as host-level recursion over
     ray batches with masks (eagerly evaluated, so empty branches are pruned). Parameters:
-    ``max_depth`` (5), ``min_weight`` (0.01), ``shading`` ("classic"), ``ray_offset``
-    (absolute ε, 1e-4), ``background`` and ``ambient`` (rgb, 0), ``falloff_none``
+    ``max_depth`` (5), ``min_weight`` (0.01), ``shading`` ("classic"), ``spawn``
+    ("mitsuba") "mitsuba" | "fixed", ``ray_offset`` (absolute ε, 1e-4, read only with
+    ``spawn = "fixed"``), ``background`` and ``ambient`` (rgb, 0), ``falloff_none``
     (comma-separated ids of point emitters without 1/dist² falloff, ""). It works under
     ``mi.render`` (converged mode) and through ``render_exact`` (one ray per given film
     position, exact mode).
+
+    Secondary and shadow rays are spawned by Mitsuba itself (``spawn = "mitsuba"``):
+    ``si.spawn_ray(d)`` and ``si.spawn_ray_to(p_light)``, Mitsuba's own offset along the
+    geometric normal, ``(1 + max|p|) · RayEpsilon``, and shadow rays ending
+    ``ShadowEpsilon`` short of the light. So the goldens check our ray spawning too, not
+    only shading. ``spawn = "fixed"`` (the old rule, ``p ± ε N_g`` with an absolute ε,
+    shadow rays ``ε`` short) exists only to study the reference itself
+    (``evaluation/speckles.py``).
 
 Importing this module registers nothing: ``register()`` defines the classes for the Mitsuba
 variant in use (``mi.BSDF`` and ``mi.SamplingIntegrator`` are the variant's own classes) and
@@ -180,6 +189,10 @@ def _define_plugins() -> dict[str, type]:
             if self.shading not in ("classic", "physical"):
                 raise ValueError(f"whitted: property 'shading' must be 'classic' or 'physical', "
                                  f"got {self.shading!r}")
+            self.spawn = props.get("spawn", "mitsuba")
+            if self.spawn not in ("mitsuba", "fixed"):
+                raise ValueError(f"whitted: property 'spawn' must be 'mitsuba' or 'fixed', "
+                                 f"got {self.spawn!r}")
             self.ray_offset = float(props.get("ray_offset", 1e-4))
             self.background = _color(props, "background")
             self.ambient = _color(props, "ambient")
@@ -256,9 +269,26 @@ def _define_plugins() -> dict[str, type]:
             x, ng = si.p, si.n
 
             def offset(direction):
-                # Leave on the side of the geometric normal the ray goes into.
+                # spawn = "fixed": leave on the side of the geometric normal the ray goes into.
                 side = dr.select(dr.dot(direction, ng) >= 0, 1.0, -1.0)
                 return x + (eps * side) * ng
+
+            def spawn_ray(direction):
+                """A secondary ray leaving the hit along ``direction`` (unit)."""
+                if self.spawn == "mitsuba":
+                    return si.spawn_ray(direction)
+                return mi.Ray3f(offset(direction), direction)
+
+            def spawn_shadow_ray(p_light, direction):
+                """A shadow ray from the hit to ``p_light`` (``direction``: unit, to it)."""
+                if self.spawn == "mitsuba":
+                    return si.spawn_ray_to(p_light)
+                o = offset(direction)
+                to_light = p_light - o
+                dist = dr.norm(to_light)
+                shadow = mi.Ray3f(o, to_light / dist)
+                shadow.maxt = dist - eps
+                return shadow
 
             # ---- ambient ------------------------------------------------------------------
             for k, m in enumerate(materials):
@@ -270,11 +300,7 @@ def _define_plugins() -> dict[str, type]:
                 ds, intensity = em.sample_direction(si, mi.Point2f(0.5), hit)   # I / dist²
                 if no_falloff:
                     intensity = intensity * dr.square(ds.dist)
-                o = offset(ds.d)
-                to_light = ds.p - o
-                dist = dr.norm(to_light)
-                shadow = mi.Ray3f(o, to_light / dist)
-                shadow.maxt = dist - eps
+                shadow = spawn_shadow_ray(ds.p, ds.d)
                 lit = hit & ~scene.ray_test(shadow, hit)
                 wo = si.to_local(ds.d)
                 for k, m in enumerate(materials):
@@ -323,7 +349,7 @@ def _define_plugins() -> dict[str, type]:
                 dr.eval(go)
                 if not dr.any(go):
                     continue
-                child = mi.Ray3f(offset(d), dr.normalize(d))
+                child = spawn_ray(dr.normalize(d))
                 Lc = self.radiance(scene, child, go, depth + 1, child_acc)
                 result += dr.select(go, w * Lc, 0.0)
             dr.eval(result)
@@ -334,7 +360,7 @@ def _define_plugins() -> dict[str, type]:
 
         def to_string(self):
             return (f"WhittedIntegrator[max_depth={self.max_depth}, min_weight={self.min_weight}, "
-                    f"shading={self.shading}, ray_offset={self.ray_offset}]")
+                    f"shading={self.shading}, spawn={self.spawn}, ray_offset={self.ray_offset}]")
 
     return {"whitted_phong": PhongBSDF, "whitted_material": WhittedMaterial,
             "whitted": WhittedIntegrator}

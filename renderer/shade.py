@@ -16,6 +16,9 @@ import drjit as dr
 import numpy as np
 
 from .accel import ClosestHit, Ray
+from .accel import triangle as triangle_layout
+from .accel.triangle import load as load_triangle
+from .accel.triangle import unit_roundoff
 from .device import Types, array3
 from .effects import EffectSet
 from .lights import DeviceLights, sample_light
@@ -80,12 +83,13 @@ class SceneArrays:
 class TraceOptions:
     """Host-side constants of the kernel: n_lights (number of lights), max_depth
     (0..MAX_DEPTH_LIMIT, checked by ``validate_settings``), min_weight (branch pruning),
-    eps (absolute ray offset)."""
+    eps (None: scale-free ray offsets from each hit's own rounding error, the default; a
+    float: the explicit absolute offset of a scene's ``ray_epsilon`` override)."""
 
     n_lights: int
     max_depth: int
     min_weight: float
-    eps: float
+    eps: float | None = None
 
     def __post_init__(self):
         validate_settings(max_depth=self.max_depth)
@@ -121,29 +125,92 @@ def fresnel(cos_theta_i, eta):
 
 
 # ---- geometry at a hit -----------------------------------------------------------------------
+def gamma(n: int, double: bool) -> float:
+    """Higham's ``γ_n = n u / (1 - n u)``: the relative error bound of ``n`` rounded
+    operations (``u``: unit roundoff of float64 if ``double``, else float32)."""
+    u = unit_roundoff(double)
+    return n * u / (1.0 - n * u)
+
+
+#: Rounded operations the hit-point error bound covers (docs/MODEL.md, "Ray offsets"). The
+#: point ``v0 + u e1 + v e2`` itself takes 2 (two FMAs); Möller–Trumbore's own error in ``t``
+#: for a ray starting near the plane is a few more of the same magnitude (``s = o - v0``, the
+#: triple product), so the bound is taken with pbrt-v4's margin of 7 (its
+#: ``Triangle::InteractionFromIntersection``), and the self-hit count of
+#: tests/hard/test_offsets_reintersect.py is the measurement that it suffices.
+POINT_ERROR_OPS = 7
+#: Shadow rays end this many rounding errors (relative to their length) short of the light:
+#: the light's position is exact, but ``|p_l - o'|``, the unit direction and the intersection
+#: routine's ``t`` each round; 16 covers them with margin (float32: 9.5e-7 of the length).
+SHADOW_END_OPS = 16
+
+
 @dataclass
 class SurfacePoint:
     """What shading needs at a hit (arrays of the batch width).
 
-    p: Array3f position; ng: Array3f unit geometric normal (winding order);
+    p: Array3f position (``hit_point``);
+    p_err: Array3f per-axis bound on the distance of ``p`` from the triangle's plane;
+    ng: Array3f unit geometric normal (winding order);
     ns: Array3f unit shading normal (interpolated for smooth faces, else ``ng``);
     material: UInt32 material index.
     """
 
     p: object = None
+    p_err: object = None
     ng: object = None
     ns: object = None
     material: object = None
 
 
-def surface_point(tris, ray: Ray, hit: ClosestHit, fx: EffectSet) -> SurfacePoint:
-    """Gather the hit triangle's data once (``tris``: the accelerator's triangles). The
-    normal interpolation is traced only with ``fx.smooth_normals``."""
+def _packs_vertices(accel) -> bool:
+    """Whether ``accel.tri_data`` holds raw vertices ``p0, p1, p2`` (a routine whose entry
+    in ``renderer.accel.triangle.LAYOUTS`` is "vertices") rather than ``v0, e1, e2``."""
+    layouts = getattr(triangle_layout, "LAYOUTS", {})
+    return layouts.get(getattr(accel, "intersection", ""), "edges") == "vertices"
+
+
+def hit_point(accel, ray: Ray, hit: ClosestHit, ng, t: Types):
+    """The hit point and a per-axis bound on its distance from the triangle's plane,
+    ``(p, p_err)`` (Array3f each; ``ng`` the hit triangle's unit normal).
+
+    Two estimates, each good at one thing: the barycentric point ``p_b`` (edges layout
+    ``v0 + u e1 + v e2``, two FMAs; vertices layout ``(1-u-v) p0 + u p1 + v p2``, pbrt-v4)
+    lies on the plane up to the rounding of that sum, whatever error ``u, v`` carry, with
+    the bound ``γ_7 (|t0| + |t1| + |t2|)`` over its three terms (which grows with the
+    coordinates the sum cancels, so a point near the origin on a huge triangle gets the
+    larger offset its rays need); the ray's point ``o + t d`` is where along the plane the
+    ray arrived (``u e1`` on a 1e5-wide floor is off by ulp(1e5) in the plane, ``o + t d``
+    is not). ``p`` is the ray's point moved along ``N_g`` onto the plane through ``p_b``,
+    so it keeps the ray's position in the plane and the barycentric bound off it, plus the
+    roundings of the move (``γ_2 |p| + γ_5 |move|``)."""
+    double = t.is_double
+    a, b, c = load_triangle(t, accel.tri_data, hit.prim, hit.found)
+    if _packs_vertices(accel):
+        t0, t1, t2 = a * (1.0 - hit.u - hit.v), b * hit.u, c * hit.v
+        p_b = t0 + t1 + t2
+    else:
+        t0, t1, t2 = a, b * hit.u, c * hit.v
+        p_b = dr.fma(c, hit.v, dr.fma(b, hit.u, a))
+    p_r = dr.fma(ray.d, hit.t, ray.o)
+    move = dr.dot(p_b - p_r, ng)
+    p = dr.fma(ng, move, p_r)
+    p_err = (gamma(POINT_ERROR_OPS, double) * (dr.abs(t0) + dr.abs(t1) + dr.abs(t2))
+             + gamma(2, double) * dr.abs(p) + gamma(5, double) * dr.abs(move))
+    return p, p_err
+
+
+def surface_point(accel, ray: Ray, hit: ClosestHit, t: Types, fx: EffectSet) -> SurfacePoint:
+    """Gather the hit triangle's data once (``accel``: the accelerator; its ``tri_data``
+    packed triangles and ``tris`` shading attributes); the point and its error bound come
+    from ``hit_point``. The normal interpolation is traced only with
+    ``fx.smooth_normals``."""
+    tris = accel.tris
     A3 = type(ray.o)
     UInt32 = type(hit.prim)
     m = hit.found
-    p = dr.fma(ray.d, hit.t, ray.o)
     ng = dr.gather(A3, tris.ng, hit.prim, m)
+    p, p_err = hit_point(accel, ray, hit, ng, t)
     ns = ng
     if dr.hint(fx.smooth_normals, mode="scalar"):
         sm = dr.gather(type(m), tris.smooth, hit.prim, m)
@@ -153,13 +220,56 @@ def surface_point(tris, ray: Ray, hit: ClosestHit, fx: EffectSet) -> SurfacePoin
                + dr.gather(A3, tris.n2, hit.prim, m & sm) * hit.v)
         ns = dr.select(sm, dr.normalize(n_i), ng)
     mat = dr.gather(UInt32, tris.material, hit.prim, m)
-    return SurfacePoint(p=p, ng=ng, ns=ns, material=mat)
+    return SurfacePoint(p=p, p_err=p_err, ng=ng, ns=ns, material=mat)
 
 
-def offset_origin(p, ng, direction, eps):
-    """``p + ε N'`` with ``N' = ±N_g`` on the side ``direction`` leaves into."""
-    side = dr.select(dr.dot(direction, ng) >= 0, eps, -eps)
-    return dr.fma(ng, side, p)
+def _next_float_away(x, up):
+    """The float next to ``x`` towards +inf where ``up``, else towards -inf (per lane;
+    ±0 step to the smallest subnormal of the right sign)."""
+    F = type(x)
+    U = dr.uint_array_t(F)
+    bits = dr.reinterpret_array(U, x)
+    grow = (x > 0) == up                    # the magnitude grows: one ulp more
+    stepped = dr.reinterpret_array(F, dr.select(grow, bits + 1, bits - 1))
+    tiny = dr.reinterpret_array(F, dr.full(U, 1, dr.width(x)))   # smallest subnormal
+    return dr.select(x == 0, dr.select(up, tiny, -tiny), stepped)
+
+
+def offset_origin(sp: SurfacePoint, direction, eps=None):
+    """The origin of a ray leaving the hit ``sp`` along ``direction`` (docs/MODEL.md, "Ray
+    offsets"): ``p + δ N'`` with ``N' = ±N_g`` on the side ``direction`` leaves into.
+
+    eps None (default): ``δ = dot(|N_g|, p_err)``, the hit's own error bound projected on the
+    normal, and every coordinate that moved is rounded one more float away from ``p`` (pbrt-v4
+    ``OffsetRayOrigin``), so the offset survives the addition however small it is.
+    eps a float: the explicit override, ``δ = eps`` (absolute).
+    """
+    ng, p = sp.ng, sp.p
+    F = type(p[0])
+    sign = dr.select(dr.dot(direction, ng) >= 0, F(1.0), F(-1.0))
+    if eps is not None:
+        return dr.fma(ng, sign * eps, p)
+    delta = dr.dot(dr.abs(ng), sp.p_err)
+    off = ng * (sign * delta)
+    po = p + off
+    A3 = type(p)
+    return A3(*(dr.select(off[k] == 0, po[k], _next_float_away(po[k], off[k] > 0))
+                for k in range(3)))
+
+
+def shadow_ray(sp: SurfacePoint, p_light, double: bool, eps=None) -> tuple:
+    """The shadow ray from the hit ``sp`` to the point light at ``p_light`` (Array3f) and
+    the direction it tests, as ``(Ray, direction)``: from the offset origin ``o'``
+    (``offset_origin`` towards the light) along ``normalize(p_l - o')``, ending short of the
+    light by ``γ_SHADOW_END_OPS`` of its length (scale-free) or by ``eps`` (the override)."""
+    so = offset_origin(sp, p_light - sp.p, eps)
+    sd = p_light - so
+    s_len = dr.norm(sd)
+    if eps is None:
+        t_max = s_len * (1.0 - gamma(SHADOW_END_OPS, double))
+    else:
+        t_max = s_len - eps
+    return Ray(o=so, d=sd / s_len, t_max=t_max)
 
 
 @dataclass
@@ -242,10 +352,7 @@ def _light_term(li, ctx: ShadingContext, lobe: PhongLobe, sa: SceneArrays, t: Ty
     cos_theta = dr.dot(L, N)
     lit = ctx.active & (cos_theta > 0)
     if dr.hint(fx.shadows, mode="scalar"):
-        so = offset_origin(sp.p, sp.ng, L, opt.eps)
-        sd = ls.p - so
-        s_len = dr.norm(sd)
-        blocked = sa.accel.intersect_p(Ray(o=so, d=sd / s_len, t_max=s_len - opt.eps), lit)
+        blocked = sa.accel.intersect_p(shadow_ray(sp, ls.p, t.is_double, opt.eps), lit)
         lit &= ~blocked
     brdf = lobe.kd * cos_theta
     if dr.hint(fx.specular, mode="scalar"):

@@ -7,7 +7,8 @@ views once on LLVM (float32, exact mode) and share them through ``_compared``.
 Bounds (measured on 200 sampled pixels per view; half of them on specular objects,
 so glass and mirrors are over-represented against a full image):
 
-- With MODEL.md's own offset (``epsilon=scene.ray_offset``) the oracle is the renderer's
+- With the fixed offset override on both sides (``report.FIXED_RAY_EPSILON``) the oracle
+  is the renderer's
   model in float64: every sampled pixel of every seed view agrees with ours within 1e-3, and
   at least 97 % within 1e-5 relative (the rest: float32 rounding amplified through glass
   and mirror bounces, and rays through shared edges).
@@ -163,12 +164,17 @@ def test_sample_pixels():
 
 VIEWS = [(name, shading, v) for name in report.GOLDEN_SCENES for shading in report.SHADINGS
          for v in range(3)]
-# Lowest fraction within 1e-3 measured over 3 seeds x 200 pixels per view (ours f32 and
-# Mitsuba alike), rounded down: cornell_box 0.995, cornell_sphere 0.930, platonic_solids
-# 0.925 (both physical, "low" and "left" views: physical radiance is larger, so the same
-# relative shift crosses 1e-3 more often).
-MIN_WITHIN = {"cornell_box": 0.99, "cornell_sphere": 0.92, "platonic_solids": 0.91,
-              "analytic_quad": 1.0}
+# Lowest fraction within 1e-3 measured (seed 0, 200 pixels per view, results/offsets/
+# oracle_golden_scenes.md), rounded down. Ours (scale-free offsets, ~1e-7): 1.000 on every
+# view. Mitsuba (si.spawn_ray, offset (1 + max|x|) x 8.9e-5): cornell_box 1.000,
+# cornell_sphere 0.980, platonic_solids 0.975 (physical "low" and "left": physical
+# radiance is larger, so the same shift crosses 1e-3 more often).
+MIN_WITHIN = {
+    "ours_float32": {"cornell_box": 0.995, "cornell_sphere": 0.995, "platonic_solids": 0.995,
+                     "analytic_quad": 1.0},
+    "mitsuba": {"cornell_box": 0.99, "cornell_sphere": 0.97, "platonic_solids": 0.97,
+                "analytic_quad": 1.0},
+}
 
 _cache: dict = {}
 
@@ -198,8 +204,9 @@ def test_against_the_offset_limit(name, shading, view, source):
     """Pixels lit directly (no reflected or refracted ray in their tree) agree with the
     oracle to float32 precision: at least 97 % within 1e-5 relative and all within 1e-4
     (measured: 100 % within 1e-5 on every view but platonic_solids/physical/left, 97.4 %
-    there, largest 1.9e-5). Pixels with specular rays move with the offset of 1e-4 x
-    diagonal; the share of all pixels within 1e-3 is bounded by MIN_WITHIN."""
+    there, largest 1.9e-5). Pixels with specular rays move with the spawn offset (ours
+    ~1e-7, Mitsuba's ~1e-4); the share of all pixels within 1e-3 is bounded by
+    MIN_WITHIN."""
     c = _compared(name, shading, view)
     e = c["err"][source]
     within = e <= report.TOL
@@ -210,23 +217,36 @@ def test_against_the_offset_limit(name, shading, view, source):
           f"{c['glass'].sum()} glass pixels: {share(c['glass'])})")
     rel = e / np.maximum(1.0, np.abs(c["oracle"]).max(1))
     assert np.mean(rel[direct] <= 1e-5) >= 0.97 and np.all(rel[direct] <= 1e-4)
-    assert within.mean() >= MIN_WITHIN[name]
+    assert within.mean() >= MIN_WITHIN[source][name]
+
+
+@pytest.mark.parametrize("name,shading,view", VIEWS)
+def test_ours_closer_to_the_oracle_than_mitsuba_on_glass(name, shading, view):
+    """Issue 10's goal, pixel for pixel on glass: the share of glass pixels where Mitsuba's
+    golden is closer to the oracle than ours by more than 1e-5 is at most 2 % (measured 0 on
+    all 24 views; ours closer on up to 84 %)."""
+    c = _compared(name, shading, view)
+    g = c["glass"]
+    if not g.any():
+        pytest.skip("no glass pixel sampled")
+    d = c["err"]["ours_float32"][g] - c["err"]["mitsuba"][g]
+    assert np.mean(d > 1e-5) <= 0.02, f"Mitsuba closer on {np.mean(d > 1e-5):.1%}"
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize("shading", report.SHADINGS)
 def test_glass_bunny_against_the_oracle(shading):
-    """The shipped Fresnel glass bunny (depth 8; its golden is 64 px high and not used here,
-    so the measurement stays at the scene's 512 px). With MODEL.md's offset the
+    """The shipped Fresnel glass bunny (depth 8, no golden). With MODEL.md's offset the
     oracle and our float32 render agree within 1e-3 on at least 95 % of sampled pixels
     (measured 97-99 %: float32 rounding amplified along paths through glass). Against the
-    offset → 0 limit ours is where the issue says it is: measured 71 % (classic) and 73 %
-    (physical) within 1e-3; asserted ≥ 60 % so that a change for the worse shows."""
+    offset → 0 limit (scale-free offsets) ours is within 1e-3 on 97.0 % (classic) and
+    97.5 % (physical) of the sampled pixels (71 % / 73 % with the old fixed offset);
+    asserted ≥ 95 %."""
     scene = report.load("glass_bunny", shading)
     px = oracle.sample_pixels(scene, 0, N_PIXELS, SEED)
-    c = report.compare(scene, 0, px, with_golden=False)
+    c = report.compare(scene, 0, px)
     assert np.mean(c["err"]["model_eps"] <= report.TOL) >= 0.95
-    assert np.mean(c["err"]["ours_float32"] <= report.TOL) >= 0.60
+    assert np.mean(c["err"]["ours_float32"] <= report.TOL) >= 0.95
 
 
 def test_non_square_film():

@@ -88,7 +88,9 @@ def shadow_rays_host(scene, o, d, t, prim_face, light_pos) -> tuple[np.ndarray, 
     ng /= np.linalg.norm(ng, axis=1, keepdims=True)
     to_l = light_pos[None] - p
     ng *= np.sign(np.sum(ng * to_l, axis=1, keepdims=True) + 1e-30)
-    so = p + scene.ray_offset * ng
+    # the same batch for both peers: the scene's override, else the old 1e-4 x diagonal
+    eps = scene.ray_offset if scene.ray_offset is not None else 1e-4 * scene.diagonal
+    so = p + eps * ng
     sd = light_pos[None] - so
     tmax = np.full(len(so), 1 - 1e-4)
     return so.astype(np.float32), sd.astype(np.float32), tmax.astype(np.float32)

@@ -218,8 +218,8 @@ def _read_render(r: _Reader, data: dict, shading: str | None) -> Settings:
         max_depth=max_depth, spp=spp, exact=exact, shading=shading or default_shading,
         background=r.color(rt.get("background", 0.0), "render.background"),
         min_weight=r.number(rt.get("min_weight", 0.01), "render.min_weight", lo=0.0),
-        ray_epsilon=r.number(rt.get("ray_epsilon", 1e-4), "render.ray_epsilon", lo=0.0,
-                             lo_open=True),
+        ray_epsilon=(r.number(rt["ray_epsilon"], "render.ray_epsilon", lo=0.0, lo_open=True)
+                     if "ray_epsilon" in rt else None),
         seed=r.integer(rt.get("seed", 0), "render.seed", lo=0),
     )
 

@@ -207,7 +207,9 @@ class Settings:
     shading: "classic" (thesis eq. 6) or "physical" (see docs/MODEL.md).
     background: float64 (3,) radiance of rays that escape.
     min_weight: prune a branch whose accumulated weight falls under this (thesis: 0.01).
-    ray_epsilon: ray-origin offset as a fraction of the scene's bounding-box diagonal.
+    ray_epsilon: None (default): scale-free ray offsets from each hit point's own rounding
+        error (docs/MODEL.md, "Ray offsets"); a number: explicit override, an absolute
+        offset of ``ray_epsilon`` × the scene's bounding-box diagonal.
     seed: seed of the stratified jitter in converged mode.
     """
 
@@ -217,7 +219,7 @@ class Settings:
     shading: str = "classic"
     background: np.ndarray = field(default_factory=lambda: np.zeros(3))
     min_weight: float = 0.01
-    ray_epsilon: float = 1e-4
+    ray_epsilon: float | None = None
     seed: int = 0
 
 
@@ -315,8 +317,12 @@ class Scene:
         return float(np.linalg.norm(hi - lo))
 
     @property
-    def ray_offset(self) -> float:
-        """Absolute ray-origin offset ε (docs/MODEL.md, "Ray offsets")."""
+    def ray_offset(self) -> float | None:
+        """The explicit absolute ray-origin offset ε = ``ray_epsilon`` × diagonal, or None
+        when the scene uses scale-free offsets (the default; docs/MODEL.md, "Ray
+        offsets")."""
+        if self.settings.ray_epsilon is None:
+            return None
         return self.settings.ray_epsilon * max(self.diagonal, 1e-30)
 
     def with_camera(self, index: int) -> "Scene":

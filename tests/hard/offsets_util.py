@@ -1,0 +1,63 @@
+"""Helpers of the ray-offset stress cases (tests/hard/test_offsets_*.py): moving a scene
+rigidly, comparing two renders pixel by pixel with the exact rule's edge allowance."""
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from evaluation.rules import EXACT_THRESHOLDS, _neighbour_range
+
+#: float32 unit roundoff.
+U32 = 2.0 ** -24
+
+
+def transformed(scene, scale: float = 1.0, shift=(0.0, 0.0, 0.0)):
+    """``scene`` with every position mapped to ``scale · x + shift`` (geometry from its
+    float32 vertices, cameras, lights), light intensities times ``scale²`` where they fall
+    off as 1/dist², so the image is the same in exact arithmetic. Vertices are rounded to
+    float32 once, as the loader does."""
+    shift = np.asarray(shift, np.float64)
+    V = (scene.vertices.astype(np.float64) * scale + shift).astype(np.float32)
+    cams = [replace(c, position=c.position * scale + shift, target=c.target * scale + shift)
+            for c in scene.cameras]
+    lights = [replace(li, position=li.position * scale + shift,
+                      intensity=li.intensity * (scale ** 2 if li.falloff == "inverse_square"
+                                                else 1.0))
+              for li in scene.lights]
+    return replace(scene, vertices=V, cameras=cams, lights=lights)
+
+
+def quantized_at_origin(scene, shift):
+    """``scene`` with the vertices ``transformed(scene, shift=shift)`` has (rounded to
+    float32 at ``shift``) moved back by ``-shift`` (exact: the differences are multiples of
+    the ulp at ``shift``), so it has exactly the moved scene's geometry, near the origin."""
+    shift = np.asarray(shift, np.float64)
+    V = ((scene.vertices.astype(np.float64) + shift).astype(np.float32).astype(np.float64)
+         - shift)
+    assert np.array_equal(V.astype(np.float32).astype(np.float64), V)
+    return replace(scene, vertices=V.astype(np.float32))
+
+
+def compare(ours: np.ndarray, ref: np.ndarray, *, bad_rel: float = 0.05) -> dict:
+    """Pixel comparison of two renders of the same scene (H, W, 3).
+
+    bad pixels: some channel off by more than ``bad_rel`` relative (floor 0.1 on |ref|) and
+    not explained as an edge (the golden rule's 3x3 neighbourhood allowance, either way
+    round): acne, leaks, black glass. relMSE: mean over pixels and channels of
+    ``(a - r)² / (r² + 1e-2)``. Non-finite pixels are bad."""
+    a = np.nan_to_num(np.asarray(ours, np.float64), nan=1e30, posinf=1e30, neginf=-1e30)
+    r = np.asarray(ref, np.float64)
+    rel = (np.abs(a - r) / np.maximum(np.abs(r), 0.1)).max(-1)
+    tol = EXACT_THRESHOLDS["edge_tol"].value * np.maximum(np.abs(r), 1.0)
+    lo, hi = _neighbour_range(a)
+    explained = np.all((r >= lo - tol) & (r <= hi + tol), -1)
+    lo, hi = _neighbour_range(r)
+    explained |= np.all((a >= lo - tol) & (a <= hi + tol), -1)
+    bad = (rel > bad_rel) & ~explained
+    rel_mse = float(np.mean((a - r) ** 2 / (r ** 2 + 1e-2)))
+    diff = np.abs(a - r).max(-1)
+    edge = (rel > bad_rel) & explained
+    return dict(bad=int(bad.sum()), edge=int(edge.sum()), rel_mse=rel_mse,
+                max_abs=float(diff.max()), max_abs_not_edge=float(diff[~edge].max(initial=0)),
+                pixels=int(bad.size))
