@@ -16,9 +16,8 @@ import drjit as dr
 import numpy as np
 
 from .accel import ClosestHit, Ray
-from .accel import triangle as triangle_layout
+from .accel.triangle import layout_of, unit_roundoff
 from .accel.triangle import load as load_triangle
-from .accel.triangle import unit_roundoff
 from .device import Types, array3
 from .effects import EffectSet
 from .lights import DeviceLights, sample_light
@@ -163,13 +162,6 @@ class SurfacePoint:
     material: object = None
 
 
-def _packs_vertices(accel) -> bool:
-    """Whether ``accel.tri_data`` holds raw vertices ``p0, p1, p2`` (a routine whose entry
-    in ``renderer.accel.triangle.LAYOUTS`` is "vertices") rather than ``v0, e1, e2``."""
-    layouts = getattr(triangle_layout, "LAYOUTS", {})
-    return layouts.get(getattr(accel, "intersection", ""), "edges") == "vertices"
-
-
 def hit_point(accel, ray: Ray, hit: ClosestHit, ng, t: Types):
     """The hit point and a per-axis bound on its distance from the triangle's plane,
     ``(p, p_err)`` (Array3f each; ``ng`` the hit triangle's unit normal).
@@ -185,8 +177,9 @@ def hit_point(accel, ray: Ray, hit: ClosestHit, ng, t: Types):
     so it keeps the ray's position in the plane and the barycentric bound off it, plus the
     roundings of the move (``γ_2 |p| + γ_5 |move|``)."""
     double = t.is_double
-    a, b, c = load_triangle(t, accel.tri_data, hit.prim, hit.found)
-    if _packs_vertices(accel):
+    layout = layout_of(accel.intersection)     # raw vertices p0, p1, p2 or v0, e1, e2
+    a, b, c = load_triangle(t, accel.tri_data, hit.prim, hit.found, layout)[:3]
+    if layout == "vertices":
         t0, t1, t2 = a * (1.0 - hit.u - hit.v), b * hit.u, c * hit.v
         p_b = t0 + t1 + t2
     else:
