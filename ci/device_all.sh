@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # One combined run on a lent GPU machine (see ci/device.sh for the set-up it shares):
-#   bash ci/device_all.sh STEP...      steps: tests hard bench peer routine
+#   bash ci/device_all.sh STEP...      steps: tests hard bench peer routine study
 # Each step has its own time limit (SIGINT first, so partial results are written) and its
 # own folder under $OUT; logs go to $OUT/<step>.log.
 set -uo pipefail
@@ -25,6 +25,7 @@ for s in "$@"; do
     peer)  step peer 280 env OUT="$out/peer" bash ci/device.sh bench --parts peer ;;
     routine) step routine 200 bash ci/device.sh py -m evaluation.routine_cost --backend cuda \
                --out "$out/routine" ;;
+    study) step study 420 env OUT="$out" TOTAL_S=400 bash ci/device_study.sh h200 ;;
     *) echo "unknown step $s" >&2; exit 2 ;;
   esac
 done
