@@ -19,11 +19,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from util import camera, light, make_scene, material, pixel_ray, quad
 
 from renderer.render import render
 from renderer.scene import Settings
 from renderer.scene.shapes import sphere
-from tests.util import camera, light, make_scene, material, pixel_ray, quad
 
 H = 1e-3                    # light height above the floor
 I = 1e-6                    # light intensity (W/sr): radiance ~ I / H² ~ 1
