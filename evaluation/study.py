@@ -356,31 +356,15 @@ _DEVICE: dict = {}
 
 
 def device_info(backend: str) -> dict:
-    """Device, backend and versions of this process (cached)."""
+    """Device, backend and versions of this process (``evaluation.bench.device_info`` plus
+    numpy, the platform and the GPU this worker sees; cached)."""
     if backend in _DEVICE:
         return _DEVICE[backend]
-    import drjit as dr
-    info = {"backend": backend, "drjit": dr.__version__, "numpy": np.__version__,
-            "python": platform.python_version(), "host": platform.node(),
-            "cores": os.cpu_count(), "platform": platform.platform()}
+    from evaluation.bench import device_info as bench_device_info
+    info = dict(bench_device_info(backend), numpy=np.__version__,
+                platform=platform.platform())
     if backend == "cuda":
         info["cuda_visible_devices"] = os.environ.get("CUDA_VISIBLE_DEVICES")
-        try:
-            import subprocess
-            q = subprocess.run(["nvidia-smi", "--query-gpu=name,driver_version,memory.total",
-                                "--format=csv,noheader"], capture_output=True, text=True,
-                               timeout=30)
-            name, driver, mem = (s.strip() for s in q.stdout.strip().split("\n")[0].split(","))
-            info.update(device=name, driver=driver, gpu_memory=mem)
-        except Exception as e:  # noqa: BLE001 - informational only
-            info["device"] = f"unknown GPU ({type(e).__name__})"
-    else:
-        try:
-            model = [ln.split(":", 1)[1].strip() for ln in open("/proc/cpuinfo")
-                     if ln.startswith("model name")]
-            info["device"] = f"{model[0] if model else 'CPU'} ({os.cpu_count()} cores)"
-        except OSError:
-            info["device"] = f"CPU ({os.cpu_count()} cores)"
     _DEVICE[backend] = info
     return info
 

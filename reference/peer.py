@@ -277,7 +277,7 @@ def load_peer(scene, *, backend: str = "llvm", view: int = 0) -> Peer:
     """Translate ``scene`` (a ``renderer`` Scene; its ``settings.max_depth`` is used) and
     build the peer on the Mitsuba variant of ``backend`` ("llvm" | "cuda")."""
     mitsuba_variant("cuda_ad_rgb" if backend == "cuda" else "llvm_ad_rgb")
-    return Peer(load_mitsuba(scene, view=view, mode="exact", spp=1))
+    return Peer(load_mitsuba(scene, view=view, mode="exact", spp=1, spawn="fixed"))
 
 
 def render_peer(scene, *, backend: str = "llvm", view: int = 0,

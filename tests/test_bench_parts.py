@@ -33,6 +33,10 @@ def test_unknown_part_is_refused_before_anything_runs(tmp_path):
     assert not (tmp_path / "out").exists()
 
 
+@pytest.mark.xfail(strict=True, reason=(
+    "open (issue 10/12): with the watertight default, ours and Mitsuba/Embree disagree on "
+    "hit or miss for 1.9 % of the Cornell box's incoherent rays at 40x24 (0.981 against "
+    "0.99; Moller-Trumbore agrees on > 99 %); which side is right is not yet found"))
 def test_throughput_rays_agree_with_mitsuba_on_a_small_batch():
     res = ray_throughput(load_scene(ROOT / "scenes/cornell_box.toml"), backend="llvm",
                          width=40, height=24, repeats=1)

@@ -244,7 +244,7 @@ def test_glass_bunny_against_the_oracle(shading):
     asserted ≥ 95 %."""
     scene = report.load("glass_bunny", shading)
     px = oracle.sample_pixels(scene, 0, N_PIXELS, SEED)
-    c = report.compare(scene, 0, px)
+    c = report.compare(scene, 0, px, with_golden=False)     # its golden is 64 px only
     assert np.mean(c["err"]["model_eps"] <= report.TOL) >= 0.95
     assert np.mean(c["err"]["ours_float32"] <= report.TOL) >= 0.95
 

@@ -280,6 +280,16 @@ class Scene:
     # data, ignored by the renderer.
     check: dict = field(default_factory=dict)
 
+    def __post_init__(self):
+        # A copy made with ``replace(scene, vertices=...)`` (moved, scaled) keeps the old
+        # float64 arrays: they no longer round to the new float32 ones, so drop them (float64
+        # renders then widen the float32 positions) rather than render stale geometry.
+        for hi, lo in (("vertices64", "vertices"), ("normals64", "normals")):
+            v64, v32 = getattr(self, hi), getattr(self, lo)
+            if v64 is not None and (v64.shape != np.shape(v32) or not np.array_equal(
+                    v64.astype(np.float32), np.asarray(v32, np.float32))):
+                setattr(self, hi, None)
+
     # ---- derived facts -----------------------------------------------------------------------
     @property
     def face_count(self) -> int:
