@@ -12,8 +12,8 @@ reason in the commit).
 **Keys.** ``golden_inputs`` lists everything a golden depends on: the scene file's content
 (its parsed TOML without the ``[check]`` table, so thresholds and comments can change without
 re-rendering), the bytes of every mesh it reads, the view (index and name), shading, mode, the
-source of the reference harness, the scene loader and shapes (``HARNESS_FILES``, each hashed
-without comments and docstrings), and the Mitsuba version. ``content_key`` is the sha256 of
+source of the reference harness, the scene loader and shapes (``HARNESS_FILES``, the bytes of
+each file), and the Mitsuba version. ``content_key`` is the sha256 of
 those inputs without the Mitsuba version; ``key`` adds the version. No path enters a key, so
 an identical copy of a bundled scene anywhere finds its bundled golden; sidecars store no
 absolute path.
@@ -35,11 +35,9 @@ from __future__ import annotations
 import datetime
 import functools
 import hashlib
-import io
 import json
 import os
 import sys
-import tokenize
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -191,23 +189,10 @@ def code_hash(path: Path) -> str:
 
 @functools.lru_cache(maxsize=64)
 def _code_hash(path: str, mtime_ns: int, size: int) -> str:
-    """sha256 of a Python file's tokens without comments, blank lines and docstrings, so
-    rewording documentation leaves the keys of the goldens alone."""
-    text = Path(path).read_text(encoding="utf-8")
-    out, prev = [], tokenize.NEWLINE
-    for tok in tokenize.generate_tokens(io.StringIO(text).readline):
-        if tok.type in (tokenize.COMMENT, tokenize.NL):
-            continue
-        if tok.type == tokenize.STRING and prev in (tokenize.NEWLINE, tokenize.INDENT,
-                                                    tokenize.DEDENT):
-            prev = -1                       # a statement that is a bare string: a docstring
-            continue
-        if prev == -1 and tok.type == tokenize.NEWLINE:
-            prev = tokenize.NEWLINE
-            continue
-        out.append(f"{tok.type}:{tok.string}")
-        prev = tok.type
-    return _sha("\n".join(out).encode())
+    """sha256 of a Python file's bytes (line endings normalised). Not of its tokens: token
+    numbers and f-string tokens differ between Python versions (3.12 split f-strings), and a
+    key must not change with the interpreter that checks it."""
+    return _sha(Path(path).read_bytes().replace(b"\r\n", b"\n"))
 
 
 def harness_hashes() -> dict[str, str]:

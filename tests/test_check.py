@@ -247,11 +247,16 @@ def test_a_harness_change_makes_goldens_stale(user, monkeypatch):
     assert found.status == "stale" and found.changes == ["code reference/plugins.py"]
 
 
-def test_code_hash_ignores_comments_and_docstrings_not_code(tmp_path):
+def test_code_hash_is_the_files_bytes_whatever_the_interpreter(tmp_path):
+    """The key of a harness file is the sha256 of its bytes (CRLF read as LF): the same under
+    every Python version (a token hash differed between 3.11 here and 3.12 on the GPU host,
+    where every bundled golden read STALE), and any change to the code changes it."""
+    import hashlib
     a, b, c = tmp_path / "a.py", tmp_path / "b.py", tmp_path / "c.py"
-    a.write_text('"""Doc."""\ndef f(x):\n    """Say."""\n    return x + 1\n')
-    b.write_text('"""Other doc."""\n\ndef f(x):  # note\n    """Other."""\n\n    return x + 1\n')
-    c.write_text('"""Doc."""\ndef f(x):\n    """Say."""\n    return x + 2\n')
+    a.write_bytes(b'x = f"{1}"\ndef f(x):\n    return x + 1\n')
+    b.write_bytes(b'x = f"{1}"\r\ndef f(x):\r\n    return x + 1\r\n')
+    c.write_bytes(b'x = f"{1}"\ndef f(x):\n    return x + 2\n')
+    assert golden.code_hash(a) == hashlib.sha256(a.read_bytes()).hexdigest()
     assert golden.code_hash(a) == golden.code_hash(b) != golden.code_hash(c)
 
 
