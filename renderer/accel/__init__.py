@@ -10,11 +10,14 @@ validates both names. Where to add:
 """
 from __future__ import annotations
 
+from dataclasses import replace
+
 from ..device import Types
 from .base import Accelerator, ClosestHit, DeviceTriangles, Ray
 from .boxes import ObjectBoxes
 from .brute import BruteForce
 from .bvh import BVH
+from .traverse import TIE_BREAKS
 from .triangle import ROUTINES, triangle_routine
 
 ACCELERATORS = {"brute": BruteForce, "boxes": ObjectBoxes, "bvh": BVH}
@@ -22,15 +25,29 @@ DEFAULT_ACCEL = "bvh"
 DEFAULT_ROUTINE = "moller_trumbore"
 
 __all__ = ["ACCELERATORS", "BVH", "DEFAULT_ACCEL", "DEFAULT_ROUTINE", "ROUTINES", "Accelerator",
-           "BruteForce", "ClosestHit", "DeviceTriangles", "ObjectBoxes", "Ray", "build_accelerator",
-           "triangle_routine"]
+           "BruteForce", "ClosestHit", "DeviceTriangles", "ObjectBoxes", "Ray", "TIE_BREAKS",
+           "build_accelerator", "triangle_routine"]
 
 
-def build_accelerator(name: str, scene, t: Types, *,
-                      intersection: str = DEFAULT_ROUTINE) -> Accelerator:
+def build_accelerator(name: str, scene, t: Types, *, intersection: str = DEFAULT_ROUTINE,
+                      tie_break: str = "lowest", tie_window: float = 0.0,
+                      tie_slack: float = 0.0) -> Accelerator:
     """Build the accelerator ``name`` (a key of ``ACCELERATORS``) for ``scene`` with the
-    triangle routine ``intersection`` (a key of ``ROUTINES``)."""
+    triangle routine ``intersection`` (a key of ``ROUTINES``). ``tie_break`` (a value of
+    ``TIE_BREAKS``), ``tie_window`` (relative t) and ``tie_slack`` (barycentric) choose the
+    closest hit among near-equal ones (``traverse.tie_probe``); the default, "lowest", is
+    the renderer's (window and slack unused)."""
     if name not in ACCELERATORS:
         raise ValueError(f"accel: expected one of {sorted(ACCELERATORS)}, got {name!r}")
+    if tie_break not in TIE_BREAKS:
+        raise ValueError(f"tie_break: expected one of {list(TIE_BREAKS)}, got {tie_break!r}")
+    if not tie_window >= 0.0:
+        raise ValueError(f"tie_window: expected a relative distance >= 0, got {tie_window!r}")
+    if not tie_slack >= 0.0:
+        raise ValueError(f"tie_slack: expected a barycentric slack >= 0, got {tie_slack!r}")
     triangle_routine(intersection)
-    return ACCELERATORS[name].build(scene, t, intersection=intersection)
+    acc = ACCELERATORS[name].build(scene, t, intersection=intersection)
+    if tie_break == "lowest":
+        return acc
+    return replace(acc, tie_break=tie_break, tie_window=float(tie_window),
+                   tie_slack=float(tie_slack))

@@ -15,7 +15,17 @@ import numpy as np
 from ..device import Types, types
 from .base import ClosestHit, DeviceTriangles, Ray, array_type, gather_floats
 from .bvh_build import pad_boxes
-from .traverse import Closest, masked_step, robust_scale, setup, slab, triangle_step
+from .traverse import (
+    Closest,
+    cull_t,
+    masked_step,
+    robust_scale,
+    setup,
+    slab,
+    tie_probe,
+    tie_probe_p,
+    triangle_step,
+)
 from .triangle import triangle_routine, upload_triangles
 
 
@@ -37,6 +47,9 @@ class ObjectBoxes:
     backend: str = "llvm"
     precision: str = "float32"
     intersection: str = "moller_trumbore"
+    tie_break: str = "lowest"          # traverse.TIE_BREAKS; "other" only probes ties
+    tie_window: float = 0.0            # relative t window of tie_break "other"
+    tie_slack: float = 0.0             # barycentric slack of tie_break "other"
     info: dict = field(default_factory=dict, repr=False)
 
     @classmethod
@@ -78,10 +91,12 @@ class ObjectBoxes:
         return dict(self.info)
 
     def intersect(self, ray: Ray, active=True) -> ClosestHit:
-        return self._traverse(ray, active, False)
+        return tie_probe(lambda r, a, pr: self._traverse(r, a, False, pr), ray, active,
+                         self.tie_break, self.tie_window, self.tie_slack)
 
     def intersect_p(self, ray: Ray, active=True):
-        return self._traverse(ray, active, True)
+        return tie_probe_p(lambda r, a, pr: self._traverse(r, a, True, pr), ray, active,
+                           self.tie_break, self.tie_slack)
 
     def _box_step(self, o, inv, t_max, robust, obj, first, end, active=True):
         """Object ``obj``'s box where ``active``: on a hit its faces become the pending
@@ -102,7 +117,7 @@ class ObjectBoxes:
                 obj + 1 if active is True else dr.select(active, obj + 1, obj))
 
     @dr.syntax
-    def _traverse(self, ray: Ray, active, any_hit: bool):
+    def _traverse(self, ray: Ray, active, any_hit: bool, probe=None):
         t = self.types
         routine = triangle_routine(self.intersection)
         robust = robust_scale(t)
@@ -117,11 +132,12 @@ class ObjectBoxes:
         rec = Closest.empty(t, t_max, n)            # closest hit so far
 
         while dr.hint(active, max_iterations=-1, label="boxes",
-                      exclude=[self, t, routine, robust, any_hit]):
+                      exclude=[self, t, routine, robust, any_hit, probe]):
             # ---- box step: the next object's box, when no triangles are pending ---------
+            cull = cull_t(rec, t_max, probe)   # boxes beyond it are skipped
             first, end, obj = masked_step(
                 t, (first >= end) & (obj < n_obj),
-                lambda first, end, obj, on, best_t=rec.t: self._box_step(
+                lambda first, end, obj, on, best_t=cull: self._box_step(
                     o, inv, best_t, robust, obj, first, end, on),
                 (first, end, obj))
 
@@ -130,7 +146,7 @@ class ObjectBoxes:
                 t, first < end,
                 lambda rec, first, on: (
                     triangle_step(t, routine, o, d, tri_data, order, first, t_max, rec,
-                                  any_hit, on),
+                                  any_hit, on, probe),
                     first + 1 if on is True else dr.select(on, first + 1, first)),
                 (rec, first))
             if dr.hint(any_hit, mode="scalar"):

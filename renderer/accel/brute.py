@@ -8,7 +8,7 @@ import drjit as dr
 
 from ..device import Types, types
 from .base import ClosestHit, DeviceTriangles, Ray
-from .traverse import Closest, setup, triangle_step
+from .traverse import Closest, setup, tie_probe, tie_probe_p, triangle_step
 from .triangle import triangle_routine, upload_triangles
 
 
@@ -30,6 +30,9 @@ class BruteForce:
     backend: str = "llvm"
     precision: str = "float32"
     intersection: str = "moller_trumbore"
+    tie_break: str = "lowest"          # traverse.TIE_BREAKS; "other" only probes ties
+    tie_window: float = 0.0            # relative t window of tie_break "other"
+    tie_slack: float = 0.0             # barycentric slack of tie_break "other"
     info: dict = field(default_factory=dict, repr=False)
 
     @classmethod
@@ -53,14 +56,16 @@ class BruteForce:
 
     def intersect(self, ray: Ray, active=True) -> ClosestHit:
         """Closest hit in ``(0, ray.t_max)``."""
-        return self._candidates(ray, active, False)
+        return tie_probe(lambda r, a, pr: self._candidates(r, a, False, pr), ray, active,
+                         self.tie_break, self.tie_window, self.tie_slack)
 
     def intersect_p(self, ray: Ray, active=True):
         """Any hit in ``(0, ray.t_max)`` (shadow rays); stops at the first hit."""
-        return self._candidates(ray, active, True)
+        return tie_probe_p(lambda r, a, pr: self._candidates(r, a, True, pr), ray, active,
+                           self.tie_break, self.tie_slack)
 
     @dr.syntax
-    def _candidates(self, ray: Ray, active, any_hit: bool):
+    def _candidates(self, ray: Ray, active, any_hit: bool, probe=None):
         t = self.types
         routine = triangle_routine(self.intersection)
         tri_data, order = self.tri_data, self.tris.order
@@ -71,8 +76,9 @@ class BruteForce:
         i = dr.zeros(t.UInt32, n)                   # next candidate triangle
         while dr.hint(active & (i < count), max_iterations=-1,
                       label="brute_force_any" if any_hit else "brute_force_closest",
-                      exclude=[self, t, routine, count, any_hit]):
-            rec = triangle_step(t, routine, o, d, tri_data, order, i, t_max, rec, any_hit)
+                      exclude=[self, t, routine, count, any_hit, probe]):
+            rec = triangle_step(t, routine, o, d, tri_data, order, i, t_max, rec, any_hit,
+                                probe=probe)
             if dr.hint(any_hit, mode="scalar"):
                 active &= ~rec.found
             i += 1

@@ -28,12 +28,15 @@ from .traverse import (
     DONE,
     STACK_SIZE,
     Closest,
+    cull_t,
     enter_leaf,
     masked_step,
     pop,
     robust_scale,
     setup,
     slab,
+    tie_probe,
+    tie_probe_p,
     triangle_step,
 )
 from .triangle import STRIDE, triangle_routine, upload_triangles
@@ -93,6 +96,9 @@ class BVH:
     backend: str = "llvm"
     precision: str = "float32"
     intersection: str = "moller_trumbore"
+    tie_break: str = "lowest"          # traverse.TIE_BREAKS; "other" only probes ties
+    tie_window: float = 0.0            # relative t window of tie_break "other"
+    tie_slack: float = 0.0             # barycentric slack of tie_break "other"
     info: dict = field(default_factory=dict, repr=False)
 
     @classmethod
@@ -131,13 +137,15 @@ class BVH:
         return dict(self.info)
 
     def intersect(self, ray: Ray, active=True) -> ClosestHit:
-        return self._traverse(ray, active, False)
+        return tie_probe(lambda r, a, pr: self._traverse(r, a, False, pr), ray, active,
+                         self.tie_break, self.tie_window, self.tie_slack)
 
     def intersect_p(self, ray: Ray, active=True):
-        return self._traverse(ray, active, True)
+        return tie_probe_p(lambda r, a, pr: self._traverse(r, a, True, pr), ray, active,
+                           self.tie_break, self.tie_slack)
 
     @dr.syntax
-    def _traverse(self, ray: Ray, active, any_hit: bool):
+    def _traverse(self, ray: Ray, active, any_hit: bool, probe=None):
         t = self.types
         routine = triangle_routine(self.intersection)
         robust = robust_scale(t)
@@ -153,12 +161,13 @@ class BVH:
 
         while dr.hint(active, max_iterations=-1,
                       label="bvh_llvm" if t.backend == "llvm" else "bvh",
-                      exclude=[self, t, routine, robust, any_hit]):
+                      exclude=[self, t, routine, robust, any_hit, probe]):
             # ---- node step: only when no leaf triangles are pending ---------------------
             is_leaf, is_inner, first, end = enter_leaf(cur, first, end)
+            cull = cull_t(rec, t_max, probe)   # boxes beyond it are skipped
             sp, cur, to_pop = masked_step(
                 t, is_inner,
-                lambda sp, cur, to_pop, on, best_t=rec.t: node_step(
+                lambda sp, cur, to_pop, on, best_t=cull: node_step(
                     t, nodes, children, o, inv, best_t, robust, stack, sp, cur, to_pop, on),
                 (sp, cur, is_leaf | False))
             sp, cur = pop(stack, sp, cur, to_pop)
@@ -168,7 +177,7 @@ class BVH:
                 t, first < end,
                 lambda rec, first, on: (
                     triangle_step(t, routine, o, d, tri_data, order, first, t_max, rec,
-                                  any_hit, on),
+                                  any_hit, on, probe),
                     first + 1 if on is True else dr.select(on, first + 1, first)),
                 (rec, first))
             if dr.hint(any_hit, mode="scalar"):
