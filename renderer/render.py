@@ -66,7 +66,7 @@ class Renderer:
           alone sets ``exact = spp == 1``; ``exact`` alone takes spp 1 or the scene's).
       freeze: wrap the frame function in ``dr.freeze`` (default False).
       tie_break, tie_window, tie_slack: which hit wins among hits as near as the nearest
-          within the relative ``tie_window`` and barycentric ``tie_slack``
+          within the distances ``tie_window`` (along the ray) and ``tie_slack`` (off an edge)
           (``renderer.accel.traverse.tie_probe``): "lowest" original face index (default;
           the renderer's) or "other" (a probe: the golden tests render both and excuse a
           pixel only where they differ).

@@ -34,7 +34,7 @@ def build_accelerator(name: str, scene, t: Types, *, intersection: str = DEFAULT
                       tie_slack: float = 0.0) -> Accelerator:
     """Build the accelerator ``name`` (a key of ``ACCELERATORS``) for ``scene`` with the
     triangle routine ``intersection`` (a key of ``ROUTINES``). ``tie_break`` (a value of
-    ``TIE_BREAKS``), ``tie_window`` (relative t) and ``tie_slack`` (barycentric) choose the
+    ``TIE_BREAKS``), ``tie_window`` and ``tie_slack`` (world-space distances) choose the
     closest hit among near-equal ones (``traverse.tie_probe``); the default, "lowest", is
     the renderer's (window and slack unused)."""
     if name not in ACCELERATORS:
@@ -42,9 +42,9 @@ def build_accelerator(name: str, scene, t: Types, *, intersection: str = DEFAULT
     if tie_break not in TIE_BREAKS:
         raise ValueError(f"tie_break: expected one of {list(TIE_BREAKS)}, got {tie_break!r}")
     if not tie_window >= 0.0:
-        raise ValueError(f"tie_window: expected a relative distance >= 0, got {tie_window!r}")
+        raise ValueError(f"tie_window: expected a distance >= 0, got {tie_window!r}")
     if not tie_slack >= 0.0:
-        raise ValueError(f"tie_slack: expected a barycentric slack >= 0, got {tie_slack!r}")
+        raise ValueError(f"tie_slack: expected a distance >= 0, got {tie_slack!r}")
     triangle_routine(intersection)
     acc = ACCELERATORS[name].build(scene, t, intersection=intersection)
     if tie_break == "lowest":

@@ -19,6 +19,7 @@ from .traverse import (
     Closest,
     cull_t,
     masked_step,
+    probe_pad,
     robust_scale,
     setup,
     slab,
@@ -48,8 +49,8 @@ class ObjectBoxes:
     precision: str = "float32"
     intersection: str = "moller_trumbore"
     tie_break: str = "lowest"          # traverse.TIE_BREAKS; "other" only probes ties
-    tie_window: float = 0.0            # relative t window of tie_break "other"
-    tie_slack: float = 0.0             # barycentric slack of tie_break "other"
+    tie_window: float = 0.0            # t window (world units) of tie_break "other"
+    tie_slack: float = 0.0             # edge slack (world units) of tie_break "other"
     info: dict = field(default_factory=dict, repr=False)
 
     @classmethod
@@ -98,7 +99,7 @@ class ObjectBoxes:
         return tie_probe_p(lambda r, a, pr: self._traverse(r, a, True, pr), ray, active,
                            self.tie_break, self.tie_slack)
 
-    def _box_step(self, o, inv, t_max, robust, obj, first, end, active=True):
+    def _box_step(self, o, inv, t_max, robust, obj, first, end, active=True, pad=0.0):
         """Object ``obj``'s box where ``active``: on a hit its faces become the pending
         range ``[first, end)``; ``obj`` moves on to the next object."""
         t = self.types
@@ -109,8 +110,10 @@ class ObjectBoxes:
         else:
             rng = dr.gather(array_type(t, "Array2u"), self.ranges, obj, active)
             r0, r1 = rng.x, rng.y
-        hit, _ = slab(t, o, inv, t.Array3f(f[0], f[1], f[2]), t.Array3f(f[4], f[5], f[6]),
-                      t_max, robust)
+        lo, hi = t.Array3f(f[0], f[1], f[2]), t.Array3f(f[4], f[5], f[6])
+        if pad:         # the tie probe's slack reaches beyond the padded boxes
+            lo, hi = lo - pad, hi + pad
+        hit, _ = slab(t, o, inv, lo, hi, t_max, robust)
         if active is not True:
             hit &= active
         return (dr.select(hit, r0, first), dr.select(hit, r0 + r1, end),
@@ -138,7 +141,7 @@ class ObjectBoxes:
             first, end, obj = masked_step(
                 t, (first >= end) & (obj < n_obj),
                 lambda first, end, obj, on, best_t=cull: self._box_step(
-                    o, inv, best_t, robust, obj, first, end, on),
+                    o, inv, best_t, robust, obj, first, end, on, probe_pad(probe)),
                 (first, end, obj))
 
             # ---- triangle step -----------------------------------------------------------

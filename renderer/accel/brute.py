@@ -31,8 +31,8 @@ class BruteForce:
     precision: str = "float32"
     intersection: str = "moller_trumbore"
     tie_break: str = "lowest"          # traverse.TIE_BREAKS; "other" only probes ties
-    tie_window: float = 0.0            # relative t window of tie_break "other"
-    tie_slack: float = 0.0             # barycentric slack of tie_break "other"
+    tie_window: float = 0.0            # t window (world units) of tie_break "other"
+    tie_slack: float = 0.0             # edge slack (world units) of tie_break "other"
     info: dict = field(default_factory=dict, repr=False)
 
     @classmethod

@@ -32,6 +32,7 @@ from .traverse import (
     enter_leaf,
     masked_step,
     pop,
+    probe_pad,
     robust_scale,
     setup,
     slab,
@@ -56,11 +57,13 @@ def load_node(t: Types, nodes, children, cur, active=True):
 
 
 def node_step(t: Types, nodes, children, o, inv, t_max, robust, stack, sp, cur, to_pop,
-              active=True):
-    """One inner node ``cur`` where ``active``: test both child boxes against
-    ``(0, t_max)``, push the far hit child, go to the near one. Returns
+              active=True, pad: float = 0.0):
+    """One inner node ``cur`` where ``active``: test both child boxes (grown by ``pad``)
+    against ``(0, t_max)``, push the far hit child, go to the near one. Returns
     ``(sp, cur, to_pop)``, ``to_pop`` grown by the lanes where neither child was hit."""
     a_lo, a_hi, b_lo, b_hi, ref_a, ref_b = load_node(t, nodes, children, cur, active)
+    if pad:             # the tie probe's slack reaches beyond the padded boxes
+        a_lo, a_hi, b_lo, b_hi = a_lo - pad, a_hi + pad, b_lo - pad, b_hi + pad
     hit_a, tn_a = slab(t, o, inv, a_lo, a_hi, t_max, robust)
     hit_b, tn_b = slab(t, o, inv, b_lo, b_hi, t_max, robust)
     if active is not True:
@@ -97,8 +100,8 @@ class BVH:
     precision: str = "float32"
     intersection: str = "moller_trumbore"
     tie_break: str = "lowest"          # traverse.TIE_BREAKS; "other" only probes ties
-    tie_window: float = 0.0            # relative t window of tie_break "other"
-    tie_slack: float = 0.0             # barycentric slack of tie_break "other"
+    tie_window: float = 0.0            # t window (world units) of tie_break "other"
+    tie_slack: float = 0.0             # edge slack (world units) of tie_break "other"
     info: dict = field(default_factory=dict, repr=False)
 
     @classmethod
@@ -168,7 +171,8 @@ class BVH:
             sp, cur, to_pop = masked_step(
                 t, is_inner,
                 lambda sp, cur, to_pop, on, best_t=cull: node_step(
-                    t, nodes, children, o, inv, best_t, robust, stack, sp, cur, to_pop, on),
+                    t, nodes, children, o, inv, best_t, robust, stack, sp, cur, to_pop, on,
+                    probe_pad(probe)),
                 (sp, cur, is_leaf | False))
             sp, cur = pop(stack, sp, cur, to_pop)
 

@@ -34,9 +34,9 @@ TIE_BREAKS = ("lowest", "other")
 
 
 class Probe(NamedTuple):
-    """Pass two of ``tie_probe``: the nearest hit's triangle (UInt32 per ray, an index in
-    the accelerator's order like ``ClosestHit.prim``) and the barycentric slack (float) of
-    the probe's inside test."""
+    """A pass of ``tie_probe`` / ``tie_probe_p``: the nearest hit's triangle (UInt32 per
+    ray, an index in the accelerator's order like ``ClosestHit.prim``; None for any-hit)
+    and the slack (float, a world-space distance; negative narrows) of the inside test."""
 
     nearest: object
     slack: float
@@ -128,10 +128,9 @@ def triangle_step(t: Types, routine, o, d, tri_data, order, i, t_max, rec: Close
     with the largest original face index, other than triangle ``probe.nearest``, wins, however near;
     the caller culls boxes by ``t_max``, not ``rec.t`` (``cull_t``)."""
     v0, e1, e2 = load(t, tri_data, i, active)
-    if probe is None:
-        th, u, v, h = routine(o, d, v0, e1, e2)
-    else:
-        th, u, v, h = routine(o, d, v0, e1, e2, slack=probe.slack)
+    th, u, v, h = routine(o, d, v0, e1, e2)
+    if probe is not None:
+        h = probe_inside(th, u, v, e1, e2, probe.slack)
     if active is not True:
         h &= active
     if any_hit:
@@ -153,15 +152,30 @@ def triangle_step(t: Types, routine, o, d, tri_data, order, i, t_max, rec: Close
                    order=dr.select(accept, i_order, rec.order), found=rec.found | accept)
 
 
+def probe_inside(th, u, v, e1, e2, slack: float):
+    """The probe's inside test of a hit ``(th, u, v)`` on the triangle with edges ``e1``,
+    ``e2``: within the world-space distance ``slack`` of the triangle (outside it by less
+    than ``slack`` when ``slack > 0``; inside by more than ``-slack`` when ``slack < 0``).
+    A barycentric coordinate times the triangle's altitude over the opposite edge is the
+    distance from that edge, so the slack of each coordinate is ``slack * edge / (2 area)``."""
+    two_area = dr.norm(dr.cross(e1, e2))
+    s = slack / two_area
+    w = 1.0 - u - v
+    return ((two_area > 0) & (th > 0) & (u >= -s * dr.norm(e2)) & (v >= -s * dr.norm(e1))
+            & (w >= -s * dr.norm(e2 - e1)))
+
+
 def tie_probe(traverse, ray: Ray, active, tie_break: str, window: float,
               slack: float) -> ClosestHit:
     """The closest hit under ``tie_break`` (``TIE_BREAKS``) through ``traverse(ray, active,
     probe)``, an accelerator's closest-hit traversal (``probe``: None or a ``Probe``).
 
     "lowest" is one pass, the renderer's. "other" is two: the nearest hit at ``t*`` (pass
-    one, the renderer's hit), then every triangle hit in ``(0, t* (1 + window)]`` with the
-    inside test widened to ``slack`` (pass two): the one with the largest original face
-    index other than the nearest wins; where there is none, the nearest stays. So the
+    one, the renderer's hit), then every triangle hit in ``(0, t* + window]`` with the
+    inside test widened by the distance ``slack`` (``probe_inside``; pass two): the one
+    with the largest original face index other than the nearest wins; where there is none,
+    the nearest stays. ``window`` and ``slack`` are world-space distances (``ray.d`` unit
+    length, as the integrator's rays are). So the
     closest hit changes exactly where another triangle is as near as the nearest within
     the precision (a shared edge, a corner, coplanar faces): a geometric tie, which two
     renderers may resolve either way. Where pass one finds nothing, pass two does not run
@@ -171,7 +185,7 @@ def tie_probe(traverse, ray: Ray, active, tie_break: str, window: float,
     first = traverse(ray, active, None)
     if tie_break == "lowest":
         return first
-    limit = first.t * (1.0 + window)
+    limit = first.t + window
     limit = dr.select(first.found & (limit < ray.t_max), limit, first.t)
     other = traverse(Ray(o=ray.o, d=ray.d, t_max=limit), first.found & active,
                      Probe(nearest=first.prim, slack=slack))
@@ -200,6 +214,11 @@ def cull_t(rec: Closest, t_max, probe):
     """The distance beyond which a traversal skips boxes: the closest hit so far, or in
     pass two of ``tie_probe`` the end of the tie window ``t_max``."""
     return rec.t if probe is None else t_max
+
+
+def probe_pad(probe) -> float:
+    """How far a traversal grows its boxes: the probe's slack (0 without a probe)."""
+    return 0.0 if probe is None else abs(float(probe.slack))
 
 
 def enter_leaf(cur, first, end):

@@ -39,11 +39,10 @@ def edge_slack(double: bool) -> float:
     return 16.0 * unit_roundoff(double)
 
 
-def moller_trumbore(o, d, v0, e1, e2, t_min=0.0, slack=None):
-    """Möller–Trumbore (thesis eqs. 1-5), with ``edge_slack`` on the inside test (or
-    ``slack``: the tie probe widens it). Two-sided; parallel rays never hit."""
-    if slack is None:
-        slack = edge_slack(dr.type_v(o) == dr.VarType.Float64)
+def moller_trumbore(o, d, v0, e1, e2, t_min=0.0):
+    """Möller–Trumbore (thesis eqs. 1-5), with ``edge_slack`` on the inside test.
+    Two-sided; parallel rays never hit."""
+    slack = edge_slack(dr.type_v(o) == dr.VarType.Float64)
     p = dr.cross(d, e2)
     det = dr.dot(e1, p)
     inv_det = dr.rcp(det)
