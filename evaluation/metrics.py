@@ -329,17 +329,23 @@ def student_t_quantile(alpha: float, dof: float) -> float:
 
 def welch_test(ours_mean: np.ndarray, ours_var: np.ndarray, ours_n: int,
                ref_mean: np.ndarray, ref_var: np.ndarray, ref_n: int, *,
-               alpha: float = 0.01, var_floor: np.ndarray | float = 0.0):
-    """Per-value Welch t-test that two Monte Carlo estimates have the same expectation,
-    each the mean of ``n`` independent batches whose per-batch sample variance is ``var``.
+               alpha: float = 0.01, var_floor: np.ndarray | float = 0.0,
+               equal_var: bool = False):
+    """Per-value two-sample t-test that two Monte Carlo estimates have the same
+    expectation, each the mean of ``n`` independent batches whose per-batch sample variance
+    is ``var``.
 
-    ``t = (m_a - m_r) / sqrt(v_a / n_a + v_r / n_r + var_floor)``, referred to Student's t
-    with the Welch-Satterthwaite degrees of freedom, rounded down to an integer (so the
-    test is, if anything, conservative; at least ``min(n_a, n_r) - 1``). A variance
-    estimated from 16 batches has heavy tails: the normal quantile of ``z_test`` would
-    fail a correct renderer far more often than ``alpha`` (the null test in
-    ``evaluation/null_test.py`` measures it). The level is Šidák-corrected for the number
-    of values: under the null hypothesis every value passes with probability ``1 - alpha``.
+    Welch (``equal_var=False``): ``t = (m_a - m_r) / sqrt(v_a / n_a + v_r / n_r + floor)``
+    with the Welch-Satterthwaite degrees of freedom, rounded down (at least
+    ``min(n_a, n_r) - 1``). Student (``equal_var=True``): the pooled variance
+    ``((n_a-1) v_a + (n_r-1) v_r) / (n_a+n_r-2)`` for both, ``n_a + n_r - 2`` degrees of
+    freedom: right when both sides sample the same distribution per batch under the null
+    hypothesis (the same estimator at the same spp), and far less fooled by a side whose
+    few batches happen to agree. ``var_floor`` is added to the variance of the difference.
+    A variance estimated from 16 batches has heavy tails: the normal quantile of ``z_test``
+    would fail a correct renderer far more often than ``alpha``. The level is
+    Šidák-corrected for the number of values: under the null hypothesis every value passes
+    with probability ``1 - alpha``.
 
     Returns (fraction of values that pass, bool mask, True = pass, the |t| array).
     """
@@ -353,13 +359,20 @@ def welch_test(ours_mean: np.ndarray, ours_var: np.ndarray, ours_n: int,
     for name, x in (("ours_var", v_a), ("ref_mean", m_r), ("ref_var", v_r)):
         if x.shape != m_a.shape:
             raise ValueError(f"{name}: shape {x.shape} differs from ours_mean {m_a.shape}")
-    sa, sr = v_a / ours_n, v_r / ref_n
+    if equal_var:
+        pooled = ((ours_n - 1) * v_a + (ref_n - 1) * v_r) / (ours_n + ref_n - 2)
+        sa, sr = pooled / ours_n, pooled / ref_n
+    else:
+        sa, sr = v_a / ours_n, v_r / ref_n
     var = np.maximum(sa + sr + var_floor, 1e-300)
     t = np.nan_to_num(np.abs(m_a - m_r) / np.sqrt(var), nan=np.inf)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        dof = (sa + sr) ** 2 / (sa ** 2 / (ours_n - 1) + sr ** 2 / (ref_n - 1))
-    lo = min(ours_n, ref_n) - 1
-    dof = np.floor(np.clip(np.nan_to_num(dof, nan=lo), lo, ours_n + ref_n - 2))
+    if equal_var:
+        dof = np.full(m_a.shape, float(ours_n + ref_n - 2))
+    else:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            dof = (sa + sr) ** 2 / (sa ** 2 / (ours_n - 1) + sr ** 2 / (ref_n - 1))
+        lo = min(ours_n, ref_n) - 1
+        dof = np.floor(np.clip(np.nan_to_num(dof, nan=lo), lo, ours_n + ref_n - 2))
     alpha_sidak = 1.0 - (1.0 - alpha) ** (1.0 / max(m_a.size, 1))
     limits = {k: student_t_quantile(alpha_sidak, k) for k in np.unique(dof)}
     limit = np.vectorize(limits.__getitem__, otypes=[np.float64])(dof) if dof.size else dof
