@@ -55,13 +55,14 @@ EXACT_THRESHOLDS = {
     "max_rel": Threshold(5e-3, "every pixel but the geometric ties: rounding amplified by "
                                "Phong powers up to n=200 and by up to 5 specular bounces "
                                "(measured <= 7.3e-4 on the bundled goldens)"),
-    "tie_slack": Threshold(0.1, "tie probe distance as a fraction of the scene's ray offset "
-                                "(ray_epsilon x diagonal): a pixel is excused only if a ray "
-                                "of its tree has another surface this near (along the ray "
-                                "and off the edge). Measured: 0.01 leaves one reflected tie "
-                                "of platonic_solids 'high' unexcused, 0.1 excuses every "
-                                "differing pixel of today's goldens; the tie masks then hold "
-                                "<= 251 pixels (0.4 %) of a 256^2 view"),
+    "tie_slack": Threshold(1e-5, "tie probe distance as a fraction of the scene's diagonal "
+                                 "(a scale, not the ray offset, so a change of offsets "
+                                 "leaves it alone): a pixel is excused only if a ray of its "
+                                 "tree has another surface this near (along the ray and off "
+                                 "the edge). Measured on today's goldens: 1e-6 leaves one "
+                                 "reflected tie (platonic_solids 'high') unexcused, 1e-5 "
+                                 "excuses every differing pixel; the tie masks then hold "
+                                 "<= 251 pixels (0.4 %) of a 256^2 view"),
 }
 
 #: Converged mode (k x k stratified samples, box filter): name -> Threshold.
@@ -143,13 +144,13 @@ def tie_probe(scene, view: int = 0, *, slack: float = EXACT_THRESHOLDS["tie_slac
     """Our exact render of ``scene`` and its tie mask: ``(image float32 (H, W, 3), ties
     bool (H, W))``. The mask is True where the render with ``tie_break="other"``
     (``renderer.accel.traverse.tie_probe``: at every closest hit of the pixel's Whitted
-    tree another triangle within ``slack x scene.ray_offset`` along the ray and off its
+    tree another triangle within ``slack x scene.diagonal`` along the ray and off its
     edge wins, where there is one; every shadow ray's answer flipped where the inside
     test decides it within that distance) differs from the render: the pixels whose value
     depends on how a geometric tie is broken. ``render_options`` go to ``Renderer``."""
     from renderer.render import Renderer
 
-    d = float(slack) * scene.ray_offset
+    d = float(slack) * scene.diagonal
     image = Renderer(scene, **render_options).render(view).image
     other = Renderer(scene, tie_break="other", tie_window=d, tie_slack=d,
                      **render_options).render(view).image

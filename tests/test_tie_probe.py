@@ -51,7 +51,7 @@ def test_a_surface_behind_is_no_tie_unless_within_the_window(backend, accel):
 
 def test_probe_images_agree_across_accelerators():
     sc = diffuse_scene()
-    d = 0.1 * sc.ray_offset
+    d = 1e-5 * sc.diagonal
     imgs = [render(sc, backend="llvm", accel=a, tie_break="other", tie_window=d,
                    tie_slack=d).image for a in sorted(ACCELERATORS)]
     for img in imgs[1:]:
