@@ -10,8 +10,10 @@ the file, so a refactor that moves the code makes the mutant *invalid*, said, no
 "caught"). It runs in a fresh subprocess (``--run-one NAME``) that installs an import hook
 *before* anything of the project is imported: the hook compiles the patched source for
 that module, so every ``from ... import`` sees the bug, and nothing on disk changes. The
-subprocess runs the mutant's tests with ``pytest -x``: exit status 1 (a test failed) is
-*caught*, 0 is *survived*, anything else (collection error, no tests) is *invalid*.
+hook also primes ``linecache`` with the patched text, since ``@dr.syntax`` re-reads a
+function's source. The subprocess runs the mutant's tests with ``pytest -x``: exit status
+1 (a test failed) is *caught*, 0 is *survived*, anything else (collection error, no tests)
+is *invalid*.
 
 The tests named are the gate's own (golden exact cases, planted-defect tests, closed-form
 tests); ``tests/test_mutation.py`` runs a small subset in CI (slow marker).
@@ -23,6 +25,7 @@ import importlib.abc
 import importlib.machinery
 import importlib.util
 import json
+import linecache
 import os
 import subprocess
 import sys
@@ -159,9 +162,15 @@ class _PatchedLoader(importlib.machinery.SourceFileLoader):
         super().__init__(fullname, path)
         self.mutant = mutant
 
+    def get_source(self, fullname):
+        return patch_source(Path(self.path).read_text(), self.mutant)
+
     def get_code(self, fullname):
-        src = Path(self.path).read_text()
-        return compile(patch_source(src, self.mutant), self.path, "exec", dont_inherit=True)
+        src = self.get_source(fullname)
+        # ``@dr.syntax`` re-reads a function's source through ``inspect``/``linecache``:
+        # prime the cache with the patched text (mtime None: never re-read from disk)
+        linecache.cache[self.path] = (len(src), None, src.splitlines(True), self.path)
+        return compile(src, self.path, "exec", dont_inherit=True)
 
 
 class _Finder(importlib.abc.MetaPathFinder):
