@@ -29,6 +29,7 @@ statistical test for converged (noisy) renders, in the style of Mitsuba's ``test
 """
 from __future__ import annotations
 
+import functools
 import math
 import warnings
 
@@ -310,6 +311,7 @@ def _student_t_two_sided(t: float, dof: float) -> float:
     return 1.0 - front * _betacf(b, a, 1.0 - x) / b
 
 
+@functools.lru_cache(maxsize=4096)
 def student_t_quantile(alpha: float, dof: float) -> float:
     """t with P(|T| > t) = alpha for Student's t with ``dof`` degrees of freedom
     (bisection; dof = inf gives the normal quantile)."""
@@ -374,7 +376,7 @@ def welch_test(ours_mean: np.ndarray, ours_var: np.ndarray, ours_n: int,
         lo = min(ours_n, ref_n) - 1
         dof = np.floor(np.clip(np.nan_to_num(dof, nan=lo), lo, ours_n + ref_n - 2))
     alpha_sidak = 1.0 - (1.0 - alpha) ** (1.0 / max(m_a.size, 1))
-    limits = {k: student_t_quantile(alpha_sidak, k) for k in np.unique(dof)}
+    limits = {k: student_t_quantile(alpha_sidak, float(k)) for k in np.unique(dof)}
     limit = np.vectorize(limits.__getitem__, otypes=[np.float64])(dof) if dof.size else dof
     mask = t <= limit
     return (float(mask.mean()) if mask.size else 1.0), mask, t
