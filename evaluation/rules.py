@@ -68,8 +68,9 @@ EXACT_THRESHOLDS = {
 #: Converged mode (k x k stratified samples, box filter): name -> Threshold.
 CONVERGED_THRESHOLDS = {
     "alpha": Threshold(0.01, "Šidák-corrected family-wise significance of the per-value "
-                             "Welch t-test: a correct renderer fails a case with "
-                             "probability <= 1 % (measured: evaluation/null_test.py)"),
+                             "pooled two-sample t-test: a correct renderer fails a case "
+                             "with probability <= 1 % (measured: 0 of 32 cases, "
+                             "results/null_test/null.json); no failure budget on top"),
     "var_floor": Threshold(1e-4, "relative floor added to the standard deviation: pixels "
                                  "whose samples all agree have ~0 variance in both, and "
                                  "float32 rounding differs"),
