@@ -22,6 +22,7 @@ from evaluation.rules import (
     RULES,
     cases,
     check_exact,
+    exact_overlay,
     render_batches,
     tie_probe,
 )
@@ -159,6 +160,20 @@ def test_one_pixel_crack_fails(planted_base):
         cracked[y, x] = 0.0        # the background: the ray fell through an edge
         res = check_exact(cracked, g.image, EXACT_THRESHOLDS, ties)
         assert not res["ok"] and res["hard"] == [[y, x]], (y, x, _summary(res))
+
+
+def test_overlay_draws_excused_and_hard_pixels(planted_base):
+    g, ours, ties = planted_base
+    y, x = _crack_sites(ties)[0]
+    cracked = ours.copy()
+    cracked[y, x] = 0.0
+    res = check_exact(cracked, g.image, EXACT_THRESHOLDS, ties)
+    img = exact_overlay(cracked, g.image, EXACT_THRESHOLDS, ties)
+    assert img.shape == ours.shape and img.dtype == np.uint8
+    assert tuple(img[y, x]) == (255, 0, 0)
+    yellow = np.all(img == (255, 230, 0), axis=-1)
+    assert yellow.sum() == res["excused_pixels"] and [list(p) for p in np.argwhere(yellow)] \
+        == res["excused"]
 
 
 @pytest.mark.parametrize("factor", [1.05, 0.95, 1.27])
