@@ -3,6 +3,13 @@ issue 9: a 3x3 neighbourhood range +- 0.02 plus a 0.5 % pixel budget) and now (t
 probe: ``evaluation.rules.tie_probe``, no neighbourhood, no budget).
 
     python -m evaluation.tie_count [--cases SUBSTR ...] [--out results/rules/exact_ties.json]
+                                   [--slack F] [--ray-epsilon E]
+
+``--slack`` tries another tie-probe distance (fraction of the diagonal); ``--ray-epsilon``
+renders ours with another ray offset than the golden's, to see what a mismatch of offset
+models between the renderers does (measured on 2026-12-01: ours at 1e-5 or 1e-6 against
+goldens at 1e-4 gives 30-250 hard pixels per view, most of them no tie even at 10x the
+slack: a mismatch of offsets is a model difference, and the rule does not excuse it).
 
 Per case: pixels off by more than max_rel, excused before / now, hard now, the size of the
 tie mask (where a bug could hide now), and the worst relative error of the pixels held.
@@ -49,6 +56,8 @@ def main(argv=None) -> int:
     ap.add_argument("--cases", nargs="*", default=[])
     ap.add_argument("--out", default=str(ROOT / "results/rules/exact_ties.json"))
     ap.add_argument("--backend", default="llvm")
+    ap.add_argument("--slack", type=float, default=EXACT_THRESHOLDS["tie_slack"].value)
+    ap.add_argument("--ray-epsilon", type=float, default=None)
     args = ap.parse_args(argv)
     rows = []
     for c in cases(modes=("exact",)):
@@ -57,7 +66,9 @@ def main(argv=None) -> int:
         scene = load_scene(c.scene, shading=c.shading)
         g = load_golden(scene, view=c.view, shading=c.shading, mode=c.mode)
         scene = scene.with_size(*g.meta["resolution"])
-        ours, ties = tie_probe(scene, c.view, backend=args.backend)
+        if args.ray_epsilon is not None:
+            scene = scene.with_settings(ray_epsilon=args.ray_epsilon)
+        ours, ties = tie_probe(scene, c.view, backend=args.backend, slack=args.slack)
         res = check_exact(ours, g.image, EXACT_THRESHOLDS, ties)
         off = int(res["excused_pixels"] + res["hard_pixels"])
         rows.append({"case": c.name, "pixels": res["pixels"], "off": off,
@@ -73,7 +84,7 @@ def main(argv=None) -> int:
         f"{r['excused_now']} | {r['hard_now']} | {r['tie_mask']} | {r['max_rel_held']:.1e} | "
         f"{'pass' if r['ok'] else 'FAIL'} |\n" for r in rows)
     out = Path(args.out)
-    _write_atomic(out, json.dumps({"tie_slack": EXACT_THRESHOLDS["tie_slack"].value,
+    _write_atomic(out, json.dumps({"tie_slack": args.slack, "ray_epsilon": args.ray_epsilon,
                                    "cases": rows}, indent=1) + "\n")
     _write_atomic(out.with_suffix(".md"), md)
     print(md)
