@@ -1,0 +1,91 @@
+"""The tie probe (``tie_break="other"``): another surface wins exactly where one is as near
+as the nearest within the window and slack; nowhere else does the image change."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from util import camera, diffuse_scene, light, make_scene, material, quad
+
+from evaluation.rules import tie_probe
+from renderer.accel import ACCELERATORS
+from renderer.render import render
+
+
+def _two_layers(gap: float):
+    """Quad A (red, faces 0-1) at z = 0 over [-1, 1]^2, quad B (green, faces 2-3) at
+    z = gap over [0, 2] x [-1, 1], both facing the camera at z = 3; ambient-lit only."""
+    a = quad([-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0])
+    b = quad([0, -1, gap], [2, -1, gap], [2, 1, gap], [0, 1, gap])
+    cam = camera([0.5, 0, 3], [0.5, 0, 0], fov_y=60, width=24, height=12)
+    return make_scene([(*a, 0), (*b, 1)],
+                      materials=[material("red", ka=[1, 0, 0]), material("green", ka=[0, 1, 0])],
+                      camera=cam, ambient=1.0)
+
+
+@pytest.mark.parametrize("accel", sorted(ACCELERATORS))
+def test_coplanar_overlap_is_a_tie(backend, accel):
+    sc = _two_layers(0.0)
+    low = render(sc, backend=backend, accel=accel).image
+    other = render(sc, backend=backend, accel=accel, tie_break="other", tie_window=1e-6,
+                   tie_slack=1e-6).image
+    # lowest face index wins the exact tie: red everywhere A is
+    assert (low[..., 0] == 1).sum() > 0 and (low[..., 1] == 1).sum() > 0
+    both = (other != low).any(-1)
+    # in the overlap the probe shows the other quad (green), elsewhere nothing changes
+    assert both.sum() > 0
+    assert np.all(other[both] == [0, 1, 0]) and np.all(low[both] == [1, 0, 0])
+    assert np.array_equal(other[~both], low[~both])
+
+
+@pytest.mark.parametrize("accel", sorted(ACCELERATORS))
+def test_a_surface_behind_is_no_tie_unless_within_the_window(backend, accel):
+    sc = _two_layers(-0.5)          # B half a unit behind A: never a tie at window 0.01
+    low = render(sc, backend=backend, accel=accel).image
+    near = render(sc, backend=backend, accel=accel, tie_break="other", tie_window=0.01,
+                  tie_slack=0.01).image
+    assert np.array_equal(near, low)
+    far = render(sc, backend=backend, accel=accel, tie_break="other", tie_window=1.0,
+                 tie_slack=0.01).image
+    assert (far != low).any()
+
+
+def test_probe_images_agree_across_accelerators():
+    sc = diffuse_scene()
+    d = 1e-5 * sc.diagonal
+    imgs = [render(sc, backend="llvm", accel=a, tie_break="other", tie_window=d,
+                   tie_slack=d).image for a in sorted(ACCELERATORS)]
+    for img in imgs[1:]:
+        np.testing.assert_array_equal(img, imgs[0])
+
+
+def test_shadow_grazing_an_edge_flips():
+    """A floor lit past the edge of a blocker: with a slack wider than the pixels' distance
+    from the shadow boundary, the probe flips shadow answers only along the boundary."""
+    floor = quad([-2, 0, -2], [2, 0, -2], [2, 0, 2], [-2, 0, 2])
+    blocker = quad([-0.5, 1, -0.5], [0.5, 1, -0.5], [0.5, 1, 0.5], [-0.5, 1, 0.5])
+    cam = camera([0, 3, 0.01], [0, 0, 0], fov_y=80, width=32, height=32, up=(0, 0, -1))
+    sc = make_scene([(*floor, 0), (*blocker, 1)],
+                    materials=[material("floor", kd=0.8), material("blocker", kd=0.2)],
+                    lights=[light([0, 2, 0], 4.0, "none")], camera=cam)
+    low = render(sc, backend="llvm").image
+    other = render(sc, backend="llvm", tie_break="other", tie_window=0.0,
+                   tie_slack=0.05).image
+    changed = (other != low).any(-1)
+    assert 0 < changed.sum() < 0.2 * changed.size
+    lit = low.max(-1) > 0.1
+    # every flipped pixel lies on the shadow's boundary (a lit/unlit neighbour pair)
+    edge = np.zeros_like(lit)
+    edge[1:-1, 1:-1] = np.any([lit[1 + dy:31 + dy, 1 + dx:31 + dx] != lit[1:-1, 1:-1]
+                               for dy in (-1, 0, 1) for dx in (-1, 0, 1)], axis=0)
+    assert np.all(edge[changed])
+
+
+def test_tie_probe_helper_and_bad_options():
+    sc = _two_layers(0.0)
+    img, ties = tie_probe(sc, 0, backend="llvm")
+    assert np.array_equal(img, render(sc, backend="llvm").image)
+    assert ties.shape == img.shape[:2] and ties.any()
+    with pytest.raises(ValueError, match="tie_break"):
+        render(sc, backend="llvm", tie_break="highest")
+    with pytest.raises(ValueError, match="tie_window"):
+        render(sc, backend="llvm", tie_break="other", tie_window=-1.0)
