@@ -7,7 +7,7 @@ import pytest
 from util import camera, diffuse_scene, light, make_scene, material, quad
 
 from evaluation.rules import tie_probe
-from renderer.accel import ACCELERATORS
+from renderer.accel import ACCELERATORS, ROUTINES
 from renderer.render import render
 
 
@@ -47,6 +47,27 @@ def test_a_surface_behind_is_no_tie_unless_within_the_window(backend, accel):
     far = render(sc, backend=backend, accel=accel, tie_break="other", tie_window=1.0,
                  tie_slack=0.01).image
     assert (far != low).any()
+
+
+@pytest.mark.parametrize("routine", sorted(ROUTINES))
+@pytest.mark.parametrize("accel", ["brute", "bvh8"])
+def test_probe_works_with_either_triangle_routine(accel, routine):
+    """The probe reads the edges of either packed layout (Möller–Trumbore's v0, e1, e2;
+    the watertight test's p0, p1, p2, n): the coplanar overlap flips, only there, and the
+    default tie-break gives the image of a render without the probe's fields."""
+    sc = _two_layers(0.0)
+    low = render(sc, backend="llvm", accel=accel, intersection=routine).image
+    assert np.array_equal(low, render(sc, backend="llvm", accel=accel, intersection=routine,
+                                      tie_break="lowest", tie_window=1.0, tie_slack=1.0).image)
+    other = render(sc, backend="llvm", accel=accel, intersection=routine, tie_break="other",
+                   tie_window=1e-6, tie_slack=1e-6).image
+    both = (other != low).any(-1)
+    assert both.sum() > 0 and np.all(other[both] == [0, 1, 0])
+    assert np.array_equal(other[~both], low[~both])
+    # a slack off the edge widens the inside test: the overlap's border pixels flip too
+    wide = render(sc, backend="llvm", accel=accel, intersection=routine, tie_break="other",
+                  tie_window=1e-6, tie_slack=0.3).image
+    assert ((wide != low).any(-1)).sum() > both.sum()
 
 
 def test_probe_images_agree_across_accelerators():
@@ -89,3 +110,34 @@ def test_tie_probe_helper_and_bad_options():
         render(sc, backend="llvm", tie_break="highest")
     with pytest.raises(ValueError, match="tie_window"):
         render(sc, backend="llvm", tie_break="other", tie_window=-1.0)
+
+
+@pytest.mark.parametrize("routine", sorted(ROUTINES))
+def test_probe_slack_is_a_world_space_distance_in_either_layout(routine):
+    """A ray passing 0.1 outside an edge of a triangle far from the origin: the probe's
+    inside test accepts it with a slack of 0.11 and rejects it with 0.09, whichever packed
+    layout the routine reads (``traverse.edges_of``)."""
+    import drjit as dr
+
+    from renderer.accel.traverse import edges_of, probe_inside
+    from renderer.accel.triangle import layout_of, load, pack, triangle_routine
+    from renderer.device import types
+
+    t = types("llvm", "float32")
+    off = np.array([50.0, -30.0, 20.0])
+    verts = np.array([[0, 0, 0], [2, 0, 0], [0, 2, 0]], float) + off
+    layout = layout_of(routine)
+    data = t.Float(pack(verts, np.array([[0, 1, 2]]), layout).astype(np.float32).reshape(-1))
+    tri = load(t, data, t.UInt32(0), True, layout)
+    e1, e2 = edges_of(tri, layout)
+    # below the edge v0-v1 (y = 0) by 0.1, at x = 1; and well inside, for contrast
+    o = t.Array3f([off[0] + 1, off[0] + 0.5], [off[1] - 0.1, off[1] + 0.5], [off[2] + 1] * 2)
+    d = t.Array3f(0, 0, -1)
+    th, u, v, _ = triangle_routine(routine)(o, d, *tri)
+    near = probe_inside(th, u, v, e1, e2, 0.11).numpy()
+    far = probe_inside(th, u, v, e1, e2, 0.09).numpy()
+    # narrowed: the inner point is 0.5 from its nearest edge
+    narrowed = [probe_inside(th, u, v, e1, e2, -s).numpy()[1] for s in (0.45, 0.55)]
+    assert dr.width(th) == 2
+    assert list(near) == [True, True] and list(far) == [False, True]
+    assert narrowed == [True, False]
