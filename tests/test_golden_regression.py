@@ -52,7 +52,14 @@ def _summary(res: dict) -> dict:
 
 
 #: Cases known to fail the exact rule, with the measurement: a strict xfail, so a fix shows.
-KNOWN_FAILURES: dict[str, str] = {}
+KNOWN_FAILURES = {
+    "glass_bunny": "refraction through the 69K-triangle bunny at 64x64 (LLVM, after the tie "
+                   "probe's rule replaced the 3x3 edge-tie allowance): 20 / 18 pixels (classic /"
+                   " physical) above max_rel where the probe (tie_slack 1e-5 x diagonal) shows "
+                   "no tie, mean rel 9.7e-4 / 1.0e-3 > 1e-4; Moller-Trumbore 27 / 23; a probe "
+                   "10x wider still leaves 3 / 2, 100x wider none (its mask then covers 38 % of "
+                   "the image): differences along refracted paths that are no geometric ties",
+}
 
 
 @pytest.mark.whitted(scenes=[ROOT / s for s in GOLDEN_SCENES], modes=["exact"],
