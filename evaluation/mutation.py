@@ -11,7 +11,8 @@ the file, so a refactor that moves the code makes the mutant *invalid*, said, no
 *before* anything of the project is imported: the hook compiles the patched source for
 that module, so every ``from ... import`` sees the bug, and nothing on disk changes. The
 hook also primes ``linecache`` with the patched text, since ``@dr.syntax`` re-reads a
-function's source. The subprocess runs the mutant's tests with ``pytest -x``: exit status
+function's source. The subprocess runs the mutant's tests with ``pytest -x --assert=plain``
+(pytest's assertion rewriter would import the project's modules itself): exit status
 1 (a test failed) is *caught*, 0 is *survived*, anything else (collection error, no tests)
 is *invalid*.
 
@@ -223,7 +224,12 @@ def run_one(name: str, extra: list[str]) -> int:
     install(m)
     import pytest
     os.chdir(ROOT)
-    return int(pytest.main(["-x", "-q", "-p", "no:cacheprovider", *m.tests, *extra]))
+    # --assert=plain: pytest's assertion-rewriting import hook goes first in sys.meta_path
+    # and claims every module of a distribution that provides a pytest11 plugin (ours:
+    # evaluation.pytest_plugin), so with it renderer.* would be imported unpatched (measured:
+    # every mutant survived)
+    return int(pytest.main(["-x", "-q", "-p", "no:cacheprovider", "--assert=plain", *m.tests,
+                            *extra]))
 
 
 # ---- the driver -----------------------------------------------------------------------------

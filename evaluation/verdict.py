@@ -411,6 +411,7 @@ def report_entries(verdicts):
     """``evaluation.report.ReportEntry`` for every verdict with both images, failures first
     (by exit code, largest first), each with its verdict and thresholds."""
     from .report import ReportEntry
+    from .rules import exact_overlay
 
     ordered = sorted((v for v in verdicts if v.ours is not None),
                      key=lambda v: -v.exit_code)
@@ -422,7 +423,10 @@ def report_entries(verdicts):
             verdict=v.status, verdict_reason=v.reason,
             thresholds={k: (t["value"], t["why"]) for k, t in v.thresholds.items()},
             info={"golden": v.golden or "—", "excused pixels": excused,
-                  "re-render the golden": v.command}))
+                  "re-render the golden": v.command},
+            overlay=exact_overlay(v.ours, v.ref, {k: (t["value"],) for k, t in
+                                                  v.thresholds.items()}, v.ties)
+            if v.mode == "exact" and v.status == "FAIL" else None))
     return entries
 
 

@@ -156,6 +156,14 @@ def test_a_pass_a_fail_and_a_missing_golden_in_one_run(user, tmp_path, capsys):
     page = (rep / "index.html").read_text()
     assert page.index('class="verdict v-FAIL"') < page.index('class="verdict v-PASS"')
     assert "max_rel" in page and "tie_slack" in page
+    # the failing exact case shows the rule's verdict drawn over the golden: all red (the
+    # tampered golden is 5 % off everywhere the quad is lit), the passing ones do not
+    drawn = list(rep.glob("*/rule.png"))
+    assert len(drawn) == 1 and "exact rule" in page
+    from PIL import Image
+    img = np.asarray(Image.open(drawn[0]))
+    assert (np.all(img == (255, 0, 0), axis=-1)).sum() == data["verdicts"][0]["result"][
+        "hard_pixels"] > 0
 
 
 def test_size_mismatch_exits_3_in_compare(user, capsys):
