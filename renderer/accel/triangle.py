@@ -249,7 +249,7 @@ def load(t, data, i, active=True, layout: str = "edges"):
 
 
 def upload_triangles(scene, t: Types, order: np.ndarray | None = None,
-                     with_normals: bool | None = None, routine: str = "moller_trumbore"):
+                     with_normals: bool | None = None, *, routine: str):
     """Upload ``scene``'s triangles, optionally permuted by ``order`` (int (F,)): returns
     ``(tri_data, tris)``, the packed geometry of ``pack`` (in the layout ``routine``
     reads) as a Float and the ``DeviceTriangles``. Normals are uploaded when
