@@ -1,7 +1,7 @@
 """Pixel agreement of our exact-mode renders with a set of Mitsuba goldens, per case.
 
 Usage: ``python -m evaluation.agreement [--goldens DIR] [--scenes a,b] [--json PATH]
-[--ray-epsilon E]``
+[--ray-epsilon E] [--spawn RULE]``
 
 For every exact-mode regression case (``evaluation.rules.cases``) it renders ours on LLVM
 (float32, the BVH) at the golden's size and prints: the fraction of pixels within 1e-3
@@ -12,7 +12,9 @@ pixel counts and its verdict. The issue-10 goal is >= 99.5 % on every bundled sc
 second column.
 
 ``--goldens`` reads another golden folder (e.g. the goldens of an older commit, extracted
-with ``git archive``), ``--ray-epsilon`` renders ours with that explicit offset override.
+with ``git archive``), ``--ray-epsilon`` renders ours with that explicit offset override,
+``--spawn`` with that offset rule (``renderer.scene.SPAWN_RULES``; "mitsuba" is the goldens'
+own).
 """
 from __future__ import annotations
 
@@ -26,7 +28,7 @@ import numpy as np
 
 from evaluation.rules import EXACT_THRESHOLDS, GOLDEN_SCENES, _neighbour_range, cases
 from reference.golden import GOLDEN_DIR, load_golden
-from renderer.scene import load_scene
+from renderer.scene import SPAWN_RULES, load_scene
 
 TOL = 1e-3
 
@@ -42,7 +44,8 @@ def edge_mask(ours: np.ndarray, ref: np.ndarray, tol: float) -> np.ndarray:
     return ex
 
 
-def measure(case, goldens: Path, ray_epsilon: float | None = None) -> dict:
+def measure(case, goldens: Path, ray_epsilon: float | None = None,
+            spawn: str | None = None) -> dict:
     """One case's numbers (see the module docstring)."""
     from renderer.render import render
     scene = load_scene(case.scene, shading=case.shading)
@@ -50,6 +53,8 @@ def measure(case, goldens: Path, ray_epsilon: float | None = None) -> dict:
     scene = scene.with_size(*g.meta["resolution"])
     if ray_epsilon is not None:
         scene = scene.with_settings(ray_epsilon=ray_epsilon)
+    if spawn is not None:
+        scene = scene.with_settings(spawn=spawn)
     ours = np.asarray(render(scene, view=case.view, backend="llvm").image, np.float64)
     ref = np.asarray(g.image, np.float64)
     err = np.abs(ours - ref).max(-1)
@@ -69,18 +74,19 @@ def main(argv=None) -> int:
     ap.add_argument("--goldens", type=Path, default=GOLDEN_DIR)
     ap.add_argument("--scenes", default=None, help="comma-separated scene stems")
     ap.add_argument("--ray-epsilon", type=float, default=None)
+    ap.add_argument("--spawn", choices=SPAWN_RULES, default=None)
     ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args(argv)
     scenes = GOLDEN_SCENES if args.scenes is None else tuple(
         f"scenes/{s}.toml" for s in args.scenes.split(","))
-    print(f"goldens: {args.goldens}; ray_epsilon: {args.ray_epsilon}")
+    print(f"goldens: {args.goldens}; ray_epsilon: {args.ray_epsilon}; spawn: {args.spawn}")
     print("| case | within 1e-3 | edges aside | differ (not edge) | rule edge / hard | "
           "mean_rel | rule |")
     print("|---|---|---|---|---|---|---|")
     rows = []
     t0 = time.perf_counter()
     for case in cases(scenes, modes=("exact",)):
-        r = measure(case, args.goldens, args.ray_epsilon)
+        r = measure(case, args.goldens, args.ray_epsilon, args.spawn)
         rows.append(r)
         print(f"| {r['case']} | {100 * r['within']:.2f} % | {100 * r['within_edges_aside']:.2f} % "
               f"| {r['differ']} ({r['differ_not_edge']}) | {r['rule_edge']} / {r['rule_hard']} "

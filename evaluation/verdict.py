@@ -207,14 +207,18 @@ def _ours(renderers: dict, scene, view: int, mode: str, golden, opts: dict,
     ``Renderer`` (upload and accelerator) per scene, size and sampling. ``render(renderer,
     view, label)`` renders it (the CLI's ``whitted.progress.render_view``: a progress bar
     and Ctrl-C between bands) and returns a dict with the RenderResult under ``"result"``;
-    None: ``renderer.render(view)``."""
+    None: ``renderer.render(view)``. Ours spawns secondary and shadow rays with the rule the
+    golden records (``spawn``: Mitsuba's own for every golden of the harness), so the two
+    images trace the same rays; our default scale-free rule is checked by the hard-case suite
+    and the float64 oracle instead."""
     from renderer.render import Renderer
 
     w, h = golden.meta["resolution"]
     spp = 1 if mode == "exact" else int(golden.meta["batch_spp"])
-    key = (id(scene), w, h, mode, spp)
+    spawn = golden.meta.get("spawn", golden_store.GOLDEN_SPAWN)
+    key = (id(scene), w, h, mode, spp, spawn)
     if key not in renderers:
-        sized = scene.with_size(int(w), int(h))
+        sized = scene.with_size(int(w), int(h)).with_settings(spawn=spawn, ray_epsilon=None)
         if mode == "converged":
             sized = sized.with_settings(seed=OUR_SEED)
         renderers[key] = Renderer(sized, spp=spp, exact=mode == "exact", **opts)

@@ -545,10 +545,17 @@ def render_goldens(scene_paths, *, force: bool = False, spp: int = CONVERGED_SPP
     return written
 
 
+#: The reference's spawn rule for every golden (``reference.mitsuba_scene.to_mitsuba_dict``'s
+#: default); recorded in the sidecars.
+GOLDEN_SPAWN = "mitsuba"
+
+
 def sidecar(scene: Scene, inputs: dict, *, resolution, spp: int, batch_spp: int, batches: int,
             variant: str, date: str | None = None) -> dict:
     """The JSON sidecar of a golden: its keys, its inputs and how it was rendered (no
-    absolute path)."""
+    absolute path). ``spawn``: how the reference spawned secondary and shadow rays (always
+    Mitsuba's own ``spawn_ray`` / ``spawn_ray_to``: "mitsuba"); a check renders ours with
+    that rule (``renderer.scene.SPAWN_RULES``) so both trace the same rays."""
     return {
         "format": FORMAT, "key": full_key(inputs), "content_key": content_key(inputs),
         "scene_name": scene.name, "scene_file": Path(scene.path).name,
@@ -556,7 +563,8 @@ def sidecar(scene: Scene, inputs: dict, *, resolution, spp: int, batch_spp: int,
         "shading": inputs["shading"], "mode": inputs["mode"],
         "spp": spp, "batch_spp": batch_spp, "batches": batches,
         "resolution": list(resolution), "mitsuba_version": inputs["mitsuba_version"],
-        "variant": variant, "max_depth": scene.settings.max_depth, "inputs": inputs,
+        "variant": variant, "max_depth": scene.settings.max_depth, "spawn": GOLDEN_SPAWN,
+        "inputs": inputs,
         "date": date or datetime.datetime.now(datetime.timezone.utc).isoformat(
             timespec="seconds"),
     }

@@ -102,7 +102,7 @@ def trace(sa: SceneArrays, o, d, t: Types, fx: EffectSet, opt: TraceOptions):
         child_depth = depth + 1
         w_r = weight * br.w_refl
         go_r = can_branch & (dr.max(w_r) >= opt.min_weight) & (dr.max(br.w_refl) > 0)
-        next_o = offset_origin(sp, br.R, opt.eps)
+        next_o = offset_origin(sp, br.R, opt.eps, opt.spawn)
         next_d = br.R
         next_w = w_r
         go = go_r
@@ -111,7 +111,7 @@ def trace(sa: SceneArrays, o, d, t: Types, fx: EffectSet, opt: TraceOptions):
         if dr.hint(use_stack, mode="scalar"):
             w_t = weight * br.w_refr
             go_t = can_branch & (dr.max(w_t) >= opt.min_weight) & (dr.max(br.w_refr) > 0)
-            o_t = offset_origin(sp, br.T, opt.eps)
+            o_t = offset_origin(sp, br.T, opt.eps, opt.spawn)
             push = go_r & go_t             # both children: follow R, push T
             for k in range(3):
                 st_o[k].write(o_t[k], sp_top, push)

@@ -103,7 +103,8 @@ class Renderer:
         dr.make_opaque(self.arrays.ambient, self.arrays.background)
         self.upload_seconds = time.perf_counter() - t0
         self.options = TraceOptions(n_lights=len(scene.lights), max_depth=int(s.max_depth),
-                                    min_weight=float(s.min_weight), eps=scene.ray_offset)
+                                    min_weight=float(s.min_weight), eps=scene.ray_offset,
+                                    spawn=s.spawn)
         self.accel_name = accel
         frame_fn = make_frame_fn(t, self.effects, self.options, spp=self.spp, exact=self.exact,
                                  seed=int(s.seed))

@@ -82,16 +82,18 @@ class SceneArrays:
 class TraceOptions:
     """Host-side constants of the kernel: n_lights (number of lights), max_depth
     (0..MAX_DEPTH_LIMIT, checked by ``validate_settings``), min_weight (branch pruning),
-    eps (None: scale-free ray offsets from each hit's own rounding error, the default; a
-    float: the explicit absolute offset of a scene's ``ray_epsilon`` override)."""
+    eps (None: the offset rule ``spawn``; a float: the explicit absolute offset of a
+    scene's ``ray_epsilon`` override), spawn (``SPAWN_RULES``: "scale-free", offsets from
+    each hit's own rounding error, the default; "mitsuba", Mitsuba 3's rule)."""
 
     n_lights: int
     max_depth: int
     min_weight: float
     eps: float | None = None
+    spawn: str = "scale-free"
 
     def __post_init__(self):
-        validate_settings(max_depth=self.max_depth)
+        validate_settings(max_depth=self.max_depth, spawn=self.spawn)
 
 
 # ---- Fresnel ---------------------------------------------------------------------------------
@@ -228,13 +230,23 @@ def _next_float_away(x, up):
     return dr.select(x == 0, dr.select(up, tiny, -tiny), stepped)
 
 
-def offset_origin(sp: SurfacePoint, direction, eps=None):
+#: Mitsuba 3's ``math::RayEpsilon<float>`` (1500 · 2^-24): its ``spawn_ray`` moves an origin
+#: ``(1 + max|p|)`` times this along ``N_g``; ``ShadowEpsilon`` is 10 times it. The goldens
+#: are single-precision Mitsuba renders, so the "mitsuba" rule uses this value in float64 too.
+MITSUBA_RAY_EPSILON = 1500.0 * 2.0 ** -24
+MITSUBA_SHADOW_EPSILON = 10.0 * MITSUBA_RAY_EPSILON
+
+
+def offset_origin(sp: SurfacePoint, direction, eps=None, spawn: str = "scale-free"):
     """The origin of a ray leaving the hit ``sp`` along ``direction`` (docs/MODEL.md, "Ray
     offsets"): ``p + δ N'`` with ``N' = ±N_g`` on the side ``direction`` leaves into.
 
-    eps None (default): ``δ = dot(|N_g|, p_err)``, the hit's own error bound projected on the
-    normal, and every coordinate that moved is rounded one more float away from ``p`` (pbrt-v4
-    ``OffsetRayOrigin``), so the offset survives the addition however small it is.
+    eps None, spawn "scale-free" (default): ``δ = dot(|N_g|, p_err)``, the hit's own error
+    bound projected on the normal, and every coordinate that moved is rounded one more float
+    away from ``p`` (pbrt-v4 ``OffsetRayOrigin``), so the offset survives the addition however
+    small it is.
+    eps None, spawn "mitsuba": ``δ = (1 + max|p|) · MITSUBA_RAY_EPSILON`` (Mitsuba 3's
+    ``SurfaceInteraction::spawn_ray``).
     eps a float: the explicit override, ``δ = eps`` (absolute).
     """
     ng, p = sp.ng, sp.p
@@ -242,6 +254,9 @@ def offset_origin(sp: SurfacePoint, direction, eps=None):
     sign = dr.select(dr.dot(direction, ng) >= 0, F(1.0), F(-1.0))
     if eps is not None:
         return dr.fma(ng, sign * eps, p)
+    if spawn == "mitsuba":
+        mag = (1.0 + dr.max(dr.abs(p))) * MITSUBA_RAY_EPSILON
+        return dr.fma(ng, sign * mag, p)
     delta = dr.dot(dr.abs(ng), sp.p_err)
     off = ng * (sign * delta)
     po = p + off
@@ -250,18 +265,22 @@ def offset_origin(sp: SurfacePoint, direction, eps=None):
                 for k in range(3)))
 
 
-def shadow_ray(sp: SurfacePoint, p_light, double: bool, eps=None) -> tuple:
-    """The shadow ray from the hit ``sp`` to the point light at ``p_light`` (Array3f) and
-    the direction it tests, as ``(Ray, direction)``: from the offset origin ``o'``
-    (``offset_origin`` towards the light) along ``normalize(p_l - o')``, ending short of the
-    light by ``γ_SHADOW_END_OPS`` of its length (scale-free) or by ``eps`` (the override)."""
-    so = offset_origin(sp, p_light - sp.p, eps)
+def shadow_ray(sp: SurfacePoint, p_light, double: bool, eps=None,
+               spawn: str = "scale-free") -> Ray:
+    """The shadow ray from the hit ``sp`` to the point light at ``p_light`` (Array3f): from
+    the offset origin ``o'`` (``offset_origin`` towards the light) along
+    ``normalize(p_l - o')``, ending short of the light by ``γ_SHADOW_END_OPS`` of its length
+    (scale-free), by ``MITSUBA_SHADOW_EPSILON`` of it (Mitsuba's ``spawn_ray_to``) or by
+    ``eps`` (the override)."""
+    so = offset_origin(sp, p_light - sp.p, eps, spawn)
     sd = p_light - so
     s_len = dr.norm(sd)
-    if eps is None:
-        t_max = s_len * (1.0 - gamma(SHADOW_END_OPS, double))
-    else:
+    if eps is not None:
         t_max = s_len - eps
+    elif spawn == "mitsuba":
+        t_max = s_len * (1.0 - MITSUBA_SHADOW_EPSILON)
+    else:
+        t_max = s_len * (1.0 - gamma(SHADOW_END_OPS, double))
     return Ray(o=so, d=sd / s_len, t_max=t_max)
 
 
@@ -345,7 +364,8 @@ def _light_term(li, ctx: ShadingContext, lobe: PhongLobe, sa: SceneArrays, t: Ty
     cos_theta = dr.dot(L, N)
     lit = ctx.active & (cos_theta > 0)
     if dr.hint(fx.shadows, mode="scalar"):
-        blocked = sa.accel.intersect_p(shadow_ray(sp, ls.p, t.is_double, opt.eps), lit)
+        shadow = shadow_ray(sp, ls.p, t.is_double, opt.eps, opt.spawn)
+        blocked = sa.accel.intersect_p(shadow, lit)
         lit &= ~blocked
     brdf = lobe.kd * cos_theta
     if dr.hint(fx.specular, mode="scalar"):

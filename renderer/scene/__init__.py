@@ -7,6 +7,7 @@ from .model import (
                     FALLOFFS,
                     MAX_DEPTH_LIMIT,
                     SHADING_MODES,
+                    SPAWN_RULES,
                     Camera,
                     Material,
                     ObjectInfo,
@@ -20,6 +21,7 @@ from .model import (
                     validate_settings,
 )
 
-__all__ = ["COMBINATIONS", "FALLOFFS", "MAX_DEPTH_LIMIT", "SHADING_MODES", "Camera", "Material",
+__all__ = ["COMBINATIONS", "FALLOFFS", "MAX_DEPTH_LIMIT", "SHADING_MODES", "SPAWN_RULES",
+           "Camera", "Material",
            "ObjectInfo", "PointLight", "Scene", "SceneError", "Settings", "check_ranges",
            "load_scene", "precision_limits", "validate_image_size", "validate_settings"]

@@ -24,6 +24,7 @@ from .model import (
     COMBINATIONS,
     FALLOFFS,
     SHADING_MODES,
+    SPAWN_RULES,
     Camera,
     Material,
     ObjectInfo,
@@ -40,7 +41,7 @@ _TOP_KEYS = ("description", "camera", "views", "render", "ambient", "lights", "m
              "objects", "physical", "check")
 _VIEW_KEYS = ("name", "position", "target", "up", "fov_y", "resolution")
 _RENDER_KEYS = ("max_depth", "spp", "exact", "shading", "background", "min_weight",
-                "ray_epsilon", "seed")
+                "ray_epsilon", "seed", "spawn")
 _LIGHT_KEYS = ("name", "position", "intensity", "falloff")
 _MATERIAL_KEYS = ("ka", "kd", "ks", "n", "k_refl", "k_refr", "ior", "combination")
 _OBJECT_KEYS = ("name", "material", "mesh", "shape", "translate", "rotate", "scale",
@@ -210,6 +211,10 @@ def _read_render(r: _Reader, data: dict, shading: str | None) -> Settings:
     spp = r.integer(rt.get("spp", 1), "render.spp", lo=1)
     exact = r.boolean(rt["exact"], "render.exact") if "exact" in rt else spp == 1
     max_depth = r.integer(rt.get("max_depth", 5), "render.max_depth", lo=0)
+    spawn = r.string(rt.get("spawn", "scale-free"), "render.spawn", SPAWN_RULES)
+    if spawn != "scale-free" and "ray_epsilon" in rt:
+        raise SceneError(f"{r.path}: render.spawn: {spawn!r} and render.ray_epsilon (an "
+                         "absolute offset) exclude each other", field="render.spawn")
     try:
         validate_settings(spp=spp, exact=exact, max_depth=max_depth, where="render")
     except SceneError as e:
@@ -221,6 +226,7 @@ def _read_render(r: _Reader, data: dict, shading: str | None) -> Settings:
         ray_epsilon=(r.number(rt["ray_epsilon"], "render.ray_epsilon", lo=0.0, lo_open=True)
                      if "ray_epsilon" in rt else None),
         seed=r.integer(rt.get("seed", 0), "render.seed", lo=0),
+        spawn=spawn,
     )
 
 

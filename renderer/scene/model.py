@@ -22,6 +22,11 @@ from pathlib import Path
 import numpy as np
 
 SHADING_MODES = ("classic", "physical")
+#: Rules for where secondary and shadow rays start (docs/MODEL.md, "Ray offsets"):
+#: "scale-free" (the default: each hit point's own rounding error) and "mitsuba" (Mitsuba 3's
+#: ``spawn_ray`` / ``spawn_ray_to``, so a comparison with a Mitsuba golden traces the same
+#: rays; ``whitted check`` renders with the rule its golden records).
+SPAWN_RULES = ("scale-free", "mitsuba")
 FALLOFFS = ("none", "inverse_square")
 COMBINATIONS = ("constant", "fresnel")
 
@@ -46,12 +51,13 @@ class SceneError(ValueError):
 
 def validate_settings(*, spp: int | None = None, exact: bool | None = None,
                       max_depth: int | None = None, shading: str | None = None,
-                      where: str = "settings") -> None:
+                      spawn: str | None = None, where: str = "settings") -> None:
     """The one host-side check of the render settings; a None argument is not checked.
 
     spp: an integer k*k >= 1 (k x k strata); with ``exact`` true it must be 1.
     max_depth: an integer in 0..MAX_DEPTH_LIMIT.
     shading: one of SHADING_MODES.
+    spawn: one of SPAWN_RULES.
     where: prefix of the field names in errors (``"settings"`` gives ``"settings.spp"``;
         the loader passes ``"<file>: render"``, the CLI may pass its own).
     Raises SceneError whose message starts with the field and whose ``field`` names it.
@@ -74,6 +80,8 @@ def validate_settings(*, spp: int | None = None, exact: bool | None = None,
     if shading is not None and shading not in SHADING_MODES:
         fail("shading", f"expected one of {', '.join(map(repr, SHADING_MODES))}, "
                         f"got {shading!r}")
+    if spawn is not None and spawn not in SPAWN_RULES:
+        fail("spawn", f"expected one of {', '.join(map(repr, SPAWN_RULES))}, got {spawn!r}")
 
 
 #: Dr.Jit arrays hold fewer than 2^32 entries (UInt32 sizes and indices).
@@ -210,6 +218,8 @@ class Settings:
     ray_epsilon: None (default): scale-free ray offsets from each hit point's own rounding
         error (docs/MODEL.md, "Ray offsets"); a number: explicit override, an absolute
         offset of ``ray_epsilon`` × the scene's bounding-box diagonal.
+    spawn: one of SPAWN_RULES, the offset rule when ``ray_epsilon`` is None ("scale-free",
+        the default; "mitsuba": Mitsuba 3's own rule, for comparisons with its goldens).
     seed: seed of the stratified jitter in converged mode.
     """
 
@@ -221,6 +231,13 @@ class Settings:
     min_weight: float = 0.01
     ray_epsilon: float | None = None
     seed: int = 0
+    spawn: str = "scale-free"
+
+    def __post_init__(self):
+        validate_settings(spawn=self.spawn)
+        if self.spawn != "scale-free" and self.ray_epsilon is not None:
+            raise SceneError(f"settings.spawn: {self.spawn!r} and ray_epsilon (an absolute "
+                             "offset) exclude each other", field="settings.spawn")
 
 
 @dataclass(frozen=True)
