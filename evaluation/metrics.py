@@ -29,6 +29,7 @@ statistical test for converged (noisy) renders, in the style of Mitsuba's ``test
 """
 from __future__ import annotations
 
+import functools
 import math
 import warnings
 
@@ -51,6 +52,8 @@ __all__ = [
     "image_difference",
     "metrics",
     "outlier_mask",
+    "student_t_quantile",
+    "welch_test",
     "z_test",
 ]
 
@@ -273,3 +276,107 @@ def z_test(ours_mean: np.ndarray, ours_var: np.ndarray, ref_mean: np.ndarray,
     alpha_sidak = 1.0 - (1.0 - alpha) ** (1.0 / max(m_a.size, 1))
     mask = np.nan_to_num(t, nan=np.inf) <= _normal_quantile_two_sided(alpha_sidak)
     return float(mask.mean()) if mask.size else 1.0, mask
+
+
+def _betacf(a: float, b: float, x: float) -> float:
+    """Continued fraction of the regularized incomplete beta function (modified Lentz)."""
+    tiny = 1e-300
+    c, d = 1.0, 1.0 - (a + b) * x / (a + 1.0)
+    d = 1.0 / (d if abs(d) > tiny else tiny)
+    h = d
+    for m in range(1, 1000):
+        m2 = 2 * m
+        for aa in (m * (b - m) * x / ((a + m2 - 1) * (a + m2)),
+                   -(a + m) * (a + b + m) * x / ((a + m2) * (a + m2 + 1))):
+            d = 1.0 + aa * d
+            d = 1.0 / (d if abs(d) > tiny else tiny)
+            c = 1.0 + aa / c
+            c = c if abs(c) > tiny else tiny
+            h *= d * c
+        if abs(d * c - 1.0) < 1e-15:
+            break
+    return h
+
+
+def _student_t_two_sided(t: float, dof: float) -> float:
+    """P(|T| > t) for Student's t with ``dof`` degrees of freedom: I_x(dof/2, 1/2) with
+    x = dof / (dof + t^2)."""
+    if t <= 0:
+        return 1.0
+    a, b, x = dof / 2.0, 0.5, dof / (dof + t * t)
+    lbeta = math.lgamma(a) + math.lgamma(b) - math.lgamma(a + b)
+    front = math.exp(a * math.log(x) + b * math.log1p(-x) - lbeta)
+    if x < (a + 1.0) / (a + b + 2.0):
+        return front * _betacf(a, b, x) / a
+    return 1.0 - front * _betacf(b, a, 1.0 - x) / b
+
+
+@functools.lru_cache(maxsize=4096)
+def student_t_quantile(alpha: float, dof: float) -> float:
+    """t with P(|T| > t) = alpha for Student's t with ``dof`` degrees of freedom
+    (bisection; dof = inf gives the normal quantile)."""
+    if math.isinf(dof):
+        return _normal_quantile_two_sided(alpha)
+    lo, hi = 0.0, 1.0
+    while _student_t_two_sided(hi, dof) > alpha:
+        hi *= 2.0
+    for _ in range(200):
+        mid = 0.5 * (lo + hi)
+        if _student_t_two_sided(mid, dof) > alpha:
+            lo = mid
+        else:
+            hi = mid
+    return 0.5 * (lo + hi)
+
+
+def welch_test(ours_mean: np.ndarray, ours_var: np.ndarray, ours_n: int,
+               ref_mean: np.ndarray, ref_var: np.ndarray, ref_n: int, *,
+               alpha: float = 0.01, var_floor: np.ndarray | float = 0.0,
+               equal_var: bool = False):
+    """Per-value two-sample t-test that two Monte Carlo estimates have the same
+    expectation, each the mean of ``n`` independent batches whose per-batch sample variance
+    is ``var``.
+
+    Welch (``equal_var=False``): ``t = (m_a - m_r) / sqrt(v_a / n_a + v_r / n_r + floor)``
+    with the Welch-Satterthwaite degrees of freedom, rounded down (at least
+    ``min(n_a, n_r) - 1``). Student (``equal_var=True``): the pooled variance
+    ``((n_a-1) v_a + (n_r-1) v_r) / (n_a+n_r-2)`` for both, ``n_a + n_r - 2`` degrees of
+    freedom: right when both sides sample the same distribution per batch under the null
+    hypothesis (the same estimator at the same spp), and far less fooled by a side whose
+    few batches happen to agree. ``var_floor`` is added to the variance of the difference.
+    A variance estimated from 16 batches has heavy tails: the normal quantile of ``z_test``
+    would fail a correct renderer far more often than ``alpha``. The level is
+    Šidák-corrected for the number of values: under the null hypothesis every value passes
+    with probability ``1 - alpha``.
+
+    Returns (fraction of values that pass, bool mask, True = pass, the |t| array).
+    """
+    if ours_n < 2 or ref_n < 2:
+        raise ValueError(f"batches: need >= 2 on each side for a variance, got "
+                         f"{ours_n} and {ref_n}")
+    if not 0 < alpha < 1:
+        raise ValueError(f"alpha: expected a value in (0, 1), got {alpha}")
+    m_a, v_a, m_r, v_r = (np.asarray(x, np.float64)
+                          for x in (ours_mean, ours_var, ref_mean, ref_var))
+    for name, x in (("ours_var", v_a), ("ref_mean", m_r), ("ref_var", v_r)):
+        if x.shape != m_a.shape:
+            raise ValueError(f"{name}: shape {x.shape} differs from ours_mean {m_a.shape}")
+    if equal_var:
+        pooled = ((ours_n - 1) * v_a + (ref_n - 1) * v_r) / (ours_n + ref_n - 2)
+        sa, sr = pooled / ours_n, pooled / ref_n
+    else:
+        sa, sr = v_a / ours_n, v_r / ref_n
+    var = np.maximum(sa + sr + var_floor, 1e-300)
+    t = np.nan_to_num(np.abs(m_a - m_r) / np.sqrt(var), nan=np.inf)
+    if equal_var:
+        dof = np.full(m_a.shape, float(ours_n + ref_n - 2))
+    else:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            dof = (sa + sr) ** 2 / (sa ** 2 / (ours_n - 1) + sr ** 2 / (ref_n - 1))
+        lo = min(ours_n, ref_n) - 1
+        dof = np.floor(np.clip(np.nan_to_num(dof, nan=lo), lo, ours_n + ref_n - 2))
+    alpha_sidak = 1.0 - (1.0 - alpha) ** (1.0 / max(m_a.size, 1))
+    limits = {k: student_t_quantile(alpha_sidak, float(k)) for k in np.unique(dof)}
+    limit = np.vectorize(limits.__getitem__, otypes=[np.float64])(dof) if dof.size else dof
+    mask = t <= limit
+    return (float(mask.mean()) if mask.size else 1.0), mask, t

@@ -53,6 +53,9 @@ class ReportEntry:
     verdict: the regression gate's status (PASS, WARN, FAIL, ...; ``evaluation.verdict``)
         or None when the entry was not judged; verdict_reason: its one-line reason.
     thresholds: the rule's thresholds used, name -> (value, why).
+    overlay: uint8 (H, W, 3) or None: the exact rule's verdict drawn over the golden
+        (``evaluation.rules.exact_overlay``: hard pixels red, excused yellow, the rest of
+        the tie mask magenta), shown beside the images (the gate sets it for a FAIL).
     """
 
     name: str
@@ -67,6 +70,7 @@ class ReportEntry:
     verdict: str | None = None
     verdict_reason: str = ""
     thresholds: dict[str, tuple] = field(default_factory=dict)
+    overlay: np.ndarray | None = None
 
 
 # ---- formatting ---------------------------------------------------------------------------
@@ -280,6 +284,9 @@ def _entry_html(e: ReportEntry, slug: str, scale: float) -> str:
         _map_figure(f"{slug}/absdiff.png", "|ours − Mitsuba|, max over RGB", HEAT_CMAP,
                     "0", f"{scale:.3g}"),
         _map_figure(f"{slug}/flip.png", "HDR-FLIP error", FLIP_CMAP, "0", "1"),
+        (f'<figure><img src="{esc(slug)}/rule.png" alt="exact rule"><figcaption><b>exact '
+         'rule</b>: hard pixels red, excused (tie probe) yellow, other tie-mask pixels '
+         'magenta</figcaption></figure>') if e.overlay is not None else "",
     ])
     metric_rows = "".join(f'<tr><th>{esc(k)}</th><td class="v">{esc(v)}</td>'
                           f'<td class="note">{esc(n)}</td></tr>'
@@ -409,6 +416,8 @@ def write_report(out_dir: str | Path, entries: list[ReportEntry], *, title: str,
         ]
         for fname, (_, rgb) in zip(("ours", "mitsuba", "absdiff", "flip"), panels):
             _save_png(folder / f"{fname}.png", rgb)
+        if e.overlay is not None:
+            _save_png(folder / "rule.png", e.overlay)
         write_exr(folder / "ours.exr", e.ours, overwrite=True)
         write_exr(folder / "mitsuba.exr", e.ref, overwrite=True)
         _save_png(folder / "strip.png", _strip(panels))

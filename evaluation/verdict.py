@@ -15,10 +15,16 @@ code  status     meaning
 4     ERROR      a scene file, threshold or golden file could not be read
 ====  =========  ==========================================================================
 
-Each verdict carries the reason in one line, the pixels each rule excused (e.g. edge ties),
-the rule's numbers and the thresholds used (with their source: the defaults of
+Each verdict carries the reason in one line, the pixels each rule excused (the exact rule
+excuses only pixels our tie probe shows to depend on a geometric tie, and lists each), the
+rule's numbers and the thresholds used (with their source: the defaults of
 ``evaluation.rules`` or the scene file's ``[check]`` table). ``check_scenes`` runs them;
 ``format_line``, ``to_json`` and ``write_junit`` present them.
+
+What is compared: exact mode, our image and its tie mask (``evaluation.rules.tie_probe``'s
+two renders, here through the cached renderers); converged mode, ``batches`` independent
+renders of ours at the golden's ``batch_spp`` (``evaluation.rules.render_batches``: our own
+variance) against the golden's mean and variance.
 """
 from __future__ import annotations
 
@@ -36,15 +42,21 @@ from reference import golden as golden_store
 from renderer.outputs import write_bytes
 from renderer.scene import SHADING_MODES, SceneError, load_scene
 
-from .rules import RULES, THRESHOLDS, Threshold
+from .rules import (
+    OUR_SEED,
+    RULES,
+    THRESHOLDS,
+    Batches,
+    Threshold,
+    matching,
+    render_batches,
+)
 
 #: Exit code of each status (idiff's convention; the run exits with the largest).
 EXIT_CODES = {"PASS": 0, "WARN": 1, "FAIL": 2, "SIZE": 3, "MISSING": 4, "STALE": 4, "ERROR": 4}
 #: What ``check`` compares when neither the command line nor the scene's ``[check]`` says.
 DEFAULT_MODES = ("exact",)
 DEFAULT_SHADINGS = SHADING_MODES
-#: Our converged renders use their own seed, independent of the golden's Mitsuba seeds.
-OUR_SEED = 20240611
 
 
 @dataclass
@@ -67,6 +79,7 @@ class Verdict:
     seconds: float = 0.0
     ours: np.ndarray | None = field(default=None, repr=False)
     ref: np.ndarray | None = field(default=None, repr=False)
+    ties: np.ndarray | None = field(default=None, repr=False)   # exact: the tie mask
 
     @property
     def name(self) -> str:
@@ -124,55 +137,64 @@ def _fmt(x) -> str:
     return f"{x:.3g}" if isinstance(x, float) else f"{x:,}" if isinstance(x, int) else str(x)
 
 
+def _pixels(pxs, n: int = 5) -> str:
+    """``(y, x)`` of the first ``n`` pixels of a rule's list, for a reason line."""
+    shown = ", ".join(f"({y},{x})" for y, x in pxs[:n])
+    return shown + (", ..." if len(pxs) > n else "")
+
+
 def explain(mode: str, res: dict, th: dict) -> tuple[str, dict[str, int]]:
     """(one-line reason, pixels excused per rule) of a rule's result ``res``. A rule may
-    give both itself (``res["reason"]``, ``res["excused"]``); otherwise they are read from
-    the numbers of ``check_exact`` / ``check_converged``."""
-    excused = dict(res.get("excused", {}))
+    give both itself (``res["reason"]``, and ``res["excused"]`` as a dict); otherwise they
+    are read from the numbers of ``check_exact`` / ``check_converged``."""
+    given = res.get("excused")
+    excused = dict(given) if isinstance(given, dict) else {}
     if "reason" in res:
         return res["reason"], excused
     val = {k: t[0] for k, t in th.items()}
     if mode == "exact":
-        if "edge_pixels" in res and "excused" not in res:
-            excused["edge ties"] = res["edge_pixels"]
+        if res.get("excused_pixels"):
+            excused["tie-probe pixels"] = res["excused_pixels"]
+        if res.get("ok"):
+            return (f"mean rel {_fmt(res.get('mean_rel', 0.0))}, max rel (held) "
+                    f"{_fmt(res.get('max_rel_held', res.get('max_rel', 0.0)))}, "
+                    f"tie mask {_fmt(res.get('tie_pixels', 0))} pixels"), excused
         why = []
         if res.get("hard_pixels", 0):
             why.append(f"{res['hard_pixels']:,} pixels above max_rel {val.get('max_rel', 0):g}"
-                       f" not explained as edge ties (worst rel {_fmt(res.get('max_rel'))})")
+                       f" where the tie probe shows no tie (worst rel "
+                       f"{_fmt(res.get('max_rel_held', res.get('max_rel')))}; "
+                       f"{_pixels(res.get('hard', []))})")
         if "mean_rel" in val and res.get("mean_rel", 0) > val["mean_rel"]:
             why.append(f"mean rel {_fmt(res['mean_rel'])} > {val['mean_rel']:g}")
-        if "edge_fraction" in val and "edge_pixels" in res \
-                and res["edge_pixels"] > val["edge_fraction"] * res.get("pixels", 0):
-            why.append(f"{res['edge_pixels']:,} edge-tie pixels > the "
-                       f"{val['edge_fraction']:.2%} allowed")
-        if res.get("ok"):
-            return (f"mean rel {_fmt(res.get('mean_rel', 0.0))}, max rel (not excused) "
-                    f"{_fmt(res.get('max_rel_nonedge', res.get('max_rel', 0.0)))}"), excused
         return "; ".join(why) or "the exact rule failed", excused
     if mode == "converged":
         failed = res.get("failed_values", 0)
         if res.get("ok"):
-            if failed and "excused" not in res:
-                excused["Z-test pass_fraction budget"] = failed
-            return f"Z-test: {res.get('pass_fraction', 1.0):.4%} of values pass", excused
-        return (f"Z-test: {failed:,} values fail (pass fraction "
-                f"{res.get('pass_fraction', 0.0):.4%} < {val.get('pass_fraction', 1):g})",
-                excused)
+            return (f"t-test: every value passes (max |t| {_fmt(res.get('max_t', 0.0))}, "
+                    f"alpha {val.get('alpha', 0):g} family-wise)"), excused
+        return (f"t-test: {failed:,} values in {res.get('failed_pixels', 0):,} pixels fail "
+                f"at alpha {val.get('alpha', 0):g} (max |t| {_fmt(res.get('max_t', 0.0))}; "
+                f"{_pixels(res.get('failed', []))})", excused)
     return ("passed" if res.get("ok") else "failed"), excused
 
 
-def judge(ours: np.ndarray, golden, mode: str, th: dict, warn: dict | None = None,
-          scene=None) -> tuple[str, str, dict, dict]:
-    """Apply the rule of ``mode`` to our image and a ``reference.golden.Golden``.
+def judge(ours, golden, mode: str, th: dict, warn: dict | None = None,
+          scene=None, ties: np.ndarray | None = None) -> tuple[str, str, dict, dict]:
+    """Apply the rule of ``mode`` to ours and a ``reference.golden.Golden``: exact, our
+    image and ``ties``, its tie mask (``evaluation.rules.tie_probe``; None excuses
+    nothing); converged, our ``evaluation.rules.Batches`` at the golden's ``batch_spp``.
 
     Returns (status, reason, excused, result): SIZE when the shapes differ, else PASS / FAIL
     from the rule, PASS turned WARN when a ``warn`` level (name -> value of the rule's
     result) is exceeded. ``scene`` names the file in the error for an unknown warn name."""
-    ours = np.asarray(ours, np.float32)
-    if ours.shape != golden.image.shape:
-        return ("SIZE", f"ours is {ours.shape[1]}x{ours.shape[0]}, the golden "
+    if not isinstance(ours, Batches):
+        ours = np.asarray(ours, np.float32)
+    shape = ours.mean.shape if isinstance(ours, Batches) else ours.shape
+    if shape != golden.image.shape:
+        return ("SIZE", f"ours is {shape[1]}x{shape[0]}, the golden "
                         f"{golden.image.shape[1]}x{golden.image.shape[0]}", {}, {})
-    res = RULES[mode](ours, golden, th)
+    res = RULES[mode](ours, golden, th, ties)
     reason, excused = explain(mode, res, th)
     status = "PASS" if res["ok"] else "FAIL"
     if status == "PASS" and warn:
@@ -188,7 +210,8 @@ def judge(ours: np.ndarray, golden, mode: str, th: dict, warn: dict | None = Non
                 over.append(f"{name} {_fmt(res[name])} > warn level {level:g}")
         if over:
             status, reason = "WARN", f"{reason}; " + "; ".join(over)
-    clean = {k: v for k, v in res.items() if isinstance(v, (bool, int, float, str))}
+    # the numbers, and the pixel lists of the rule ([[y, x], ...]: excused, hard, failed)
+    clean = {k: v for k, v in res.items() if isinstance(v, (bool, int, float, str, list))}
     return status, reason, excused, clean
 
 
@@ -201,32 +224,47 @@ def plan_for(scene, modes=None, shadings=None) -> tuple[tuple, tuple]:
     return modes, shadings
 
 
-def _ours(renderers: dict, scene, view: int, mode: str, golden, opts: dict,
-          render=None) -> np.ndarray:
-    """Our image of ``scene.cameras[view]`` at the golden's size and sampling; one
-    ``Renderer`` (upload and accelerator) per scene, size and sampling. ``render(renderer,
-    view, label)`` renders it (the CLI's ``whitted.progress.render_view``: a progress bar
-    and Ctrl-C between bands) and returns a dict with the RenderResult under ``"result"``;
-    None: ``renderer.render(view)``. Ours spawns secondary and shadow rays with the rule the
+def _ours(renderers: dict, scene, view: int, mode: str, golden, opts: dict, th: dict,
+          render=None):
+    """Ours for ``scene.cameras[view]`` at the golden's size and sampling: exact, ``(image,
+    ties)`` (``evaluation.rules.tie_probe``'s two renders: the renderer's and the one with
+    ``tie_break="other"`` at ``tie_slack`` x the scene's diagonal); converged,
+    ``(Batches, None)`` of ``th["batches"]`` renders at the golden's ``batch_spp``
+    (``evaluation.rules.render_batches``). One ``Renderer`` (upload and accelerator) per
+    scene, size and tie-break. ``render(renderer, view, label)`` renders an exact image
+    (the CLI's ``whitted.progress.render_view``: a progress bar and Ctrl-C between bands)
+    and returns a dict with the RenderResult under ``"result"``; None:
+    ``renderer.render(view)``. Ours spawns secondary and shadow rays with the rule the
     golden records (``spawn``: Mitsuba's own for every golden of the harness), so the two
-    images trace the same rays; our default scale-free rule is checked by the hard-case suite
+    images trace the same rays; our default scale-free rule is held by the hard-case suite
     and the float64 oracle instead."""
     from renderer.render import Renderer
 
     w, h = golden.meta["resolution"]
-    spp = 1 if mode == "exact" else int(golden.meta["batch_spp"])
-    spawn = golden.meta.get("spawn", golden_store.GOLDEN_SPAWN)
-    key = (id(scene), w, h, mode, spp, spawn)
-    if key not in renderers:
-        sized = scene.with_size(int(w), int(h)).with_settings(spawn=spawn, ray_epsilon=None)
-        if mode == "converged":
-            sized = sized.with_settings(seed=OUR_SEED)
-        renderers[key] = Renderer(sized, spp=spp, exact=mode == "exact", **opts)
-    r = renderers[key]
-    if render is None:
-        return np.asarray(r.render(view).image, np.float32)
+    sized_key = (id(scene), w, h, golden.meta.get("spawn"))
+    if sized_key not in renderers:
+        renderers[sized_key] = matching(scene, golden)
+    sized = renderers[sized_key]
+    if mode == "converged":
+        return render_batches(sized, view, batches=int(th["batches"][0]),
+                              spp=int(golden.meta["batch_spp"]), seed=OUR_SEED, **opts), None
+    d = float(th["tie_slack"][0]) * sized.diagonal
     label = f"{scene.name}/{scene.cameras[view].name} {scene.settings.shading} {mode}"
-    return np.asarray(render(r, view, label)["result"].image, np.float32)
+    images = []
+    for tie in ("lowest", "other"):
+        key = (*sized_key, tie)
+        if key not in renderers:
+            probe = {} if tie == "lowest" else {"tie_break": "other", "tie_window": d,
+                                                "tie_slack": d}
+            renderers[key] = Renderer(sized, spp=1, exact=True, **probe, **opts)
+        r = renderers[key]
+        if render is None:
+            images.append(np.asarray(r.render(view).image, np.float32))
+        else:
+            images.append(np.asarray(render(r, view, label if tie == "lowest" else
+                                            f"{label} (tie probe)")["result"].image,
+                                     np.float32))
+    return images[0], np.any(images[1] != images[0], axis=-1)
 
 
 def check_scene(scene_path, stores, *, modes=None, shadings=None, views=None,
@@ -281,14 +319,17 @@ def check_scene(scene_path, stores, *, modes=None, shadings=None, views=None,
                     else:
                         g = found.golden
                         verdict.golden = golden_store._display(g.path)
-                        ours = _ours(renderers, scene, v, mode, g, opts, render)
+                        ours, ties = _ours(renderers, scene, v, mode, g, opts, ths[mode],
+                                           render)
                         (verdict.status, verdict.reason, verdict.excused,
                          verdict.result) = judge(ours, g, mode, ths[mode],
-                                                 scene.check.get("warn"), scene)
+                                                 scene.check.get("warn"), scene, ties)
                         verdict.command = golden_store.regenerate_command(
                             scene.path, g.path.parent.parent)
                         if keep_images:
-                            verdict.ours, verdict.ref = ours, g.image
+                            verdict.ours = (ours.mean.astype(np.float32)
+                                            if isinstance(ours, Batches) else ours)
+                            verdict.ref, verdict.ties = g.image, ties
                 except (golden_store.GoldenError, SceneError) as e:
                     verdict.status, verdict.reason = "ERROR", str(e)
                 verdict.seconds = time.perf_counter() - t0
@@ -381,6 +422,7 @@ def report_entries(verdicts):
     """``evaluation.report.ReportEntry`` for every verdict with both images, failures first
     (by exit code, largest first), each with its verdict and thresholds."""
     from .report import ReportEntry
+    from .rules import exact_overlay
 
     ordered = sorted((v for v in verdicts if v.ours is not None),
                      key=lambda v: -v.exit_code)
@@ -392,7 +434,10 @@ def report_entries(verdicts):
             verdict=v.status, verdict_reason=v.reason,
             thresholds={k: (t["value"], t["why"]) for k, t in v.thresholds.items()},
             info={"golden": v.golden or "—", "excused pixels": excused,
-                  "re-render the golden": v.command}))
+                  "re-render the golden": v.command},
+            overlay=exact_overlay(v.ours, v.ref, {k: (t["value"],) for k, t in
+                                                  v.thresholds.items()}, v.ties)
+            if v.mode == "exact" and v.status == "FAIL" else None))
     return entries
 
 

@@ -72,6 +72,11 @@ class Renderer:
       spp, exact: override ``scene.settings`` as ``Scene.with_overrides`` does (``spp``
           alone sets ``exact = spp == 1``; ``exact`` alone takes spp 1 or the scene's).
       freeze: wrap the frame function in ``dr.freeze`` (default False).
+      tie_break, tie_window, tie_slack: which hit wins among hits as near as the nearest
+          within the distances ``tie_window`` (along the ray) and ``tie_slack`` (off an edge)
+          (``renderer.accel.traverse.tie_probe``): "lowest" original face index (default;
+          the renderer's) or "other" (a probe: the golden tests render both and excuse a
+          pixel only where they differ).
 
     The settings are checked by ``validate_settings`` (SceneError, a ValueError, names the
     field). ``arrays`` (SceneArrays) holds the uploaded scene, ``frame_fn`` the (frozen)
@@ -81,7 +86,8 @@ class Renderer:
     def __init__(self, scene: Scene, *, backend: str = "auto", precision: str = "float32",
                  accel: str = DEFAULT_ACCEL, intersection: str = DEFAULT_ROUTINE,
                  effects: EffectSet | None = None, spp: int | None = None,
-                 exact: bool | None = None, freeze: bool = False):
+                 exact: bool | None = None, freeze: bool = False, tie_break: str = "lowest",
+                 tie_window: float = 0.0, tie_slack: float = 0.0):
         if not scene.cameras:
             raise ValueError(f"scene {scene.name!r}: cameras: at least one camera is required")
         s = scene.with_overrides(spp=spp, exact=exact).settings
@@ -96,7 +102,9 @@ class Renderer:
                              f"{s.shading!r} of scene {scene.name!r}")
         t = self.t
         t0 = time.perf_counter()
-        acc = build_accelerator(accel, scene, t, intersection=intersection)
+        acc = build_accelerator(accel, scene, t, intersection=intersection,
+                                tie_break=tie_break, tie_window=tie_window,
+                                tie_slack=tie_slack)
         self.arrays = SceneArrays(
             accel=acc, materials=upload_materials(scene, t), lights=upload_lights(scene, t),
             ambient=array3(t, scene.ambient), background=array3(t, s.background))
@@ -177,14 +185,16 @@ class Renderer:
 def render(scene: Scene, *, view: int = 0, backend: str = "auto", precision: str = "float32",
            accel: str = DEFAULT_ACCEL, intersection: str = DEFAULT_ROUTINE,
            effects: EffectSet | None = None, spp: int | None = None,
-           exact: bool | None = None) -> RenderResult:
+           exact: bool | None = None, tie_break: str = "lowest",
+           tie_window: float = 0.0, tie_slack: float = 0.0) -> RenderResult:
     """Render ``scene`` from ``scene.cameras[view]``.
 
     Returns a RenderResult whose ``image`` is float32 (H, W, 3) linear RGB (row 0 = top).
-    Options are those of ``Renderer`` (accelerator ``DEFAULT_ACCEL``, the BVH, unless
-    given); ``effects`` defaults to ``EffectSet.from_scene(scene)``; ``spp``/``exact``
-    default to ``scene.settings``.
+    Options are those of ``Renderer`` (the tie probe's included; accelerator
+    ``DEFAULT_ACCEL``, the BVH, unless given); ``effects`` defaults to
+    ``EffectSet.from_scene(scene)``; ``spp``/``exact`` default to ``scene.settings``.
     """
     r = Renderer(scene, backend=backend, precision=precision, accel=accel,
-                 intersection=intersection, effects=effects, spp=spp, exact=exact)
+                 intersection=intersection, effects=effects, spp=spp, exact=exact,
+                 tie_break=tie_break, tie_window=tie_window, tie_slack=tie_slack)
     return r.render(view)

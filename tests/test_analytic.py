@@ -221,10 +221,12 @@ def test_full_tree_with_stack_matches_enumeration(backend, max_depth, min_weight
     np.testing.assert_allclose(render(sc, backend=backend).image[0, 0], want, rtol=1e-6)
 
 
-@pytest.mark.parametrize("max_depth,min_weight,last", [(16, 0.01, 6), (16, 0.0, 16), (3, 0.01, 3)])
+@pytest.mark.parametrize("max_depth,min_weight,last", [(16, 0.01, 6), (16, 0.0, 16), (3, 0.01, 3),
+                                                      (16, 0.0625, 4)])
 def test_pruning_cuts_mirror_chain(backend, max_depth, min_weight, last):
     """Two facing mirrors (k_refl 0.5, ambient-lit): bounce k adds 0.5^k; the chain stops
-    after the last depth with 0.5^k >= min_weight (k = 6 for 0.01) or at max_depth."""
+    after the last depth with 0.5^k >= min_weight (k = 6 for 0.01) or at max_depth. With
+    min_weight = 0.5^4 exactly, bounce 4 is traced (the rule is ``>=``, MODEL.md)."""
     cam = camera([0, 0, 0], [0, 0, -1], fov_y=10, width=1, height=1)
     sc = make_scene([(*plane_z(-1.0, +1), 0), (*plane_z(1.0, -1), 0)],
                     materials=[material("mirror", k_refl=0.5, ka=1.0)], camera=cam, ambient=1.0,

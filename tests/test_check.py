@@ -76,23 +76,27 @@ def test_check_exits_0_on_the_real_renderer_and_2_on_a_broken_one(user, monkeypa
     assert out.count("\nFAIL") == 6
 
 
-@pytest.mark.xfail(strict=True, reason="the exact rule of evaluation/rules.py excuses a pixel "
-                   "whose golden value lies in OUR 3x3 range, which includes the pixel itself: "
-                   "a one-pixel crack passes as an edge tie (issue 11, tie detection by tracing)")
-def test_check_exits_2_on_a_one_pixel_crack(user, monkeypatch):
+def test_check_exits_2_on_a_one_pixel_crack(user, monkeypatch, capsys):
+    """A crack of one pixel fails: the exact rule excuses only pixels the tie probe shows
+    to depend on a tie (the crack is in both of the gate's renders, as a renderer's crack
+    would be: the probe's second pass never runs where the first found nothing)."""
     _, scene, store = user
     from renderer.render import Renderer
     real = Renderer.render
 
-    def one_black_pixel(self, view=0):          # a crack of one pixel in the lit quad
-        res = real(self, view)
+    def one_black_pixel(self, view=0, **kw):    # a crack of one pixel in the lit quad
+        res = real(self, view, **kw)
         img = np.array(res.image)
         h, w, _ = img.shape
         img[h // 2, w // 2] = 0
         res.image = img
         return res
     monkeypatch.setattr(Renderer, "render", one_black_pixel)
-    assert _check(scene, "--goldens", store, "--view", "top", "--shadings", "classic") == 2
+    assert _check(scene, "--goldens", store, "--view", "top", "--shadings", "classic",
+                  "--json", "-") == 2
+    v = json.loads(capsys.readouterr().out)["verdicts"][0]
+    assert v["status"] == "FAIL" and v["result"]["hard_pixels"] == 1
+    assert v["result"]["hard"] == [[12, 12]] and "where the tie probe shows no tie" in v["reason"]
 
 
 def test_edited_material_is_stale_and_says_what_changed(user, tmp_path, capsys):
@@ -151,7 +155,15 @@ def test_a_pass_a_fail_and_a_missing_golden_in_one_run(user, tmp_path, capsys):
     assert {c.get("classname") for c in cases} == {"whitted.quad", "whitted.other"}
     page = (rep / "index.html").read_text()
     assert page.index('class="verdict v-FAIL"') < page.index('class="verdict v-PASS"')
-    assert "max_rel" in page and "edge_fraction" in page
+    assert "max_rel" in page and "tie_slack" in page
+    # the failing exact case shows the rule's verdict drawn over the golden: all red (the
+    # tampered golden is 5 % off everywhere the quad is lit), the passing ones do not
+    drawn = list(rep.glob("*/rule.png"))
+    assert len(drawn) == 1 and "exact rule" in page
+    from PIL import Image
+    img = np.asarray(Image.open(drawn[0]))
+    assert (np.all(img == (255, 0, 0), axis=-1)).sum() == data["verdicts"][0]["result"][
+        "hard_pixels"] > 0
 
 
 def test_size_mismatch_exits_3_in_compare(user, capsys):

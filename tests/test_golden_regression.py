@@ -2,17 +2,20 @@
 through the project's pytest plugin (``evaluation/pytest_plugin.py``): one test per scene x
 view x shading x mode, judged exactly as ``whitted check`` judges it.
 
-Exact mode: the same rays in both renderers, so only rounding and ties at shared edges may
-differ (rule: ``evaluation.rules.check_exact``). Converged mode: a per-pixel Z-test of our
-k x k stratified render against the golden's mean and variance (``check_converged``).
+Exact mode: the same rays in both renderers, so only rounding and geometric ties may differ
+(rule: ``evaluation.rules.check_exact``; ties found by our tie probe, not by looking at the
+images). Converged mode: a per-value Welch t-test of our mean and our own variance (16
+renders of ours) against the golden's mean and variance (``check_converged``).
 The last tests break our renderer on purpose (wrong ior, reflection forced off, the other
-shading mode) and require the same checks to fail.
+shading mode) or plant a one-pixel crack / a patch 5 % off in a real render, and require the
+same checks to fail.
 """
 from __future__ import annotations
 
 import warnings
 from dataclasses import replace
 
+import numpy as np
 import pytest
 
 from evaluation.rules import (
@@ -23,34 +26,41 @@ from evaluation.rules import (
     ROOT,
     RULES,
     check_exact,
+    exact_overlay,
+    matching,
+    render_batches,
+    tie_probe,
 )
 from reference.golden import load_golden
 from renderer.effects import EffectSet
-from renderer.render import render
 from renderer.scene import load_scene
-
-OUR_SEED = 20240611   # fixed: ours must be independent of the golden's Mitsuba seeds
 
 
 def _scene_at(path, shading, golden=None, **settings):
     scene = load_scene(path, shading=shading)
     if golden is not None:
-        scene = scene.with_size(*golden.meta["resolution"])
+        scene = matching(scene, golden)
     return scene.with_settings(**settings) if settings else scene
 
 
 def _ours_converged(scene, view, golden, **kw):
-    spp = int(golden.meta["batch_spp"])
-    return render(scene.with_settings(seed=OUR_SEED), view=view, backend="llvm",
-                  exact=False, spp=spp, **kw).image
+    return render_batches(scene, view, batches=int(CONVERGED_THRESHOLDS["batches"].value),
+                          spp=int(golden.meta["batch_spp"]), backend="llvm", **kw)
+
+
+def _summary(res: dict) -> dict:
+    return {k: v for k, v in res.items() if k not in ("excused", "hard", "failed")}
 
 
 #: Cases known to fail the exact rule, with the measurement: a strict xfail, so a fix shows.
 KNOWN_FAILURES = {
-    "glass_bunny": "refraction through the 69K-triangle bunny: 43 / 36 tie pixels (classic / "
-                   "physical, 1.05 % / 0.88 % of 64x64) exceed edge_fraction 0.5 %; at 128 px "
-                   "163 / 161 and at 256 px 625 / 577 tie pixels plus 2-7 hard pixels (measured "
-                   "with whitted check on LLVM); see issue 11's tie detection by tracing",
+    "glass_bunny": "refraction through the smooth 69K-triangle bunny at 64x64 (LLVM, ours "
+                   "with the golden's spawn rule): 28 / 23 pixels (classic / physical) above "
+                   "max_rel where the tie probe shows no tie; float64 31 / 21, Moller-Trumbore "
+                   "37 / 28. They come from deep internal bounces: against a live Mitsuba "
+                   "render at max_depth 1-3 no pixel is hard, at 5 five, at 8 (the scene's) 34 "
+                   "(test_glass_bunny_agrees_to_depth_3): float32 rounding of the refracted "
+                   "directions, amplified bounce after bounce, not a geometric tie",
 }
 #: No exact case is excused for the offset rule: ours renders with the rule the golden records
 #: (Mitsuba's own spawn_ray, evaluation.verdict._ours). Under our default scale-free rule six
@@ -62,6 +72,23 @@ KNOWN_FAILURES = {
                      shadings=["classic", "physical"], backend="llvm", xfail=KNOWN_FAILURES)
 def test_exact_matches_golden(whitted_case):
     print(whitted_case.check())
+
+
+@pytest.mark.parametrize("shading", ["classic", "physical"])
+def test_glass_bunny_agrees_to_depth_3(shading):
+    """The glass bunny's strict xfail above is deep-bounce divergence only: cut at three
+    bounces, ours and a live Mitsuba render of the same scene (its own spawn rule, same
+    size as the golden) agree under the exact rule with no hard pixel."""
+    from reference.mitsuba_scene import render_mitsuba
+
+    scene = load_scene("scenes/glass_bunny.toml", shading=shading)
+    g = load_golden(scene, view=0, shading=shading, mode="exact")
+    sc = matching(scene, g).with_settings(max_depth=3)
+    ref = render_mitsuba(sc, view=0, mode="exact")
+    ours, ties = tie_probe(sc, 0, backend="llvm")
+    res = check_exact(ours, ref, EXACT_THRESHOLDS, ties)
+    assert res["ok"], _summary(res)
+    assert float(np.mean(ref)) > 0.01, "a black reference proves nothing"
 
 
 @pytest.mark.slow
@@ -77,19 +104,20 @@ VIEW = 1          # the "left" view: glass and mirror spheres both in sight
 
 
 def _broken_render(shading, golden, breakage):
-    """Our renderer with one deliberate error, exact mode."""
+    """Our renderer with one deliberate error, exact mode: (image, its tie mask), the
+    mask from the broken renderer itself, as the gate would compute it."""
     scene = _scene_at(SCENE, shading, golden)
     if breakage == "wrong_ior":
         assert any(m.transmissive for m in scene.materials), f"{SCENE}: no glass to break"
         mats = [replace(m, ior=1.3) if m.transmissive else m for m in scene.materials]
-        return render(replace(scene, materials=mats), view=VIEW, backend="llvm").image
+        return tie_probe(replace(scene, materials=mats), VIEW, backend="llvm")
     if breakage == "reflection_off":
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             fx = EffectSet.from_scene(scene).without("reflection")
-        return render(scene, view=VIEW, backend="llvm", effects=fx).image
+        return tie_probe(scene, VIEW, backend="llvm", effects=fx)
     other = "physical" if shading == "classic" else "classic"
-    return render(_scene_at(SCENE, other, golden), view=VIEW, backend="llvm").image
+    return tie_probe(_scene_at(SCENE, other, golden), VIEW, backend="llvm")
 
 
 BREAKAGES = [
@@ -104,9 +132,10 @@ BREAKAGES = [
 def test_exact_check_fails_on_broken_renderer(shading, breakage):
     g = load_golden(load_scene(SCENE, shading=shading), view=VIEW, shading=shading,
                     mode="exact")
-    good = render(_scene_at(SCENE, shading, g), view=VIEW, backend="llvm").image
-    assert check_exact(good, g.image, EXACT_THRESHOLDS)["ok"]
-    res = check_exact(_broken_render(shading, g, breakage), g.image, EXACT_THRESHOLDS)
+    good, ties = tie_probe(_scene_at(SCENE, shading, g), VIEW, backend="llvm")
+    assert check_exact(good, g.image, EXACT_THRESHOLDS, ties)["ok"]
+    broken, broken_ties = _broken_render(shading, g, breakage)
+    res = check_exact(broken, g.image, EXACT_THRESHOLDS, broken_ties)
     assert not res["ok"], f"{breakage}: the exact check passed a broken render: {res}"
 
 
@@ -119,4 +148,65 @@ def test_converged_check_fails_on_wrong_ior():
     mats = [replace(m, ior=1.3) if m.transmissive else m for m in scene.materials]
     ours = _ours_converged(replace(scene, materials=mats), VIEW, g)
     res = RULES["converged"](ours, g, CONVERGED_THRESHOLDS)
-    assert not res["ok"], f"the Z-test passed a render with the wrong ior: {res}"
+    assert not res["ok"], f"the t-test passed a render with the wrong ior: {_summary(res)}"
+
+
+# ---- planted defects on a real render: the rule must see them -----------------------------
+PLANT_SCENE = "scenes/cornell_box.toml"   # front view: 203 corner-seam tie pixels
+
+
+@pytest.fixture(scope="module")
+def planted_base():
+    """The Cornell box front view (classic): golden, our render and our tie mask."""
+    g = load_golden(load_scene(PLANT_SCENE, shading="classic"), view=0, shading="classic",
+                    mode="exact")
+    ours, ties = tie_probe(_scene_at(PLANT_SCENE, "classic", g), 0, backend="llvm")
+    res = check_exact(ours, g.image, EXACT_THRESHOLDS, ties)
+    assert res["ok"] and res["excused_pixels"] > 100, _summary(res)
+    return g, ours, ties
+
+
+def _crack_sites(ties: np.ndarray) -> list[tuple[int, int]]:
+    """Pixels next to an excused seam pixel but not ties themselves: where a crack hides
+    best from an image-space rule (its 3x3 neighbourhood holds the seam's dark values)."""
+    near = np.zeros_like(ties)
+    h, w = ties.shape
+    near[1:-1, 1:-1] = np.any([ties[1 + dy:h - 1 + dy, 1 + dx:w - 1 + dx]
+                               for dy in (-1, 0, 1) for dx in (-1, 0, 1)], axis=0)
+    return [tuple(p) for p in np.argwhere(near & ~ties)]
+
+
+def test_one_pixel_crack_fails(planted_base):
+    g, ours, ties = planted_base
+    sites = _crack_sites(ties)
+    assert len(sites) > 50
+    for y, x in sites[:: max(1, len(sites) // 8)]:
+        cracked = ours.copy()
+        cracked[y, x] = 0.0        # the background: the ray fell through an edge
+        res = check_exact(cracked, g.image, EXACT_THRESHOLDS, ties)
+        assert not res["ok"] and res["hard"] == [[y, x]], (y, x, _summary(res))
+
+
+def test_overlay_draws_excused_and_hard_pixels(planted_base):
+    g, ours, ties = planted_base
+    y, x = _crack_sites(ties)[0]
+    cracked = ours.copy()
+    cracked[y, x] = 0.0
+    res = check_exact(cracked, g.image, EXACT_THRESHOLDS, ties)
+    img = exact_overlay(cracked, g.image, EXACT_THRESHOLDS, ties)
+    assert img.shape == ours.shape and img.dtype == np.uint8
+    assert tuple(img[y, x]) == (255, 0, 0)
+    yellow = np.all(img == (255, 230, 0), axis=-1)
+    assert yellow.sum() == res["excused_pixels"] and [list(p) for p in np.argwhere(yellow)] \
+        == res["excused"]
+
+
+@pytest.mark.parametrize("factor", [1.05, 0.95, 1.27])
+def test_patch_off_by_5_percent_fails(planted_base, factor):
+    g, ours, ties = planted_base
+    h, w = ours.shape[:2]
+    for y0, x0 in [(h // 2 - 8, w // 2 - 8), (h - 17, 0), (0, w - 17)]:
+        patched = ours.copy()
+        patched[y0:y0 + 17, x0:x0 + 17] *= factor
+        res = check_exact(patched, g.image, EXACT_THRESHOLDS, ties)
+        assert not res["ok"], (factor, y0, x0, _summary(res))

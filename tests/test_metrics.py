@@ -160,3 +160,31 @@ def test_z_test_rejects_bad_arguments():
         metrics.z_test(a, a, a, np.zeros((3, 2)))
     with pytest.raises(ValueError, match="alpha"):
         metrics.z_test(a, a, a, a, alpha=1.5)
+
+
+def test_student_t_quantile_matches_tables():
+    # two-sided critical values from standard t tables
+    assert abs(metrics.student_t_quantile(0.05, 10) - 2.228) < 1e-3
+    assert abs(metrics.student_t_quantile(0.01, 15) - 2.947) < 1e-3
+    assert abs(metrics.student_t_quantile(0.01, 30) - 2.750) < 1e-3
+    assert abs(metrics.student_t_quantile(0.05, float("inf")) - 1.960) < 1e-3
+
+
+@pytest.mark.parametrize("equal_var", [False, True])
+def test_welch_test_false_failures_match_alpha_and_bias_fails(equal_var):
+    """16 normal batches a side, 32x32x3 values, Šidák at alpha = 0.05: over 200 null
+    trials about 5 % fail (binomial 99.9 % range 2-19); a 12 sigma bias on one value is
+    caught and nothing else fails."""
+    rng = np.random.default_rng(3)
+    fails = 0
+    for _ in range(200):
+        a, b = rng.normal(size=(2, 16, 32, 32, 3))
+        _, mask, _ = metrics.welch_test(a.mean(0), a.var(0, ddof=1), 16, b.mean(0),
+                                        b.var(0, ddof=1), 16, alpha=0.05, equal_var=equal_var)
+        fails += not mask.all()
+    assert 2 <= fails <= 19, fails
+    a, b = rng.normal(size=(2, 16, 64, 64, 3))
+    a[:, 10, 20, 1] += 12.0 * np.sqrt(2.0 / 16)     # 12 sigma of the difference of means
+    _, mask, _ = metrics.welch_test(a.mean(0), a.var(0, ddof=1), 16, b.mean(0),
+                                    b.var(0, ddof=1), 16, alpha=0.05, equal_var=equal_var)
+    assert not mask[10, 20, 1] and mask.sum() >= mask.size - 1

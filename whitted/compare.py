@@ -7,7 +7,9 @@ HTML report.
 Mitsuba's image comes from the stored golden (``--golden``, the default; exact mode; looked
 up by content in ``--goldens DIR`` or the configured store, then the bundled one) or is
 rendered now through the reference harness (``--live``, needs Mitsuba). Each view gets the
-verdict of ``whitted check`` (the exact rule with the scene's thresholds) and the command
+verdict of ``whitted check`` (the exact rule with the scene's thresholds: our image and its
+tie mask from a second render with ``tie_break="other"``, ``evaluation.rules.tie_probe``) and
+the command
 exits with its code (0 pass, 1 warn, 2 fail, 3 size mismatch, 4 missing or stale golden); a
 converged ``--live`` render has no variance to test against and gets no verdict. The report
 folder (default ``out/compare/<scene>_<shading>``) is never replaced unless ``--force`` is
@@ -117,6 +119,11 @@ def cmd_compare(args: argparse.Namespace) -> int:
                         accel=args.accel, intersection=args.intersection, effects=effects)
     stores = golden.search_stores(args.goldens)
     th = vd.thresholds_for(scene, "exact")
+    # the tie probe (exact mode): the same scene with the other tie-break, for the tie mask
+    d = float(th["tie_slack"].value) * scene.diagonal
+    probe = Renderer(scene, backend=args.backend, precision=args.precision,
+                     accel=args.accel, intersection=args.intersection, effects=effects,
+                     tie_break="other", tie_window=d, tie_slack=d) if s.exact else None
     entries, verdicts = [], []
     for v in views:
         cam = scene.cameras[v]
@@ -144,9 +151,11 @@ def cmd_compare(args: argparse.Namespace) -> int:
             print(vd.format_line(verdict))
             continue
         if s.exact:
+            other = render_view(probe, v, f"{scene.name}/{cam.name} (tie probe)")["result"]
+            ties = np.any(other.image != res.image, axis=-1)
             (verdict.status, verdict.reason, verdict.excused,
              verdict.result) = vd.judge(res.image, golden.Golden(ref, None, {}, Path()),
-                                        "exact", th, scene.check.get("warn"), scene)
+                                        "exact", th, scene.check.get("warn"), scene, ties)
             print(vd.format_line(verdict))
         else:
             verdicts.remove(verdict)

@@ -46,7 +46,7 @@ import numpy as np
 
 from .. import SEED_SCENES
 from ..metrics import image_difference
-from ..rules import EXACT_THRESHOLDS, check_exact
+from ..rules import EXACT_THRESHOLDS, check_exact, tie_probe
 from .frames import frozen_frame_ms
 from .part import Context, Part, table
 
@@ -139,17 +139,24 @@ def peer_frame_ms(scene, *, backend: str, frames: int = 20, warmup: int = 3) -> 
             "frozen_equals_traced": bool(np.array_equal(traced, frozen)), "image": traced}
 
 
-def agreement(ours: np.ndarray, peer: np.ndarray) -> dict:
+def agreement(ours: np.ndarray, peer: np.ndarray, ties: np.ndarray | None = None) -> dict:
     """Peer vs ours: the bench's image difference, the fraction of pixels whose channels all
     agree within 1e-3 (absolute), and the harness's exact-mode rule (``check_exact``, the
-    peer in the golden's place)."""
+    peer in the golden's place; ``ties``: our tie mask, ``evaluation.rules.tie_probe``,
+    without which no pixel is excused)."""
     d = image_difference(ours, peer)
     err = np.abs(np.asarray(ours, np.float64) - np.asarray(peer, np.float64)).max(-1)
     d["within_1e-3"] = float(np.mean(err <= 1e-3))
-    ex = check_exact(ours, peer, EXACT_THRESHOLDS)
-    d.update(exact_ok=ex["ok"], edge_pixels=ex["edge_pixels"], hard_pixels=ex["hard_pixels"],
-             mean_rel_nonedge=ex["mean_rel"])
+    ex = check_exact(ours, peer, EXACT_THRESHOLDS, ties)
+    d.update(exact_ok=ex["ok"], excused_pixels=ex["excused_pixels"],
+             hard_pixels=ex["hard_pixels"], tie_pixels=ex["tie_pixels"],
+             mean_rel_held=ex["mean_rel"])
     return d
+
+
+def tie_mask(scene, backend: str, accel: str) -> np.ndarray:
+    """Our tie mask of ``scene``'s first view (``evaluation.rules.tie_probe``; untimed)."""
+    return tie_probe(scene, 0, backend=backend, accel=accel)[1]
 
 
 def _at(scene, depth: int, size: int):
@@ -182,7 +189,8 @@ def whitted_frame_peer(scene, *, backend: str, depth: int, size: int, frames: in
                peer_traced_ms=peer["traced_ms"], peer_kernels=peer["jit_kernels"],
                peer_operations=peer["operations"],
                peer_frozen_equals_traced=peer["frozen_equals_traced"],
-               difference=agreement(row.pop("image"), peer["image"]))
+               difference=agreement(row.pop("image"), peer["image"],
+                                    tie_mask(_at(scene, depth, size), backend, accel)))
     row["speedup_frozen"] = row["peer_frozen_ms"] / row["ours_frozen_ms"]
     row["speedup_kernel"] = (row["peer_kernel_ms"] / row["ours_kernel_ms"]
                              if row["ours_kernel_ms"] > 0 else float("nan"))
@@ -375,7 +383,8 @@ def _peer_cells(r: dict) -> list[str]:
     if "peer_frozen_ms" not in r:
         return [r.get("peer_note", "not timed"), "—", "—", "—", "—", "—", "—"]
     d = r["difference"]
-    rule = ("pass" if d["exact_ok"] else "fail") + f" ({d['edge_pixels']} edge px)"
+    excused = d.get("excused_pixels", d.get("edge_pixels"))     # older rows: edge_pixels
+    rule = ("pass" if d["exact_ok"] else "fail") + f" ({excused} excused px)"
     return [f"{r['peer_frozen_ms']:.3f}", f"{r['peer_kernel_ms']:.3f}",
             f"{r['speedup_frozen']:.2f}×", f"{r['speedup_kernel']:.2f}×",
             f"{d['rmse']:.1e}", f"{d['within_1e-3']:.4f}", rule]

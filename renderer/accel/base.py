@@ -83,10 +83,21 @@ class DeviceTriangles:
 class Accelerator:
     """What the integrator needs from an accelerator (see the module docstring), and what
     every accelerator shares: ``intersect``/``intersect_p`` are one traversal
-    ``_traverse(ray, active, any_hit)`` each subclass writes; ``types`` and ``stats()`` come
-    from the ``backend``/``precision``/``info`` fields of the subclass's dataclass."""
+    ``_traverse(ray, active, any_hit, probe)`` each subclass writes; ``types`` and
+    ``stats()`` come from the ``backend``/``precision``/``info`` fields of the subclass's
+    dataclass.
+
+    The tie probe: a subclass's dataclass also has the fields ``tie_break`` (a value of
+    ``traverse.TIE_BREAKS``; "lowest", the renderer's, unless ``build_accelerator`` is told
+    otherwise), ``tie_window`` and ``tie_slack`` (world-space distances). With "other"
+    ``intersect``/``intersect_p`` run the traversal a second time with a ``traverse.Probe``
+    (``traverse.tie_probe``/``tie_probe_p``); ``_traverse`` passes the probe to
+    ``triangle_step`` and culls and pads its boxes by ``traverse.cull_t``/``probe_pad``."""
 
     tris: DeviceTriangles
+    tie_break: str = "lowest"
+    tie_window: float = 0.0
+    tie_slack: float = 0.0
 
     @property
     def types(self) -> Types:
@@ -96,14 +107,18 @@ class Accelerator:
         return dict(self.info)
 
     def intersect(self, ray: Ray, active=True) -> ClosestHit:
-        """Closest hit in ``(0, ray.t_max)``."""
-        return self._traverse(ray, active, False)
+        """Closest hit in ``(0, ray.t_max)`` (under ``tie_break``)."""
+        from .traverse import tie_probe  # traverse imports this module
+        return tie_probe(lambda r, a, pr: self._traverse(r, a, False, pr), ray, active,
+                         self.tie_break, self.tie_window, self.tie_slack)
 
     def intersect_p(self, ray: Ray, active=True):
         """Any hit in ``(0, ray.t_max)`` (shadow rays); stops at the first hit."""
-        return self._traverse(ray, active, True)
+        from .traverse import tie_probe_p
+        return tie_probe_p(lambda r, a, pr: self._traverse(r, a, True, pr), ray, active,
+                           self.tie_break, self.tie_slack)
 
-    def _traverse(self, ray: Ray, active, any_hit: bool):
+    def _traverse(self, ray: Ray, active, any_hit: bool, probe=None):
         raise NotImplementedError
 
 

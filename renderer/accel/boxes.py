@@ -15,7 +15,16 @@ import numpy as np
 from ..device import Types
 from .base import Accelerator, DeviceTriangles, Ray, array_type, gather_floats
 from .bvh_build import pad_boxes
-from .traverse import Closest, masked_step, robust_scale, setup, slab, triangle_step
+from .traverse import (
+    Closest,
+    cull_t,
+    masked_step,
+    probe_pad,
+    robust_scale,
+    setup,
+    slab,
+    triangle_step,
+)
 from .triangle import DEFAULT_ROUTINE, box_reach, triangle_routine, upload_triangles
 
 
@@ -38,6 +47,9 @@ class ObjectBoxes(Accelerator):
     backend: str = "llvm"
     precision: str = "float32"
     intersection: str = DEFAULT_ROUTINE
+    tie_break: str = "lowest"          # traverse.TIE_BREAKS; "other" only probes ties
+    tie_window: float = 0.0            # t window (world units) of tie_break "other"
+    tie_slack: float = 0.0             # edge slack (world units) of tie_break "other"
     info: dict = field(default_factory=dict, repr=False)
 
     @classmethod
@@ -72,7 +84,7 @@ class ObjectBoxes(Accelerator):
         return out
 
 
-    def _box_step(self, o, inv, t_max, robust, obj, first, end, active=True):
+    def _box_step(self, o, inv, t_max, robust, obj, first, end, active=True, pad=0.0):
         """Object ``obj``'s box where ``active``: on a hit its faces become the pending
         range ``[first, end)``; ``obj`` moves on to the next object."""
         t = self.types
@@ -83,15 +95,17 @@ class ObjectBoxes(Accelerator):
         else:
             rng = dr.gather(array_type(t, "Array2u"), self.ranges, obj, active)
             r0, r1 = rng.x, rng.y
-        hit, _ = slab(t, o, inv, t.Array3f(f[0], f[1], f[2]), t.Array3f(f[4], f[5], f[6]),
-                      t_max, robust)
+        lo, hi = t.Array3f(f[0], f[1], f[2]), t.Array3f(f[4], f[5], f[6])
+        if pad:         # the tie probe's slack reaches beyond the padded boxes
+            lo, hi = lo - pad, hi + pad
+        hit, _ = slab(t, o, inv, lo, hi, t_max, robust)
         if active is not True:
             hit &= active
         return (dr.select(hit, r0, first), dr.select(hit, r0 + r1, end),
                 obj + 1 if active is True else dr.select(active, obj + 1, obj))
 
     @dr.syntax
-    def _traverse(self, ray: Ray, active, any_hit: bool):
+    def _traverse(self, ray: Ray, active, any_hit: bool, probe=None):
         t = self.types
         routine = triangle_routine(self.intersection)
         robust = robust_scale(t)
@@ -106,12 +120,13 @@ class ObjectBoxes(Accelerator):
         rec = Closest.empty(t, t_max, n)            # closest hit so far
 
         while dr.hint(active, max_iterations=-1, label="boxes",
-                      exclude=[self, t, routine, robust, any_hit]):
+                      exclude=[self, t, routine, robust, any_hit, probe]):
             # ---- box step: the next object's box, when no triangles are pending ---------
+            cull = cull_t(rec, t_max, probe)   # boxes beyond it are skipped
             first, end, obj = masked_step(
                 t, (first >= end) & (obj < n_obj),
-                lambda first, end, obj, on, best_t=rec.t: self._box_step(
-                    o, inv, best_t, robust, obj, first, end, on),
+                lambda first, end, obj, on, best_t=cull: self._box_step(
+                    o, inv, best_t, robust, obj, first, end, on, probe_pad(probe)),
                 (first, end, obj))
 
             # ---- triangle step -----------------------------------------------------------
@@ -119,7 +134,7 @@ class ObjectBoxes(Accelerator):
                 t, first < end,
                 lambda rec, first, on: (
                     triangle_step(t, routine, o, d, tri_data, order, first, t_max, rec,
-                                  any_hit, on),
+                                  any_hit, on, probe),
                     first + 1 if on is True else dr.select(on, first + 1, first)),
                 (rec, first))
             if dr.hint(any_hit, mode="scalar"):

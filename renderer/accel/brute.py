@@ -30,6 +30,9 @@ class BruteForce(Accelerator):
     backend: str = "llvm"
     precision: str = "float32"
     intersection: str = DEFAULT_ROUTINE
+    tie_break: str = "lowest"          # traverse.TIE_BREAKS; "other" only probes ties
+    tie_window: float = 0.0            # t window (world units) of tie_break "other"
+    tie_slack: float = 0.0             # edge slack (world units) of tie_break "other"
     info: dict = field(default_factory=dict, repr=False)
 
     @classmethod
@@ -44,9 +47,8 @@ class BruteForce(Accelerator):
         return cls(tri_data, tris, backend=t.backend, precision=t.precision,
                    intersection=intersection, info=info)
 
-
     @dr.syntax
-    def _traverse(self, ray: Ray, active, any_hit: bool):
+    def _traverse(self, ray: Ray, active, any_hit: bool, probe=None):
         t = self.types
         routine = triangle_routine(self.intersection)
         tri_data, order = self.tri_data, self.tris.order
@@ -57,8 +59,9 @@ class BruteForce(Accelerator):
         i = dr.zeros(t.UInt32, n)                   # next candidate triangle
         while dr.hint(active & (i < count), max_iterations=-1,
                       label="brute_force_any" if any_hit else "brute_force_closest",
-                      exclude=[self, t, routine, count, any_hit]):
-            rec = triangle_step(t, routine, o, d, tri_data, order, i, t_max, rec, any_hit)
+                      exclude=[self, t, routine, count, any_hit, probe]):
+            rec = triangle_step(t, routine, o, d, tri_data, order, i, t_max, rec, any_hit,
+                                probe=probe)
             if dr.hint(any_hit, mode="scalar"):
                 active &= ~rec.found
             i += 1

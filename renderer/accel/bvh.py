@@ -28,9 +28,11 @@ from .traverse import (
     DONE,
     STACK_SIZE,
     Closest,
+    cull_t,
     enter_leaf,
     masked_step,
     pop,
+    probe_pad,
     robust_scale,
     setup,
     slab,
@@ -53,11 +55,13 @@ def load_node(t: Types, nodes, children, cur, active=True):
 
 
 def node_step(t: Types, nodes, children, o, inv, t_max, robust, stack, sp, cur, to_pop,
-              active=True):
-    """One inner node ``cur`` where ``active``: test both child boxes against
-    ``(0, t_max)``, push the far hit child, go to the near one. Returns
+              active=True, pad: float = 0.0):
+    """One inner node ``cur`` where ``active``: test both child boxes (grown by ``pad``)
+    against ``(0, t_max)``, push the far hit child, go to the near one. Returns
     ``(sp, cur, to_pop)``, ``to_pop`` grown by the lanes where neither child was hit."""
     a_lo, a_hi, b_lo, b_hi, ref_a, ref_b = load_node(t, nodes, children, cur, active)
+    if pad:             # the tie probe's slack reaches beyond the padded boxes
+        a_lo, a_hi, b_lo, b_hi = a_lo - pad, a_hi + pad, b_lo - pad, b_hi + pad
     hit_a, tn_a = slab(t, o, inv, a_lo, a_hi, t_max, robust)
     hit_b, tn_b = slab(t, o, inv, b_lo, b_hi, t_max, robust)
     if active is not True:
@@ -105,6 +109,9 @@ class BVH(Accelerator):
     backend: str = "llvm"
     precision: str = "float32"
     intersection: str = DEFAULT_ROUTINE
+    tie_break: str = "lowest"          # traverse.TIE_BREAKS; "other" only probes ties
+    tie_window: float = 0.0            # t window (world units) of tie_break "other"
+    tie_slack: float = 0.0             # edge slack (world units) of tie_break "other"
     info: dict = field(default_factory=dict, repr=False)
 
     @classmethod
@@ -139,10 +146,10 @@ class BVH(Accelerator):
     def counts(self, ray: Ray, active=True, any_hit: bool = False):
         """The instrumented traversal (profiling): ``(node_steps, triangle_steps,
         iterations)`` UInt32 per ray, the same traversal as the query with counters."""
-        return self._traverse(ray, active, any_hit, True)
+        return self._traverse(ray, active, any_hit, counting=True)
 
     @dr.syntax
-    def _traverse(self, ray: Ray, active, any_hit: bool, counting: bool = False):
+    def _traverse(self, ray: Ray, active, any_hit: bool, probe=None, counting: bool = False):
         t = self.types
         routine = triangle_routine(self.intersection)
         robust = robust_scale(t)
@@ -161,17 +168,19 @@ class BVH(Accelerator):
 
         while dr.hint(active, max_iterations=-1,
                       label="bvh_llvm" if t.backend == "llvm" else "bvh",
-                      exclude=[self, t, routine, robust, any_hit, counting]):
+                      exclude=[self, t, routine, robust, any_hit, probe, counting]):
             # ---- node step: only when no leaf triangles are pending ---------------------
             is_leaf, is_inner, first, end = enter_leaf(cur, first, end)
             if dr.hint(counting, mode="scalar"):
                 n_node += dr.select(is_inner, 1, 0)
                 n_tri += dr.select(first < end, 1, 0)
                 n_iter += 1
+            cull = cull_t(rec, t_max, probe)   # boxes beyond it are skipped
             sp, cur, to_pop = masked_step(
                 t, is_inner,
-                lambda sp, cur, to_pop, on, best_t=rec.t: node_step(
-                    t, nodes, children, o, inv, best_t, robust, stack, sp, cur, to_pop, on),
+                lambda sp, cur, to_pop, on, best_t=cull: node_step(
+                    t, nodes, children, o, inv, best_t, robust, stack, sp, cur, to_pop, on,
+                    probe_pad(probe)),
                 (sp, cur, is_leaf | False))
             sp, cur = pop(stack, sp, cur, to_pop)
 
@@ -180,7 +189,7 @@ class BVH(Accelerator):
                 t, first < end,
                 lambda rec, first, on: (
                     triangle_step(t, routine, o, d, tri_data, order, first, t_max, rec,
-                                  any_hit, on),
+                                  any_hit, on, probe),
                     first + 1 if on is True else dr.select(on, first + 1, first)),
                 (rec, first))
             if dr.hint(any_hit, mode="scalar"):

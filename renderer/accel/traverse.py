@@ -13,6 +13,7 @@ an inner-node index, or a packed leaf ``LEAF_BIT | (count - 1) << COUNT_SHIFT | 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import drjit as dr
 
@@ -26,6 +27,19 @@ FIRST_MASK = (1 << COUNT_SHIFT) - 1
 MAX_LEAF = 16                # leaf size limit of the packed reference (4 count bits)
 DONE = 0xFFFFFFFF            # "no node left" sentinel of the traversal
 STACK_SIZE = 32              # UInt32 entries per ray: 128 bytes (drjit #532 limit)
+#: Closest-hit tie-breaks: "lowest" (the renderer's: nearest ``t``, then the smallest
+#: original face index) and "other" (a probe for the golden tests, ``tie_probe``: another
+#: triangle as near as the nearest one within the precision, where there is one).
+TIE_BREAKS = ("lowest", "other")
+
+
+class Probe(NamedTuple):
+    """A pass of ``tie_probe`` / ``tie_probe_p``: the nearest hit's triangle (UInt32 per
+    ray, an index in the accelerator's order like ``ClosestHit.prim``; None for any-hit)
+    and the slack (float, a world-space distance; negative narrows) of the inside test."""
+
+    nearest: object
+    slack: float
 
 
 @dataclass
@@ -102,17 +116,35 @@ def slab(t: Types, o, inv, lo, hi, t_max, robust):
 
 
 def triangle_step(t: Types, routine, o, d, tri_data, order, i, t_max, rec: Closest,
-                  any_hit: bool, active=True) -> Closest:
+                  any_hit: bool, active=True, probe: Probe | None = None) -> Closest:
     """Test packed triangle ``i`` where ``active`` and fold it into ``rec``: accept a hit
     that is nearer, or (once something was found) equally near with a smaller original face
     index (``order``), so ties resolve the same in every accelerator. For ``any_hit`` only
     ``found`` (a hit in (0, t_max)) is updated. ``active`` is True where the caller's
-    symbolic ``if`` already masks the lanes."""
-    th, u, v, h = routine(o, d, *load(t, tri_data, i, active, layout_of(routine)))
+    symbolic ``if`` already masks the lanes.
+
+    With a ``probe`` (pass two of ``tie_probe``) ``t_max`` is the end of the tie window
+    (inclusive), the inside test takes the probe's slack (``probe_inside``, for either
+    layout), and the hit in ``(0, t_max]`` with the largest original face index, other than
+    triangle ``probe.nearest``, wins, however near; the caller culls boxes by ``t_max``,
+    not ``rec.t`` (``cull_t``)."""
+    layout = layout_of(routine)
+    tri = load(t, tri_data, i, active, layout)
+    th, u, v, h = routine(o, d, *tri)
+    if probe is not None:
+        e1, e2 = edges_of(tri, layout)
+        h = probe_inside(th, u, v, e1, e2, probe.slack)
     if active is not True:
         h &= active
     if any_hit:
         return Closest(rec.t, rec.u, rec.v, rec.prim, rec.order, rec.found | (h & (th < t_max)))
+    if probe is not None:
+        h &= th <= t_max
+        i_order = dr.gather(t.UInt32, order, i, h)
+        accept = h & (i != probe.nearest) & (~rec.found | (i_order > rec.order))
+        return Closest(t=dr.select(accept, th, rec.t), u=dr.select(accept, u, rec.u),
+                       v=dr.select(accept, v, rec.v), prim=dr.select(accept, i, rec.prim),
+                       order=dr.select(accept, i_order, rec.order), found=rec.found | accept)
     h &= th <= rec.t
     nearer = h & (th < rec.t)
     tie = h & rec.found & (th == rec.t)
@@ -121,6 +153,83 @@ def triangle_step(t: Types, routine, o, d, tri_data, order, i, t_max, rec: Close
     return Closest(t=dr.select(accept, th, rec.t), u=dr.select(accept, u, rec.u),
                    v=dr.select(accept, v, rec.v), prim=dr.select(accept, i, rec.prim),
                    order=dr.select(accept, i_order, rec.order), found=rec.found | accept)
+
+
+def edges_of(tri, layout: str):
+    """The edge vectors ``(e1, e2) = (p1 - p0, p2 - p0)`` of a triangle as ``load`` returns
+    it in ``layout``: stored in "edges", differences of the vertices in "vertices"."""
+    if layout == "edges":
+        return tri[1], tri[2]
+    return tri[1] - tri[0], tri[2] - tri[0]
+
+
+def probe_inside(th, u, v, e1, e2, slack: float):
+    """The probe's inside test of a hit ``(th, u, v)`` on the triangle with edges ``e1``,
+    ``e2``: within the world-space distance ``slack`` of the triangle (outside it by less
+    than ``slack`` when ``slack > 0``; inside by more than ``-slack`` when ``slack < 0``).
+    A barycentric coordinate times the triangle's altitude over the opposite edge is the
+    distance from that edge, so the slack of each coordinate is ``slack * edge / (2 area)``."""
+    two_area = dr.norm(dr.cross(e1, e2))
+    s = slack / two_area
+    w = 1.0 - u - v
+    return ((two_area > 0) & (th > 0) & (u >= -s * dr.norm(e2)) & (v >= -s * dr.norm(e1))
+            & (w >= -s * dr.norm(e2 - e1)))
+
+
+def tie_probe(traverse, ray: Ray, active, tie_break: str, window: float,
+              slack: float) -> ClosestHit:
+    """The closest hit under ``tie_break`` (``TIE_BREAKS``) through ``traverse(ray, active,
+    probe)``, an accelerator's closest-hit traversal (``probe``: None or a ``Probe``).
+
+    "lowest" is one pass, the renderer's. "other" is two: the nearest hit at ``t*`` (pass
+    one, the renderer's hit), then every triangle hit in ``(0, t* + window]`` with the
+    inside test widened by the distance ``slack`` (``probe_inside``; pass two): the one
+    with the largest original face index other than the nearest wins; where there is none,
+    the nearest stays. ``window`` and ``slack`` are world-space distances (``ray.d`` unit
+    length, as the integrator's rays are). So the
+    closest hit changes exactly where another triangle is as near as the nearest within
+    the precision (a shared edge, a corner, coplanar faces): a geometric tie, which two
+    renderers may resolve either way. Where pass one finds nothing, pass two does not run
+    (a crack stays a crack). A window reaching ``ray.t_max`` shrinks to ``t*``."""
+    if tie_break not in TIE_BREAKS:
+        raise ValueError(f"tie_break: expected one of {list(TIE_BREAKS)}, got {tie_break!r}")
+    first = traverse(ray, active, None)
+    if tie_break == "lowest":
+        return first
+    limit = first.t + window
+    limit = dr.select(first.found & (limit < ray.t_max), limit, first.t)
+    other = traverse(Ray(o=ray.o, d=ray.d, t_max=limit), first.found & active,
+                     Probe(nearest=first.prim, slack=slack))
+    keep = ~other.found
+    return ClosestHit(t=dr.select(keep, first.t, other.t), u=dr.select(keep, first.u, other.u),
+                      v=dr.select(keep, first.v, other.v),
+                      prim=dr.select(keep, first.prim, other.prim), found=first.found)
+
+
+def tie_probe_p(traverse, ray: Ray, active, tie_break: str, slack: float):
+    """Any hit (shadow rays) under ``tie_break`` through ``traverse(ray, active, probe)``,
+    an accelerator's any-hit traversal. "lowest": the renderer's answer. "other": the
+    answer flipped where the inside test decides it within ``slack`` (the ray grazes an
+    occluder's edge): a blocked ray stays blocked only if it is blocked with the inside
+    test narrowed by ``slack``, an unblocked one becomes blocked if it is blocked with the
+    test widened by ``slack``."""
+    found = traverse(ray, active, None)
+    if tie_break == "lowest":
+        return found
+    narrow = traverse(ray, active & found, Probe(nearest=None, slack=-slack))
+    wide = traverse(ray, active & ~found, Probe(nearest=None, slack=slack))
+    return dr.select(found, narrow, wide)
+
+
+def cull_t(rec: Closest, t_max, probe):
+    """The distance beyond which a traversal skips boxes: the closest hit so far, or in
+    pass two of ``tie_probe`` the end of the tie window ``t_max``."""
+    return rec.t if probe is None else t_max
+
+
+def probe_pad(probe) -> float:
+    """How far a traversal grows its boxes: the probe's slack (0 without a probe)."""
+    return 0.0 if probe is None else abs(float(probe.slack))
 
 
 def enter_leaf(cur, first, end):

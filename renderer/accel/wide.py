@@ -46,9 +46,11 @@ from .traverse import (
     LEAF_BIT,
     STACK_SIZE,
     Closest,
+    cull_t,
     enter_leaf,
     masked_step,
     pop,
+    probe_pad,
     robust_scale,
     setup,
     slab,
@@ -275,17 +277,19 @@ def check_wide(w: WideArrays, a: BVHArrays) -> None:
 
 
 def wide_node_step(t: Types, width: int, nodes, refs, o, inv, t_max, robust, stack, sp, cur,
-                   to_pop, any_hit: bool, active=True):
-    """One wide node ``cur`` where ``active``: test the ray against every child box at
-    once (``(0, t_max)``), go to the nearest hit child and push the other hit children far
-    to near (any-hit: in slot order). Returns ``(sp, cur, to_pop)``, ``to_pop`` grown by
-    the lanes where no child was hit."""
+                   to_pop, any_hit: bool, active=True, pad: float = 0.0):
+    """One wide node ``cur`` where ``active``: test the ray against every child box (grown
+    by ``pad``) at once (``(0, t_max)``), go to the nearest hit child and push the other
+    hit children far to near (any-hit: in slot order). Returns ``(sp, cur, to_pop)``,
+    ``to_pop`` grown by the lanes where no child was hit."""
     W = width
     boxes = child_boxes(t, W, nodes, cur, active)
     child = gather_words(t, refs, cur, W, W, active)
     key, ref = [], []
     for k in range(W):
         lo, hi = boxes[k]
+        if pad:         # the tie probe's slack reaches beyond the padded boxes
+            lo, hi = lo - pad, hi + pad
         r = child[k]
         hit, tn = slab(t, o, inv, lo, hi, t_max, robust)
         hit &= r != DONE
@@ -366,6 +370,9 @@ class WideBVH(Accelerator):
     backend: str = "llvm"
     precision: str = "float32"
     intersection: str = DEFAULT_ROUTINE
+    tie_break: str = "lowest"          # traverse.TIE_BREAKS; "other" only probes ties
+    tie_window: float = 0.0            # t window (world units) of tie_break "other"
+    tie_slack: float = 0.0             # edge slack (world units) of tie_break "other"
     info: dict = field(default_factory=dict, repr=False)
 
     @classmethod
@@ -418,10 +425,10 @@ class WideBVH(Accelerator):
     def counts(self, ray: Ray, active=True, any_hit: bool = False):
         """The instrumented traversal (profiling): ``(node_steps, triangle_steps,
         iterations)`` UInt32 per ray, the same traversal as the query with counters."""
-        return self._traverse(ray, active, any_hit, True)
+        return self._traverse(ray, active, any_hit, counting=True)
 
     @dr.syntax
-    def _traverse(self, ray: Ray, active, any_hit: bool, counting: bool = False):
+    def _traverse(self, ray: Ray, active, any_hit: bool, probe=None, counting: bool = False):
         t = self.types
         W = self.width
         routine = triangle_routine(self.intersection)
@@ -440,17 +447,18 @@ class WideBVH(Accelerator):
         n_iter = dr.zeros(t.UInt32, n)
 
         while dr.hint(active, max_iterations=-1, label=f"bvh{W}",
-                      exclude=[self, t, routine, robust, any_hit, counting, W]):
+                      exclude=[self, t, routine, robust, any_hit, probe, counting, W]):
             is_leaf, is_inner, first, end = enter_leaf(cur, first, end)
             if dr.hint(counting, mode="scalar"):
                 n_node += dr.select(is_inner, 1, 0)
                 n_tri += dr.select(first < end, 1, 0)
                 n_iter += 1
+            cull = cull_t(rec, t_max, probe)   # boxes beyond it are skipped
             sp, cur, to_pop = masked_step(
                 t, is_inner,
-                lambda sp, cur, to_pop, on, best_t=rec.t: wide_node_step(
+                lambda sp, cur, to_pop, on, best_t=cull: wide_node_step(
                     t, W, nodes, refs, o, inv, best_t, robust, stack, sp, cur, to_pop,
-                    any_hit, on),
+                    any_hit, on, probe_pad(probe)),
                 (sp, cur, is_leaf | False))
             sp, cur = pop(stack, sp, cur, to_pop)
 
@@ -458,7 +466,7 @@ class WideBVH(Accelerator):
                 t, first < end,
                 lambda rec, first, on: (
                     triangle_step(t, routine, o, d, tri_data, order, first, t_max, rec,
-                                  any_hit, on),
+                                  any_hit, on, probe),
                     first + 1 if on is True else dr.select(on, first + 1, first)),
                 (rec, first))
             if dr.hint(any_hit, mode="scalar"):
