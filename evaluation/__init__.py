@@ -12,3 +12,14 @@ from __future__ import annotations
 
 #: The thesis's three seed scenes (file stems under ``scenes/``), in its table's order.
 SEED_SCENES = ("cornell_box", "cornell_sphere", "platonic_solids")
+
+
+def write_result(path, text: str) -> None:
+    """Write a results file (JSON, markdown) atomically through the project's one writer
+    (``renderer.outputs.write_text``), replacing an older one and making its folder."""
+    from pathlib import Path
+
+    from renderer.outputs import write_text
+
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    write_text(path, text, overwrite=True)

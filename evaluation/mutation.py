@@ -30,10 +30,11 @@ import linecache
 import os
 import subprocess
 import sys
-import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+
+from . import write_result
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -270,14 +271,6 @@ def score(results: list[dict]) -> dict:
             "invalid": [r["name"] for r in results if r["status"] not in ("caught", "survived")]}
 
 
-def _write_atomic(path: Path, text: str) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
-    with os.fdopen(fd, "w") as f:
-        f.write(text)
-    os.replace(tmp, path)
-
-
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m evaluation.mutation",
                                  description=__doc__.split("\n\n")[0])
@@ -306,7 +299,7 @@ def main(argv=None) -> int:
     s = score(results)
     print(json.dumps(s))
     if args.json:
-        _write_atomic(Path(args.json), json.dumps({"score": s, "mutants": results}, indent=1)
+        write_result(Path(args.json), json.dumps({"score": s, "mutants": results}, indent=1)
                       + "\n")
     return 0 if not s["survivors"] else 1
 

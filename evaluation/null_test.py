@@ -16,12 +16,11 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
-import tempfile
 import time
 from pathlib import Path
 
+from . import write_result
 from .rules import (
     CONVERGED_THRESHOLDS,
     OUR_SEED,
@@ -34,14 +33,6 @@ from .rules import (
 )
 
 KEYS = ("failed_values", "failed_pixels", "max_t", "ok")
-
-
-def _write_atomic(path: Path, text: str) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
-    with os.fdopen(fd, "w") as f:
-        f.write(text)
-    os.replace(tmp, path)
 
 
 def main(argv=None) -> int:
@@ -88,7 +79,7 @@ def main(argv=None) -> int:
         "golden_failed_cases": sum(not r["golden"]["ok"] for r in rows),
         "seconds": round(time.time() - t0, 1),
     }
-    _write_atomic(Path(args.out), json.dumps({"summary": summary, "cases": rows}, indent=1)
+    write_result(Path(args.out), json.dumps({"summary": summary, "cases": rows}, indent=1)
                   + "\n")
     print(json.dumps(summary))
     return 0

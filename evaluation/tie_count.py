@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .null_test import _write_atomic
+from . import write_result
 from .rules import EXACT_THRESHOLDS, ROOT, cases, check_exact, matching, tie_probe
 
 
@@ -84,9 +84,9 @@ def main(argv=None) -> int:
         f"{r['excused_now']} | {r['hard_now']} | {r['tie_mask']} | {r['max_rel_held']:.1e} | "
         f"{'pass' if r['ok'] else 'FAIL'} |\n" for r in rows)
     out = Path(args.out)
-    _write_atomic(out, json.dumps({"tie_slack": args.slack, "ray_epsilon": args.ray_epsilon,
+    write_result(out, json.dumps({"tie_slack": args.slack, "ray_epsilon": args.ray_epsilon,
                                    "cases": rows}, indent=1) + "\n")
-    _write_atomic(out.with_suffix(".md"), md)
+    write_result(out.with_suffix(".md"), md)
     print(md)
     return 0 if all(r["ok"] for r in rows) else 1
 
