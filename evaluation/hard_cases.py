@@ -484,6 +484,98 @@ def _agree_rows(case: str, imgs: dict, cfg: Config, what: str) -> list[Row]:
     return rows
 
 
+# ---- case 7: shadow terminator --------------------------------------------------------------
+def terminator_scene(subdivisions: int, angle_deg: float, size: int, fix: str = "none"
+                     ) -> Scene:
+    """A low-polygon icosphere (radius 1, interpolated normals, diffuse, nothing else in the
+    scene) seen from +z, lit by one light (no falloff) at ``angle_deg`` from the view
+    direction and a little above, so the terminator crosses the middle of the image;
+    ``fix``: the ``Settings.terminator`` treatment."""
+    a = math.radians(angle_deg)
+    light = np.array([math.sin(a), 0.3, math.cos(a)]) * 10.0
+    return mesh_scene([_sphere((0, 0, 0), 1.0, 0, subdivisions, True)],
+                      [material("white", kd=0.8)], lights=[point_light(light, 1.0)],
+                      camera=camera((0, 0, 4.0), (0, 0, 0), size=size),
+                      settings=Settings(terminator=fix), name="terminator")
+
+
+def facing_light(scene: Scene, cfg: Config, routine: str, prec: str) -> np.ndarray:
+    """(H, W) bool: the camera ray's hit has a geometric normal (turned to the viewer) that
+    faces the scene's first light; False where the ray misses."""
+    from renderer.camera import camera_arrays, primary_rays
+    from renderer.render import Renderer
+    r = Renderer(scene, backend=cfg.backend, precision=prec, intersection=routine)
+    t, cam = r.t, scene.cameras[0]
+    o, d = primary_rays(camera_arrays(cam, t), cam.width, cam.height, t)
+    n = dr.width(d)
+    hit = r.arrays.accel.intersect(Ray(o=o, d=d, t_max=t.Float(dr.inf)),
+                                   dr.full(t.Bool, True, n))
+    ng = dr.gather(t.Array3f, r.arrays.accel.tris.ng, hit.prim, hit.found)
+    p = dr.fma(d, hit.t, o)
+    ng = dr.select(dr.dot(ng, d) <= 0, ng, -ng)
+    lit = hit.found & (dr.dot(ng, t.Array3f(*(float(x) for x in scene.lights[0].position)) - p) > 0)
+    return lit.numpy().reshape(cam.height, cam.width)
+
+
+def case_terminator(cfg: Config, spec: dict) -> list[Row]:
+    """Low-polygon spheres with interpolated normals under grazing light. The sphere is
+    convex and alone, so no shadow ray of it may be blocked where the shading says it is
+    lit: every pixel that the render with shadows has darker (under half) than the render
+    without is an artefact. Those where the hit's geometric normal faces the light are
+    speckles (acne of the ray offsets): 0 in every variant and treatment. The others are
+    the shadow terminator (the shading normal faces the light, the flat facet does not, so
+    its shadow ray leaves into the sphere): counted without a treatment and with Hanika's
+    (``Settings.terminator``); criterion for "hanika": at most ``max_hanika_share`` of the
+    untreated count on the coarsest sphere and 0 on the finer ones."""
+    from renderer.effects import EffectSet
+    rows = []
+    size = int(spec["size"])
+    share = float(spec["max_hanika_share"])
+    for prec in cfg.precisions:
+        for r in cfg.routines:
+            for sub in spec["subdivisions"]:
+                counts = {}
+                for fix in ("none", "hanika"):
+                    term = speck = 0
+                    lost_light, img = [], None
+                    for ang in spec["angles"]:
+                        sc = terminator_scene(int(sub), float(ang), size, fix)
+                        with warnings.catch_warnings():
+                            warnings.simplefilter("ignore")
+                            off = _render(sc, cfg, "bvh", r, prec,
+                                          EffectSet.from_scene(sc).without("shadows"))
+                        on = _render(sc, cfg, "bvh", r, prec)
+                        lost = (off.max(-1) > 0) & (on.max(-1) < 0.5 * off.max(-1))
+                        facing = facing_light(sc, cfg, r, prec)
+                        speck += int((lost & facing).sum())
+                        term += int((lost & ~facing).sum())
+                        lost_light.append(float((off - on).sum() / max(off.sum(), 1e-30)))
+                        if ang == spec["angles"][0]:
+                            img = _save(cfg, f"terminator_{sub}_{fix}_{prec}", on)
+                    counts[fix] = (term, speck, lost_light, img)
+                base = counts["none"][0]
+                for fix, (term, speck, lost_light, img) in counts.items():
+                    if fix == "none":
+                        crit, ok = "speckles (geometric normal faces the light) = 0", speck == 0
+                    else:
+                        lim = math.floor(share * base) if sub == min(spec["subdivisions"]) \
+                            else 0
+                        crit = f"speckles = 0; terminator pixels <= {lim}"
+                        ok = speck == 0 and term <= lim
+                    faces = 20 * 4 ** int(sub)
+                    rows.append(Row(
+                        case="7 shadow terminator",
+                        variant=f"{faces} faces/{fix}/bvh/{r}/{prec}", criterion=crit,
+                        measured=(f"terminator {term} px, speckles {speck} px over "
+                                  f"{len(spec['angles'])} light angles; light lost "
+                                  + "/".join(f"{x:.2%}" for x in lost_light)),
+                        passed=bool(ok), value=float(term), image=img,
+                        info={"terminator_px": term, "speckle_px": speck,
+                              "lost_light": lost_light, "angles": list(spec["angles"])}))
+                    _progress(cfg, rows[-1])
+    return rows
+
+
 # ---- case 8: TIR at the critical angle ------------------------------------------------------
 def case_tir(cfg: Config, spec: dict) -> list[Row]:
     """Rays leaving glass (ior 1.5, 2.4) at the critical angle ± 1..ulps ulp of its cosine:
@@ -843,7 +935,8 @@ def _progress(cfg: Config, row: Row) -> None:
 
 # ---- the suite -------------------------------------------------------------------------------
 #: Case functions by their table name in ``tests/hard/cases.toml``.
-CASES = {"closed_mesh": case_closed_mesh, "reintersect": case_reintersect, "tir": case_tir,
+CASES = {"closed_mesh": case_closed_mesh, "reintersect": case_reintersect,
+         "terminator": case_terminator, "tir": case_tir,
          "index_matched": case_index_matched, "phong": case_phong,
          "degenerate": case_degenerate, "robust_scenes": case_robust_scenes,
          "precision": case_precision}
