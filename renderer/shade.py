@@ -210,8 +210,8 @@ def terminator_point(accel, hit: ClosestHit, p, p_err, normals, sm, t: Types):
     ray starts on the curved surface the vertex normals imply rather than on the flat
     triangle, and the low-polygon facets next to the terminator no longer shadow it. The
     point only moves outwards (to the side the vertex normals face). Returns ``(p',
-    p_err')``, the bound grown by the rounding of the move (``γ_6 |p' - p|``, the
-    projections' own error on top of ``p_err``)."""
+    p_err')``, the bound grown by the rounding of the move and of the sum
+    (``γ_6 (|p' - p| + |p'|)`` on top of ``p_err``)."""
     layout = layout_of(accel.intersection)
     a, b, c = load_triangle(t, accel.tri_data, hit.prim, hit.found & sm, layout)[:3]
     if layout == "edges":                    # v0, e1, e2: the vertices, rounded once
