@@ -34,7 +34,7 @@ from .shade import (
 def _shade_hit(sa: SceneArrays, ray: Ray, hit, t: Types, fx: EffectSet, opt: TraceOptions,
                active):
     """Surface point and I_local (Array3f) at the closest hits ``hit`` of ``ray``."""
-    sp = surface_point(sa.accel, ray, hit, t, fx)
+    sp = surface_point(sa.accel, ray, hit, t, fx, opt.terminator)
     I_local = local_light(shading_context(sp, ray.d, active), sa, t, fx, opt)
     return sp, I_local
 

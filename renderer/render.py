@@ -112,7 +112,7 @@ class Renderer:
         self.upload_seconds = time.perf_counter() - t0
         self.options = TraceOptions(n_lights=len(scene.lights), max_depth=int(s.max_depth),
                                     min_weight=float(s.min_weight), eps=scene.ray_offset,
-                                    spawn=s.spawn)
+                                    spawn=s.spawn, terminator=s.terminator)
         self.accel_name = accel
         frame_fn = make_frame_fn(t, self.effects, self.options, spp=self.spp, exact=self.exact,
                                  seed=int(s.seed))

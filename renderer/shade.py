@@ -84,13 +84,16 @@ class TraceOptions:
     (0..MAX_DEPTH_LIMIT, checked by ``validate_settings``), min_weight (branch pruning),
     eps (None: the offset rule ``spawn``; a float: the explicit absolute offset of a
     scene's ``ray_epsilon`` override), spawn (``SPAWN_RULES``: "scale-free", offsets from
-    each hit's own rounding error, the default; "mitsuba", Mitsuba 3's rule)."""
+    each hit's own rounding error, the default; "mitsuba", Mitsuba 3's rule), terminator
+    (``TERMINATOR_FIXES``: "none"; "hanika", shadow rays of smooth faces from the lifted
+    point ``SurfacePoint.p_shadow``)."""
 
     n_lights: int
     max_depth: int
     min_weight: float
     eps: float | None = None
     spawn: str = "scale-free"
+    terminator: str = "none"
 
     def __post_init__(self):
         validate_settings(max_depth=self.max_depth, spawn=self.spawn)
@@ -154,7 +157,9 @@ class SurfacePoint:
     p_err: Array3f per-axis bound on the distance of ``p`` from the triangle's plane;
     ng: Array3f unit geometric normal (winding order);
     ns: Array3f unit shading normal (interpolated for smooth faces, else ``ng``);
-    material: UInt32 material index.
+    material: UInt32 material index;
+    p_shadow, p_shadow_err: Array3f the start of shadow rays and its error bound
+        (``terminator_point``), or None (then ``p``, ``p_err``).
     """
 
     p: object = None
@@ -162,6 +167,8 @@ class SurfacePoint:
     ng: object = None
     ns: object = None
     material: object = None
+    p_shadow: object = None
+    p_shadow_err: object = None
 
 
 def hit_point(accel, ray: Ray, hit: ClosestHit, ng, t: Types):
@@ -195,11 +202,36 @@ def hit_point(accel, ray: Ray, hit: ClosestHit, ng, t: Types):
     return p, p_err
 
 
-def surface_point(accel, ray: Ray, hit: ClosestHit, t: Types, fx: EffectSet) -> SurfacePoint:
+def terminator_point(accel, hit: ClosestHit, p, p_err, normals, sm, t: Types):
+    """Hanika's shadow-terminator point (Hanika 2021, "Hacking the shadow terminator", Ray
+    Tracing Gems II ch. 4) of the hits on smooth faces ``sm``: ``p`` projected onto the
+    tangent plane of each vertex ``P_k`` (normal ``n_k``) where it lies below it,
+    ``p' = p - Σ b_k min(0, (p - P_k)·n_k) n_k`` with the barycentrics ``b_k``, so a shadow
+    ray starts on the curved surface the vertex normals imply rather than on the flat
+    triangle, and the low-polygon facets next to the terminator no longer shadow it. The
+    point only moves outwards (to the side the vertex normals face). Returns ``(p',
+    p_err')``, the bound grown by the rounding of the move and of the sum
+    (``γ_6 (|p' - p| + |p'|)`` on top of ``p_err``)."""
+    layout = layout_of(accel.intersection)
+    a, b, c = load_triangle(t, accel.tri_data, hit.prim, hit.found & sm, layout)[:3]
+    if layout == "edges":                    # v0, e1, e2: the vertices, rounded once
+        b, c = a + b, a + c
+    w = (1.0 - hit.u - hit.v, hit.u, hit.v)
+    move = dr.zeros(type(p), dr.width(p))
+    for pk, nk, wk in zip((a, b, c), normals, w):
+        move -= nk * (wk * dr.minimum(dr.dot(p - pk, nk), 0.0))
+    p_s = p + move
+    err = p_err + gamma(6, t.is_double) * (dr.abs(move) + dr.abs(p_s))
+    return dr.select(sm, p_s, p), dr.select(sm, err, p_err)
+
+
+def surface_point(accel, ray: Ray, hit: ClosestHit, t: Types, fx: EffectSet,
+                  terminator: str = "none") -> SurfacePoint:
     """Gather the hit triangle's data once (``accel``: the accelerator; its ``tri_data``
     packed triangles and ``tris`` shading attributes); the point and its error bound come
     from ``hit_point``. The normal interpolation is traced only with
-    ``fx.smooth_normals``."""
+    ``fx.smooth_normals``; with ``terminator`` "hanika" (and shadows traced) the shadow
+    rays of smooth faces start from ``terminator_point``."""
     tris = accel.tris
     A3 = type(ray.o)
     UInt32 = type(hit.prim)
@@ -207,15 +239,19 @@ def surface_point(accel, ray: Ray, hit: ClosestHit, t: Types, fx: EffectSet) -> 
     ng = dr.gather(A3, tris.ng, hit.prim, m)
     p, p_err = hit_point(accel, ray, hit, ng, t)
     ns = ng
+    p_s = p_s_err = None
     if dr.hint(fx.smooth_normals, mode="scalar"):
         sm = dr.gather(type(m), tris.smooth, hit.prim, m)
         w0 = 1.0 - hit.u - hit.v
-        n_i = (dr.gather(A3, tris.n0, hit.prim, m & sm) * w0
-               + dr.gather(A3, tris.n1, hit.prim, m & sm) * hit.u
-               + dr.gather(A3, tris.n2, hit.prim, m & sm) * hit.v)
+        normals = tuple(dr.gather(A3, nk, hit.prim, m & sm)
+                        for nk in (tris.n0, tris.n1, tris.n2))
+        n_i = normals[0] * w0 + normals[1] * hit.u + normals[2] * hit.v
         ns = dr.select(sm, dr.normalize(n_i), ng)
+        if dr.hint(terminator == "hanika" and fx.shadows, mode="scalar"):
+            p_s, p_s_err = terminator_point(accel, hit, p, p_err, normals, m & sm, t)
     mat = dr.gather(UInt32, tris.material, hit.prim, m)
-    return SurfacePoint(p=p, p_err=p_err, ng=ng, ns=ns, material=mat)
+    return SurfacePoint(p=p, p_err=p_err, ng=ng, ns=ns, material=mat, p_shadow=p_s,
+                        p_shadow_err=p_s_err)
 
 
 def _next_float_away(x, up):
@@ -271,7 +307,11 @@ def shadow_ray(sp: SurfacePoint, p_light, double: bool, eps=None,
     the offset origin ``o'`` (``offset_origin`` towards the light) along
     ``normalize(p_l - o')``, ending short of the light by ``γ_SHADOW_END_OPS`` of its length
     (scale-free), by ``MITSUBA_SHADOW_EPSILON`` of it (Mitsuba's ``spawn_ray_to``) or by
-    ``eps`` (the override)."""
+    ``eps`` (the override). Where ``sp.p_shadow`` is set the ray starts from it instead
+    of ``sp.p`` (the shadow-terminator treatment)."""
+    if sp.p_shadow is not None:
+        sp = SurfacePoint(p=sp.p_shadow, p_err=sp.p_shadow_err, ng=sp.ng, ns=sp.ns,
+                          material=sp.material)
     so = offset_origin(sp, p_light - sp.p, eps, spawn)
     sd = p_light - so
     s_len = dr.norm(sd)

@@ -115,6 +115,41 @@ def test_coplanar_faces_on_an_axis_plane_tie_exactly(precision):
     assert np.array_equal(ta[both], tb[both])
 
 
+@pytest.mark.parametrize("half", [2e3, 2e4, 2e5])
+@pytest.mark.parametrize("precision", PRECISIONS)
+def test_near_hits_on_a_huge_triangle_are_kept(precision, half):
+    """Hits close to the ray origin on a triangle far larger than the distance (a floor of
+    side 2·``half`` under small objects): every ray from 0.01 ... 1 above the floor aimed
+    down at it, grazing ones included, hits at the exact ``t`` (float64 of the same ray, rel
+    1e-6), and rays leaving the floor from 0 ... 1 ulp above it never hit it. The
+    conservative ``t > 0`` test bounds the error of the routine's own plane ``t``; pbrt-v4's
+    deltaT (for a ``t`` interpolated from the vertices' depths along the ray) grows with the
+    triangle's extent along the ray and rejected these hits up to t ≈ 2 at ``half`` 2e5."""
+    t = types("llvm", precision)
+    fdt = np.float64 if t.is_double else np.float32
+    rng = np.random.default_rng(11)
+    n = 4000
+    P = np.array([[-half, 0, -half], [half, 0, -half], [0, 0, 2 * half]])
+    h = 10.0 ** rng.uniform(-2, 0, n)
+    o = np.stack([rng.uniform(-1, 1, n), h, rng.uniform(-1, 1, n)], 1).astype(fdt)
+    az = rng.uniform(0, 2 * np.pi, n)
+    dy = -10.0 ** rng.uniform(-1.5, 0, n)           # down, grazing down to ~2 degrees
+    d = np.stack([np.cos(az), dy, np.sin(az)], 1).astype(fdt)
+    d64 = d.astype(np.float64)
+    t_true = -o[:, 1].astype(np.float64) / d64[:, 1]
+    tw, _, _, hw = _routine_hits(t, "watertight", o.astype(np.float64), d64,
+                                 np.repeat(P[None], n, 0))
+    assert hw.all(), f"{(~hw).sum()} of {n} near hits dropped (t up to {t_true[~hw].max()})"
+    assert np.allclose(tw, t_true, rtol=1e-6, atol=0)
+    # leaving the floor: origins on it or one ulp above, directions up
+    o_up = o.copy()
+    o_up[:, 1] = np.where(np.arange(n) % 2 == 0, 0.0, np.nextafter(fdt(0), fdt(1)))
+    d_up = d64 * [1, -1, 1]
+    *_, h_up = _routine_hits(t, "watertight", o_up.astype(np.float64), d_up,
+                             np.repeat(P[None], n, 0))
+    assert not h_up.any()
+
+
 def test_vertices_layout_keeps_the_shared_vertices_exact():
     """In float32, v0 + (v1 - v0) is often not v1 (vertices of different magnitudes); the
     vertices layout stores v1 itself (and the unit normal in the padding)."""

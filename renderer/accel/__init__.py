@@ -20,7 +20,9 @@ hard-case suite (``whitted hard-cases``; LLVM on this shared 2-core AMD EPYC,
   vertex/edge rays miss); the watertight test needs no tuned slack;
 - self-hits: from 10^6 rays spawned off 1000 random triangles (coordinates over 10^±8)
   Möller–Trumbore re-hits its own triangle 105 times in float32, the watertight test 0
-  times (its conservative ``t > deltaT``);
+  times (its ``t > 0`` trusted only beyond the rounding of its own plane ``t``; pbrt-v4's
+  deltaT, used before, also held 0 but grew with a triangle's extent along the ray and
+  dropped true hits near huge triangles: tests/test_watertight.py);
 - coplanar faces: on an axis-aligned plane the watertight ``t`` is the plane's, so
   overlapping faces tie exactly (0 speckle pixels against Möller–Trumbore's 244 of 4096);
 - cost per closest-hit ray (512² primary rays, best of 7, interleaved): BVH 1.24x on the

@@ -108,9 +108,10 @@ def watertight(o, d, p0, p1, p2, n, t_min=0.0):
     function is computed from the same transformed vertices in both triangles with exactly
     opposite sign (``difference_of_products``), so a ray through an edge or a vertex cannot
     pass between two triangles. In float32 an edge function that comes out exactly 0 is
-    recomputed in float64 (products of floats are exact there). Hits closer than the
-    computation's own error bound (pbrt's ``deltaT``) are rejected, so a ray spawned from a
-    triangle never re-hits it at t ~ 0. Two-sided; edge-on triangles never hit.
+    recomputed in float64 (products of floats are exact there). A hit is accepted only
+    where the sign of ``t`` is certain under the rounding of its own formula (the bound in
+    the code), so a ray spawned from a triangle never re-hits it at t ~ 0. Two-sided;
+    edge-on triangles never hit.
 
     The distance is the plane's, ``t = (p0 - o)·n / d·n`` with ``n`` the unit normal
     rounded once on the host: for an axis-aligned plane ``n`` is exactly a unit axis, so
@@ -148,25 +149,33 @@ def watertight(o, d, p0, p1, p2, n, t_min=0.0):
                                 _edges_float64, _edges_as_they_are)
     mixed = ((e0 < 0) | (e1 < 0) | (e2 < 0)) & ((e0 > 0) | (e1 > 0) | (e2 > 0))
     det = e0 + e1 + e2
-    # ---- distance --------------------------------------------------------------------
-    z0, z1, z2 = z0 * inv_dz, z1 * inv_dz, z2 * inv_dz
+    # ---- distance: the plane's, with a conservative sign -------------------------------
     inv_det = 1.0 / det
-    t = dr.dot(a0, n) / dr.dot(d, n)
     u = e1 * inv_det
     v = e2 * inv_det
-    # ---- conservative t > 0 (pbrt-v4's error bounds) ------------------------------------
-    max_z = dr.maximum(dr.maximum(dr.abs(z0), dr.abs(z1)), dr.abs(z2))
-    max_x = dr.maximum(dr.maximum(dr.abs(x0), dr.abs(x1)), dr.abs(x2))
-    max_y = dr.maximum(dr.maximum(dr.abs(y0), dr.abs(y1)), dr.abs(y2))
-    g2, g3, g5 = (_gamma(n, double) for n in (2, 3, 5))
-    delta_z = g3 * max_z
-    delta_x = g5 * (max_x + max_z)
-    delta_y = g5 * (max_y + max_z)
-    delta_e = 2.0 * (g2 * max_x * max_y + delta_y * max_x + delta_x * max_y)
-    max_e = dr.maximum(dr.maximum(dr.abs(e0), dr.abs(e1)), dr.abs(e2))
-    delta_t = 3.0 * (g3 * max_e * max_z + delta_e * max_z + delta_z * max_e) \
-        * dr.abs(inv_det)
-    hit = ~mixed & (det != 0) & dr.isfinite(t) & (t > delta_t) & (t > t_min)
+    num = dr.dot(a0, n)                      # (p0 - o)·n
+    den = dr.dot(d, n)
+    t = num / den
+    # ``t > 0`` is trusted only where the signs of ``num`` and ``den`` are exact: the ray
+    # meets the triangle at ``q = Σ b_k p_k`` where ``t (d·n) = (q - o)·n = Σ b_k N_k``,
+    # ``N_k = (p_k - o)·n`` exactly (any ``n``), so the true ``t`` has ``num``'s sign when
+    # ``|num|`` exceeds the spread of the three ``N_k`` (the triangle's tilt against the
+    # rounded ``n``) plus twice their rounding (``a_k = p_k - o`` and the dot product:
+    # γ4 Σ|a_k||n|). This bound scales with the distances from the origin to the vertices
+    # along ``n``, not with the triangle's extent along the ray (pbrt-v4's deltaT, for its
+    # own ``t = Σ e_k z_k / det``, grows with that extent: on a floor 4e5 wide it
+    # rejected true hits up to t ≈ 2, so shadows and glass in front of it changed); for an
+    # axis-aligned triangle (``n`` a unit axis) the spread and the rounding are exactly 0.
+    an = dr.abs(n)
+    n1, n2 = dr.dot(a1, n), dr.dot(a2, n)
+    spread = dr.maximum(dr.abs(n1 - num), dr.abs(n2 - num))
+    s_max = dr.maximum(dr.maximum(dr.dot(dr.abs(a0), an), dr.dot(dr.abs(a1), an)),
+                       dr.dot(dr.abs(a2), an))
+    g3, g4 = _gamma(3, double), _gamma(4, double)
+    num_ok = dr.abs(num) > (spread + 2.0 * g4 * s_max) * (1.0 + g4)
+    den_ok = dr.abs(den) > g3 * dr.dot(dr.abs(d), an)
+    hit = (~mixed & (det != 0) & num_ok & den_ok & dr.isfinite(t) & (t > 0)
+           & (t > t_min))
     return t, u, v, hit
 
 

@@ -8,6 +8,7 @@ from .model import (
                     MAX_DEPTH_LIMIT,
                     SHADING_MODES,
                     SPAWN_RULES,
+                    TERMINATOR_FIXES,
                     Camera,
                     Material,
                     ObjectInfo,
@@ -22,6 +23,6 @@ from .model import (
 )
 
 __all__ = ["COMBINATIONS", "FALLOFFS", "MAX_DEPTH_LIMIT", "SHADING_MODES", "SPAWN_RULES",
-           "Camera", "Material",
+           "TERMINATOR_FIXES", "Camera", "Material",
            "ObjectInfo", "PointLight", "Scene", "SceneError", "Settings", "check_ranges",
            "load_scene", "precision_limits", "validate_image_size", "validate_settings"]

@@ -27,6 +27,11 @@ SHADING_MODES = ("classic", "physical")
 #: ``spawn_ray`` / ``spawn_ray_to``, so a comparison with a Mitsuba golden traces the same
 #: rays; ``whitted check`` renders with the rule its golden records).
 SPAWN_RULES = ("scale-free", "mitsuba")
+#: Shadow-terminator treatments of smooth (interpolated-normal) faces (docs/MODEL.md,
+#: "Ray offsets"): "none" (the default, as Mitsuba 3: shadow rays leave the flat triangle)
+#: and "hanika" (Hanika 2021, "Hacking the shadow terminator": a shadow ray starts from the
+#: hit point lifted onto the curved surface the vertex normals imply).
+TERMINATOR_FIXES = ("none", "hanika")
 FALLOFFS = ("none", "inverse_square")
 COMBINATIONS = ("constant", "fresnel")
 
@@ -221,6 +226,9 @@ class Settings:
     spawn: one of SPAWN_RULES, the offset rule when ``ray_epsilon`` is None ("scale-free",
         the default; "mitsuba": Mitsuba 3's own rule, for comparisons with its goldens).
     seed: seed of the stratified jitter in converged mode.
+    terminator: one of TERMINATOR_FIXES, the shadow-terminator treatment of smooth faces
+        ("none", the default; "hanika": shadow rays from the lifted hit point). Set in code
+        (``Scene.with_settings``); scene files do not read it.
     """
 
     max_depth: int = 5
@@ -232,9 +240,14 @@ class Settings:
     ray_epsilon: float | None = None
     seed: int = 0
     spawn: str = "scale-free"
+    terminator: str = "none"
 
     def __post_init__(self):
         validate_settings(spawn=self.spawn)
+        if self.terminator not in TERMINATOR_FIXES:
+            raise SceneError(f"settings.terminator: expected one of "
+                             f"{', '.join(map(repr, TERMINATOR_FIXES))}, got "
+                             f"{self.terminator!r}", field="settings.terminator")
         if self.spawn != "scale-free" and self.ray_epsilon is not None:
             raise SceneError(f"settings.spawn: {self.spawn!r} and ray_epsilon (an absolute "
                              "offset) exclude each other", field="settings.spawn")

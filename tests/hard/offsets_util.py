@@ -25,16 +25,21 @@ def transformed(scene, scale: float = 1.0, shift=(0.0, 0.0, 0.0)):
     """``scene`` with every position mapped to ``scale · x + shift`` (geometry from its
     float32 vertices, cameras, lights), light intensities times ``scale²`` where they fall
     off as 1/dist², so the image is the same in exact arithmetic. Vertices are rounded to
-    float32 once, as the loader does."""
+    float32 once, as the loader does; the float64 positions (``Scene.positions(True)``, the
+    loader's unrounded vertices) are mapped too and kept as ``vertices64``, so a float64
+    render of the moved scene sees its exact geometry (without them ``Scene.__post_init__``
+    drops the stale float64 array and float64 renders widen the float32 vertices, rounded
+    to 1/128 at 1e5 and to 1 at 1e7)."""
     shift = np.asarray(shift, np.float64)
-    V = (scene.vertices.astype(np.float64) * scale + shift).astype(np.float32)
+    V64 = scene.positions(True) * scale + shift
+    V = V64.astype(np.float32)
     cams = [replace(c, position=c.position * scale + shift, target=c.target * scale + shift)
             for c in scene.cameras]
     lights = [replace(li, position=li.position * scale + shift,
                       intensity=li.intensity * (scale ** 2 if li.falloff == "inverse_square"
                                                 else 1.0))
               for li in scene.lights]
-    return replace(scene, vertices=V, cameras=cams, lights=lights)
+    return replace(scene, vertices=V, vertices64=V64, cameras=cams, lights=lights)
 
 
 def quantized_at_origin(scene, shift):
@@ -42,8 +47,7 @@ def quantized_at_origin(scene, shift):
     float32 at ``shift``) moved back by ``-shift`` (exact: the differences are multiples of
     the ulp at ``shift``), so it has exactly the moved scene's geometry, near the origin."""
     shift = np.asarray(shift, np.float64)
-    V = ((scene.vertices.astype(np.float64) + shift).astype(np.float32).astype(np.float64)
-         - shift)
+    V = ((scene.positions(True) + shift).astype(np.float32).astype(np.float64) - shift)
     assert np.array_equal(V.astype(np.float32).astype(np.float64), V)
     return replace(scene, vertices=V.astype(np.float32))
 
