@@ -16,7 +16,6 @@ from __future__ import annotations
 import html
 import json
 import math
-import os
 import sys
 import time
 import tomllib
@@ -27,6 +26,7 @@ from pathlib import Path
 import drjit as dr
 import numpy as np
 
+from evaluation import write_result
 from renderer.accel import ACCELERATORS, DEFAULT_ROUTINE, ROUTINES, Ray, build_accelerator
 from renderer.device import array3, types
 from renderer.scene import Camera, Material, ObjectInfo, PointLight, Scene, Settings, shapes
@@ -1106,12 +1106,6 @@ def page(rows: list[Row], header: str = "") -> str:
             f"<style>{style}</style></head><body>{''.join(body)}</body></html>\n")
 
 
-def _atomic_write(path: Path, text: str) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(text, encoding="utf-8")
-    os.replace(tmp, path)
-
-
 def write_report(rows: list[Row], out: Path, meta: dict) -> dict:
     """Write ``hard_cases.md``, ``hard_cases.json`` and ``index.html`` into ``out``
     (atomically); returns the paths."""
@@ -1120,9 +1114,9 @@ def write_report(rows: list[Row], out: Path, meta: dict) -> dict:
     header = ", ".join(f"{k}: {v}" for k, v in meta.items())
     paths = {"markdown": out / "hard_cases.md", "json": out / "hard_cases.json",
              "html": out / "index.html"}
-    _atomic_write(paths["markdown"], markdown(rows, header))
-    _atomic_write(paths["json"], json.dumps({"meta": meta, "rows": [asdict(r) for r in rows],
+    write_result(paths["markdown"], markdown(rows, header))
+    write_result(paths["json"], json.dumps({"meta": meta, "rows": [asdict(r) for r in rows],
                                              "passed": all(r.passed for r in rows)},
                                             indent=1, default=float))
-    _atomic_write(paths["html"], page(rows, header))
+    write_result(paths["html"], page(rows, header))
     return paths
