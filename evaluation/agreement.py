@@ -31,6 +31,30 @@ from reference.golden import GOLDEN_DIR, load_golden
 from renderer.scene import SPAWN_RULES, load_scene
 
 TOL = 1e-3
+#: Relative (and absolute) widening of a pixel's 3x3 range in ``edge_mask``.
+EDGE_TOL = 0.02
+
+
+def neighbour_range(img: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Channel-wise min and max over each pixel's 3x3 neighbourhood (edge-clamped)."""
+    p = np.pad(img, ((1, 1), (1, 1), (0, 0)), mode="edge")
+    h, w = img.shape[:2]
+    stack = np.stack([p[dy:dy + h, dx:dx + w] for dy in range(3) for dx in range(3)])
+    return stack.min(0), stack.max(0)
+
+
+def edge_mask(a: np.ndarray, b: np.ndarray, tol: float = EDGE_TOL) -> np.ndarray:
+    """Pixels whose value one image has one pixel away in the other, (H, W) bool: the
+    image-space explanation of ties on shared edges and silhouettes, for comparisons where
+    neither side can be traced again (two Mitsuba renders, or a render against a moved copy
+    of its scene). The exact rule does not use it: it excuses only what the tie probe
+    traces (``rules.tie_probe``)."""
+    lo, hi = neighbour_range(a)
+    t = tol * np.maximum(np.abs(b), 1.0)
+    ex = np.all((b >= lo - t) & (b <= hi + t), axis=-1)
+    lo, hi = neighbour_range(b)
+    ex |= np.all((a >= lo - t) & (a <= hi + t), axis=-1)
+    return ex
 
 
 def measure(case, goldens: Path, ray_epsilon: float | None = None,

@@ -6,21 +6,11 @@ from dataclasses import replace
 
 import numpy as np
 
+from evaluation.agreement import EDGE_TOL
+from evaluation.agreement import neighbour_range as _neighbour_range
+
 #: float32 unit roundoff.
 U32 = 2.0 ** -24
-#: Relative (and absolute) widening of a pixel's 3x3 range when it explains an edge pixel.
-EDGE_TOL = 0.02
-
-
-def _neighbour_range(img: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Channel-wise min and max over each pixel's 3x3 neighbourhood (edge-clamped): a
-    moved scene's silhouettes and seams land up to a pixel away, which is no acne."""
-    p = np.pad(img, ((1, 1), (1, 1), (0, 0)), mode="edge")
-    h, w = img.shape[:2]
-    stack = np.stack([p[dy:dy + h, dx:dx + w] for dy in range(3) for dx in range(3)])
-    return stack.min(0), stack.max(0)
-
-
 def transformed(scene, scale: float = 1.0, shift=(0.0, 0.0, 0.0)):
     """``scene`` with every position mapped to ``scale · x + shift`` (geometry from its
     float32 vertices, cameras, lights), light intensities times ``scale²`` where they fall
