@@ -11,6 +11,8 @@ from evaluation.agreement import neighbour_range as _neighbour_range
 
 #: float32 unit roundoff.
 U32 = 2.0 ** -24
+
+
 def transformed(scene, scale: float = 1.0, shift=(0.0, 0.0, 0.0)):
     """``scene`` with every position mapped to ``scale · x + shift`` (geometry from its
     float32 vertices, cameras, lights), light intensities times ``scale²`` where they fall
