@@ -750,17 +750,34 @@ def factor_sentences(data: dict, label: str) -> dict:
         out["spp"] = ("4× spp (vs own reference) " + "; ".join(parts) + ".") if parts else None
     line = factor_line(data, label, "max_depth")
     if len(line) > 1:
-        same = [p["settings"]["max_depth"] for p in line
-                if p["image_sha256"] == base["image_sha256"]]
-        first_same = min(same) if same else None
+        dd = default["max_depth"]
+        # the shallowest depth from which every depth up to the default gives its image
+        same_from = None
+        for p in sorted((p for p in line if p["settings"]["max_depth"] <= dd),
+                        key=lambda p: -p["settings"]["max_depth"]):
+            if p["image_sha256"] != base["image_sha256"]:
+                break
+            same_from = p["settings"]["max_depth"]
+        deeper = [p for p in line if p["settings"]["max_depth"] > dd]
         d0 = _find(line, "max_depth", 0)
         e, t = cmp(base, d0, "relmse", ref) if d0 else (None, None)
-        s = (f"depth 0→{default['max_depth']}: relMSE vs {ref} ×{_fmt(e)} at {_fmt(t)}× time"
+        s = (f"depth 0→{dd}: relMSE vs {ref} ×{_fmt(e)} at {_fmt(t)}× time"
              if e and t else "")
-        if first_same is not None:
-            s += (f"; from depth {first_same} on the image is bitwise the default's "
-                  f"(deeper costs {_fmt(_ratio(time_of(line[-1]), time_of(base)))}× time "
-                  f"for nothing)")
+        if same_from is not None and same_from < dd:
+            shallow = _find(line, "max_depth", same_from)
+            s += (f"; from depth {same_from} to {dd} the image is bitwise the default's "
+                  f"(depth {same_from} costs {_fmt(_ratio(time_of(shallow), time_of(base)))}× "
+                  "the default's time)")
+        if deeper and all(p["image_sha256"] == base["image_sha256"] for p in deeper):
+            s += (f"; deeper than {dd} the image is bitwise the default's (depth "
+                  f"{deeper[-1]['settings']['max_depth']} costs "
+                  f"{_fmt(_ratio(time_of(deeper[-1]), time_of(base)))}× time for nothing)")
+        elif deeper:
+            e2, t2 = cmp(deeper[-1], base, "relmse", ref)
+            s += (f"; deeper than {dd} changes the image (more bounces than the scene's "
+                  f"depth, which the golden and the own reference stop at): depth "
+                  f"{deeper[-1]['settings']['max_depth']} relMSE vs {ref} ×{_fmt(e2)} at "
+                  f"{_fmt(t2)}× time")
         out["max_depth"] = s.lstrip("; ") + "."
     line = factor_line(data, label, "min_weight")
     if len(line) > 1:
