@@ -4,7 +4,9 @@
 #   OUT=... bash ci/device_study.sh [LABEL]          # LABEL names the device folder (h200)
 #
 # 1. installs the wheels carried in .whl/ (no network there) into /tmp/site, as ci/device.sh
-#    does (skipped when drjit, mitsuba and dask already import);
+#    does (skipped when drjit, mitsuba and dask already import). The study needs drjit,
+#    openexr, flip-evaluator, dask, distributed, tornado, tblib, zict, partd, locket and, for
+#    ΔE2000, colour-science (about 19 MB); not Mitsuba (23 MB), which it never imports;
 # 2. the executor check: a tiny sweep in-process and on one Dask worker (`--workers 1`, which
 #    gets the GPU through CUDA_VISIBLE_DEVICES); prints whether the JSON agrees minus timings;
 # 3. the study itself (profile $PROFILE, default gpu: the seed scenes and the glass bunny)
