@@ -232,3 +232,15 @@ def test_report_carries_the_study_page(tiny, tmp_path):
     assert "not-a-study" not in text
     plain = write_report(tmp_path / "rep2", [ReportEntry("x", img, img)], title="t")
     assert "Accuracy vs time" not in plain.read_text()
+
+
+def test_readme_block_is_replaced_in_place(tiny):
+    _, data = tiny
+    mark = study.readme_marker("results/study/x")
+    text = f"# T\n\nbefore\n{mark}\nold paragraph\nstill old\n\n- old\n  wrapped\n- old\n\nafter\n"
+    new = study.update_readme(text, data, "results/study/x")
+    assert new.startswith(f"# T\n\nbefore\n{mark}\n") and new.endswith("\n\nafter\n")
+    assert "old" not in new and study.readme_section(data, "results/study/x") in new
+    assert study.update_readme(new, data, "results/study/x") == new     # idempotent
+    with pytest.raises(ValueError):
+        study.update_readme("no marker\n", data, "results/study/x")
