@@ -23,11 +23,15 @@ hi.y, hi.z; CWBVH, Ylitie et al. 2017, rounded outwards by ``quantize``). Unquan
 record and tests one ray against every child box.
 
 Why quantised: on the CPU (LLVM, 16 lanes per SIMD packet) a step's cost is its gathers,
-one per float per lane; quantised boxes need one gather per word, a quarter of the float
-layout's box gathers. Closest-hit steps sort the hit children by entry distance (a sorting
-network), go to the nearest and push the rest far to near; any-hit steps push every hit
-child in slot order (nearest-first any-hit was measured: 3-35 % more loop iterations per
-ray on Sponza, Conference and the bunny).
+one load per element per lane; quantised boxes need a quarter of the float layout's box
+words. On LLVM (float32) the records, the references and the traversal's copy of the
+triangles are moreover read as UInt64 views, two words per 64-bit gather
+(``base.gather_pairs``): the same bytes with half the loads.
+
+Closest-hit steps sort the hit children by entry distance (a sorting network), go to the
+nearest and push the rest far to near; any-hit steps push every hit child in slot order
+(nearest-first any-hit was measured: 3-35 % more loop iterations per ray on Sponza,
+Conference and the bunny).
 """
 from __future__ import annotations
 
@@ -38,7 +42,17 @@ import drjit as dr
 import numpy as np
 
 from ..device import Types
-from .base import Accelerator, DeviceTriangles, Ray, array_type, gather_floats
+from .base import (
+    Accelerator,
+    DeviceTriangles,
+    Ray,
+    array_type,
+    as_pairs,
+    gather_floats,
+    gather_pairs,
+    traversal_triangles,
+    uses_pairs,
+)
 from .bvh import traversal_boxes
 from .bvh_build import BINS, LEAF_SIZE, BVHArrays, build_bvh
 from .traverse import (
@@ -247,7 +261,10 @@ HEAD = 4
 def gather_words(t: Types, src, index, stride: int, count: int, active=True) -> list:
     """The first ``count`` UInt32 of record ``index`` of ``src`` (records of ``stride``
     words, a multiple of 4): packet gathers of Array4u on CUDA, one scalar gather per word
-    on LLVM (as ``base.gather_floats``)."""
+    on LLVM, one 64-bit gather per two words where ``src`` is a UInt64 view
+    (``base.gather_pairs``, LLVM float32)."""
+    if dr.type_v(src) == dr.VarType.UInt64:
+        return gather_pairs(t, src, index, stride, count, active)
     if t.backend == "llvm":
         base = index * stride
         return [dr.gather(t.UInt32, src, base + k, active) for k in range(count)]
@@ -323,7 +340,7 @@ def child_boxes(t: Types, W: int, nodes, cur, active=True) -> list:
     """``[(lo, hi)]`` (Array3f) of the ``W`` children of node(s) ``cur``: ``nodes`` is
     a Float of SoA float boxes (``6 W`` per node) or a UInt32 of quantised records
     (``quantize``: ``record_words(W)`` words per node, decoded as ``origin + q * scale``)."""
-    if dr.type_v(nodes) != dr.VarType.UInt32:
+    if dr.type_v(nodes) not in (dr.VarType.UInt32, dr.VarType.UInt64):
         f = gather_floats(t, nodes, cur, 6 * W, 6 * W, active)
         return [(t.Array3f(f[k], f[W + k], f[2 * W + k]),
                  t.Array3f(f[3 * W + k], f[4 * W + k], f[5 * W + k])) for k in range(W)]
@@ -367,6 +384,7 @@ class WideBVH(Accelerator):
     precision: str = "float32"
     intersection: str = DEFAULT_ROUTINE
     info: dict = field(default_factory=dict, repr=False)
+    tri_trav: object = None
 
     @classmethod
     def build(cls, scene, t: Types, *, width: int = 4, quantized: bool | None = None,
@@ -391,10 +409,14 @@ class WideBVH(Accelerator):
         t0 = time.perf_counter()
         tri_data, tris = upload_triangles(scene, t, order=a.order, routine=intersection)
         fdt = np.float64 if t.is_double else np.float32
-        nodes = (t.UInt32(qwords.reshape(-1)) if quantized
-                 else t.Float(w.boxes.astype(fdt).reshape(-1)))
-        refs = t.UInt32(w.refs.reshape(-1))
-        dr.eval(nodes, refs, tri_data, tris)
+        pairs = uses_pairs(t)
+        if quantized:
+            nodes = as_pairs(t, qwords) if pairs else t.UInt32(qwords.reshape(-1))
+        else:
+            nodes = t.Float(w.boxes.astype(fdt).reshape(-1))
+        refs = as_pairs(t, w.refs) if pairs else t.UInt32(w.refs.reshape(-1))
+        tri_trav = traversal_triangles(t, tri_data)
+        dr.eval(nodes, refs, tri_data, tri_trav, tris)
         fsize = 8 if t.is_double else 4
         F = max(scene.face_count, 1)
         info = {
@@ -413,7 +435,8 @@ class WideBVH(Accelerator):
             "traversal_triangle_bytes_per_triangle": STRIDE * fsize,
         }
         return cls(nodes, refs, tri_data, tris, width=width, backend=t.backend,
-                   precision=t.precision, intersection=intersection, info=info)
+                   precision=t.precision, intersection=intersection, info=info,
+                   tri_trav=tri_trav)
 
     def counts(self, ray: Ray, active=True, any_hit: bool = False):
         """The instrumented traversal (profiling): ``(node_steps, triangle_steps,
@@ -426,7 +449,8 @@ class WideBVH(Accelerator):
         W = self.width
         routine = triangle_routine(self.intersection)
         robust = robust_scale(t)
-        nodes, refs, tri_data, order = self.nodes, self.refs, self.tri_data, self.tris.order
+        nodes, refs, order = self.nodes, self.refs, self.tris.order
+        tri_data = self.tri_data if self.tri_trav is None else self.tri_trav
         t_max = ray.t_max
         o, d, inv, active, n = setup(t, ray, active)
         stack = dr.alloc_local(t.UInt32, STACK_SIZE)
