@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import statistics
 import time
+from dataclasses import replace
 
 import drjit as dr
 import numpy as np
@@ -42,10 +43,13 @@ from .part import Context, Part, jsonable, table
 SCENES = SEED_SCENES + ("bunny", "sponza", "conference", "bunny_1m")
 ACCELS = ("bvh", "bvh4", "bvh8")     # binary, and the wide BVHs collapsed from it
 BATCHES = ("primary", "shadow", "incoherent", "reflection")
-#: Contenders that trace the batch sorted (``renderer.accel.order.SortedQueries``) on the
-#: CPU: name -> the accelerator of ``ACCELS`` they wrap, and the batches they run on.
-SORTED = {"bvh4+sort": "bvh4"}
-SORTED_BATCHES = ("incoherent", "reflection")
+#: Query variants for evaluated batches on the CPU, each wrapping an accelerator of
+#: ``ACCELS``: the rays sorted first (``renderer.accel.order.SortedQueries``), and lanes that
+#: take the next ray when theirs is done (``WideBVH.refill``, rays per lane); and the
+#: batches they run on.
+VARIANTS = {"bvh4+sort": ("bvh4", "sort"), "bvh4+refill": ("bvh4", "refill")}
+VARIANT_BATCHES = ("incoherent", "reflection")
+REFILL = 32
 SEED = 12                           # the incoherent batch's random generator
 #: Offset of the host-side reflection batch's origins (fraction of the scene diagonal): both
 #: renderers get the same rays, so any offset that clears the surface will do.
@@ -252,15 +256,16 @@ def ray_throughput(scene, *, backend: str, width: int = 1920, height: int = 1080
         dr.eval(ray, on, mray)
         return ray, on, mray
 
-    sorted_q = {s: SortedQueries.for_scene(accs[a], scene) for s, a in SORTED.items()
-                if a in accs and t.backend == "llvm"}
+    sorted_q = {s: (SortedQueries.for_scene(accs[a], scene) if kind == "sort"
+                    else replace(accs[a], refill=REFILL))
+                for s, (a, kind) in VARIANTS.items() if a in accs and t.backend == "llvm"}
 
     def measure(name, bo, bd, btmax, queries, coherent):
         m = len(bo)
         ray, on, mray = upload(bo, bd, btmax)
         out = {"rays": m}
         contenders = dict(accs)
-        if name in SORTED_BATCHES:
+        if name in VARIANT_BATCHES:
             contenders.update(sorted_q)
         for q in queries:
             fns = {}
@@ -299,7 +304,7 @@ def ray_throughput(scene, *, backend: str, width: int = 1920, height: int = 1080
                 ours = _occluded(accs[first], ray.o, ray.d, ray.t_max, on).numpy()
                 res["agreement"] = {"same_answer": float(np.mean(ours == mi_fn().numpy())),
                                     "hits": int(ours.sum())}
-            for sname, sq in (sorted_q.items() if name in SORTED_BATCHES and m else ()):
+            for sname, sq in (sorted_q.items() if name in VARIANT_BATCHES and m else ()):
                 if q == "closest":
                     a_ = _closest(accs[first], ray.o, ray.d, ray.t_max, on)
                     b_ = _closest(sq, ray.o, ray.d, ray.t_max, on)
@@ -308,7 +313,7 @@ def ray_throughput(scene, *, backend: str, width: int = 1920, height: int = 1080
                     same = np.array_equal(_occluded(accs[first], ray.o, ray.d, ray.t_max,
                                                     on).numpy(),
                                           _occluded(sq, ray.o, ray.d, ray.t_max, on).numpy())
-                res.setdefault("sorted_bitwise_equal", {})[sname] = bool(same)
+                res.setdefault("variants_bitwise_equal", {})[sname] = bool(same)
             if steps and m:
                 res["steps"] = {a: _steps(acc, ray, on, q == "any", lanes)
                                 for a, acc in accs.items() if hasattr(acc, "counts")}
@@ -350,7 +355,7 @@ def ray_throughput(scene, *, backend: str, width: int = 1920, height: int = 1080
         res["shadow_rays"] = sh["rays"]
     res.update(triangles=scene.face_count, build_s=build[first]["seconds"],
                mitsuba_build_s=mi_build_s, accel=first, accels=list(accels),
-               sorted=list(sorted_q), build=build,
+               variants=list(sorted_q), build=build,
                stats=build[first]["stats"])
     return res
 
@@ -376,7 +381,7 @@ def run(ctx: Context) -> list[dict]:
                     continue
                 ms = b[q]["ms"]
                 ours = "  ".join(f"{a} {ms[a]['mrays_per_s']:8.1f}"
-                                 for a in r["accels"] + r.get("sorted", []) if a in ms)
+                                 for a in r["accels"] + r.get("variants", []) if a in ms)
                 print(f"  rays {name:16s} {batch:10s} {q:7s} {ours}  mitsuba "
                       f"{ms['mitsuba']['mrays_per_s']:8.1f} Mrays/s", flush=True)
     return rows
@@ -408,7 +413,7 @@ def markdown(rows: list[dict]) -> list[str]:
     if not rows or "batches" not in rows[0]:
         return _legacy_markdown(rows)
     accels = rows[0]["accels"]
-    sorted_ = rows[0].get("sorted", [])
+    sorted_ = rows[0].get("variants", [])
     cells, steps = [], []
     for r in rows:
         for batch, b in r["batches"].items():
@@ -445,9 +450,10 @@ def markdown(rows: list[dict]) -> list[str]:
     title = ("Ray throughput (identical batches; M rays/s from kernel time, median of "
              "repeats, contenders timed in turn)")
     if sorted_:
-        title = title[:-1] + ("; the sorted contender (rays sorted first, "
-                              "``renderer.accel.order``): M rays per CPU s, its sort and "
-                              "Python tracing included)")
+        title = title[:-1] + ("; the query variants (+sort: rays sorted first, "
+                              "``renderer.accel.order``; +refill: lanes take the next ray, "
+                              "``WideBVH.refill``): M rays per CPU s, the call itself "
+                              "(sort, ray copy, Python tracing) included)")
     return (table(title,
                   ["scene", "batch", "query", "rays"] + [f"{a} Mrays/s" for a in accels]
                   + [f"{a} Mrays/CPU s" for a in sorted_]
