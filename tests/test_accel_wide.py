@@ -162,7 +162,27 @@ def test_cuda_path_matches_brute_force_on_llvm(width):
     sc = scene_from_arrays(V, faces, n_objects=2)
     ray, active = random_rays(t, 4096, seed=15)
     ref = hits(BruteForce.build(sc, t), ray, active, t)
-    assert_same_hits(hits(OnCudaPath.build(sc, t, width=width), ray, active, t), ref)
+    acc = OnCudaPath.build(sc, as_cuda, width=width)   # built as for CUDA: UInt32 records
+    assert dr.type_v(acc.nodes) == dr.VarType.UInt32 and acc.tri_trav is None
+    assert_same_hits(hits(acc, ray, active, t), ref)
+
+
+@pytest.mark.parametrize("width", [4, 8])
+def test_llvm_reads_records_through_64_bit_gathers(width):
+    """On LLVM (float32) the node records, child references and the traversal's copy of
+    the triangles are UInt64 views (``gather_pairs``), holding bitwise the words of the
+    32-bit layout that CUDA reads; the hits are brute force's (random rays above)."""
+    t = types("llvm")
+    V, faces = soup(500, seed=2)
+    sc = scene_from_arrays(V, faces, n_objects=1)
+    acc = WideBVH.build(sc, t, width=width)
+    as_cuda = replace(t, backend="cuda")
+    ref = WideBVH.build(sc, as_cuda, width=width)
+    assert dr.type_v(acc.nodes) == dr.VarType.UInt64
+    assert dr.type_v(acc.refs) == dr.VarType.UInt64
+    assert np.array_equal(acc.nodes.numpy().view(np.uint32), ref.nodes.numpy())
+    assert np.array_equal(acc.refs.numpy().view(np.uint32), ref.refs.numpy())
+    assert np.array_equal(acc.tri_trav.numpy().view(np.float32), acc.tri_data.numpy())
 
 
 def test_double_precision_matches_brute_force():
@@ -218,3 +238,25 @@ def test_render_identical_across_accelerators():
     assert images["brute"].max() > 0
     for a in ("bvh", "bvh4", "bvh8"):
         assert np.array_equal(images[a], images["brute"]), a
+
+
+@pytest.mark.parametrize("width", [4, 8])
+@pytest.mark.parametrize("rays", ["random", "adversarial"])
+def test_refill_traversal_matches_brute_force(width, rays, monkeypatch):
+    """``refill`` (lanes take the next ray when theirs is done, LLVM) gives bitwise brute
+    force's hits; few lanes, so that every lane traces several rays."""
+    import renderer.accel.wide as wide
+    monkeypatch.setattr(wide, "REFILL_MIN_LANES", 64)
+    t = types("llvm")
+    if rays == "random":
+        V, faces = soup(2000, seed=7)
+        ray, active = random_rays(t, 4096, seed=17)
+    else:
+        V, faces = grid()
+        ray, active = adversarial_rays(t, V, faces, seed=5)
+    sc = scene_from_arrays(V, faces, n_objects=2)
+    ref = hits(BruteForce.build(sc, t), ray, active, t)
+    acc = replace(WideBVH.build(sc, t, width=width), refill=8)
+    assert_same_hits(hits(acc, ray, active, t), ref)
+    assert np.array_equal(acc.counts(ray, active)[0].numpy(),      # counts: lane traversal
+                          replace(acc, refill=0).counts(ray, active)[0].numpy())

@@ -51,7 +51,9 @@ def test_throughput_rays_agree_with_mitsuba_on_a_small_batch():
         assert b["closest"]["agreement"]["hit_miss_agree"] > 0.99
         assert b["closest"]["agreement"]["same_triangle"] > 0.95
         assert b["any"]["agreement"]["same_answer"] > 0.99
-        assert set(b["closest"]["ms"]) == {"bvh", "bvh4", "bvh8", "mitsuba"}
+        assert set(b["closest"]["ms"]) == {"bvh", "bvh4", "bvh8", "bvh4+sort", "bvh4+refill",
+                                           "mitsuba"}
+        assert all(b["closest"]["variants_bitwise_equal"].values())
     steps = res["batches"]["primary"]["closest"]["steps"]
     assert steps["bvh4"]["node"] < steps["bvh"]["node"]
 

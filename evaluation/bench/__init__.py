@@ -141,6 +141,8 @@ def markdown(result: dict) -> str:
              f"{result['date']}; drjit {dev.get('drjit')}, mitsuba {dev.get('mitsuba')}"
              + (f", driver {dev['driver']}" if dev.get("driver") else "")
              + ("; QUICK smoke sizes" if result.get("quick") else ""), ""]
+    if result.get("note"):
+        lines += [result["note"], ""]
     if result.get("interrupted"):
         lines += [f"**Interrupted {result['interrupted']}: partial results.**", ""]
     for part in PARTS.values():

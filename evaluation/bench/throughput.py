@@ -27,12 +27,14 @@ from __future__ import annotations
 
 import statistics
 import time
+from dataclasses import replace
 
 import drjit as dr
 import numpy as np
 
 from renderer.accel import ACCELERATORS, Ray, build_accelerator
 from renderer.accel.bvh_build import build_bvh
+from renderer.accel.order import SortedQueries
 from renderer.device import array3, types
 
 from .. import SEED_SCENES
@@ -41,6 +43,13 @@ from .part import Context, Part, jsonable, table
 SCENES = SEED_SCENES + ("bunny", "sponza", "conference", "bunny_1m")
 ACCELS = ("bvh", "bvh4", "bvh8")     # binary, and the wide BVHs collapsed from it
 BATCHES = ("primary", "shadow", "incoherent", "reflection")
+#: Query variants for evaluated batches on the CPU, each wrapping an accelerator of
+#: ``ACCELS``: the rays sorted first (``renderer.accel.order.SortedQueries``), and lanes that
+#: take the next ray when theirs is done (``WideBVH.refill``, rays per lane); and the
+#: batches they run on.
+VARIANTS = {"bvh4+sort": ("bvh4", "sort"), "bvh4+refill": ("bvh4", "refill")}
+VARIANT_BATCHES = ("incoherent", "reflection")
+REFILL = 32
 SEED = 12                           # the incoherent batch's random generator
 #: Offset of the host-side reflection batch's origins (fraction of the scene diagonal): both
 #: renderers get the same rays, so any offset that clears the surface will do.
@@ -131,7 +140,7 @@ def reflection_rays_host(scene, o, d, t, prim_face) -> tuple[np.ndarray, np.ndar
 
 
 # ---- the measurement ----------------------------------------------------------------------
-def _timed(fns: dict, repeats: int, warmup: int = 2) -> dict:
+def _timed(fns: dict, repeats: int, warmup: int = 2, eager=()) -> dict:
     """Time each ``fns[name]()``, which traces a query and returns the variables to
     evaluate: kernel time as ``renderer.stats.kernel_ms`` reports it, and the process's CPU
     time of the evaluation alone (``time.process_time`` around ``dr.eval`` + sync: every
@@ -139,17 +148,22 @@ def _timed(fns: dict, repeats: int, warmup: int = 2) -> dict:
     contenders are timed in turn within every repeat (round robin). Why CPU time: on a
     shared, oversubscribed CPU the scheduler time-slices a long kernel with the other
     processes while a short one may finish within one slice, so wall-clock kernel time
-    penalises the slower contender more than its work; CPU time counts the work."""
-    def once(fn):
-        out = fn()
+    penalises the slower contender more than its work; CPU time counts the work.
+    ``eager``: names of contenders that launch kernels while tracing (the sorted queries
+    sort and gather the batch first): their CPU time includes the call itself, Python
+    tracing and all (conservative); kernel time includes those kernels for everyone."""
+    def once(fn, whole=False):
         c0 = time.process_time()
+        out = fn()
+        if not whole:
+            c0 = time.process_time()
         dr.eval(out)
         dr.sync_thread()
         return time.process_time() - c0
 
-    for fn in fns.values():
+    for k, fn in fns.items():
         for _ in range(warmup):
-            once(fn)
+            once(fn, k in eager)
     kern = {k: [] for k in fns}
     wall = {k: [] for k in fns}
     cpu = {k: [] for k in fns}
@@ -159,7 +173,7 @@ def _timed(fns: dict, repeats: int, warmup: int = 2) -> dict:
             for k, fn in fns.items():
                 dr.kernel_history()
                 t0 = time.perf_counter()
-                cpu[k].append(once(fn) * 1e3)
+                cpu[k].append(once(fn, k in eager) * 1e3)
                 wall[k].append((time.perf_counter() - t0) * 1e3)
                 hist = [h for h in dr.kernel_history() if "execution_time" in h]
                 kern[k].append(sum(h["execution_time"] for h in hist))
@@ -242,13 +256,20 @@ def ray_throughput(scene, *, backend: str, width: int = 1920, height: int = 1080
         dr.eval(ray, on, mray)
         return ray, on, mray
 
+    sorted_q = {s: (SortedQueries.for_scene(accs[a], scene) if kind == "sort"
+                    else replace(accs[a], refill=REFILL))
+                for s, (a, kind) in VARIANTS.items() if a in accs and t.backend == "llvm"}
+
     def measure(name, bo, bd, btmax, queries, coherent):
         m = len(bo)
         ray, on, mray = upload(bo, bd, btmax)
         out = {"rays": m}
+        contenders = dict(accs)
+        if name in VARIANT_BATCHES:
+            contenders.update(sorted_q)
         for q in queries:
             fns = {}
-            for a, acc in accs.items():
+            for a, acc in contenders.items():
                 if q == "closest":
                     fns[a] = lambda acc=acc: _closest(acc, ray.o, ray.d, ray.t_max, on)
                 else:
@@ -266,7 +287,7 @@ def ray_throughput(scene, *, backend: str, width: int = 1920, height: int = 1080
                 dr.eval(out)
                 return out
             fns["mitsuba"] = mi_trace
-            timing = _timed(fns, repeats) if m else {}
+            timing = _timed(fns, repeats, eager=tuple(sorted_q)) if m else {}
             res = {"ms": {k: _rate(v, m) for k, v in timing.items()}}
             if m and q == "closest":
                 ht, hp, hf = _closest(accs[first], ray.o, ray.d, ray.t_max, on)
@@ -283,6 +304,16 @@ def ray_throughput(scene, *, backend: str, width: int = 1920, height: int = 1080
                 ours = _occluded(accs[first], ray.o, ray.d, ray.t_max, on).numpy()
                 res["agreement"] = {"same_answer": float(np.mean(ours == mi_fn().numpy())),
                                     "hits": int(ours.sum())}
+            for sname, sq in (sorted_q.items() if name in VARIANT_BATCHES and m else ()):
+                if q == "closest":
+                    a_ = _closest(accs[first], ray.o, ray.d, ray.t_max, on)
+                    b_ = _closest(sq, ray.o, ray.d, ray.t_max, on)
+                    same = all(np.array_equal(x.numpy(), y.numpy()) for x, y in zip(a_, b_))
+                else:
+                    same = np.array_equal(_occluded(accs[first], ray.o, ray.d, ray.t_max,
+                                                    on).numpy(),
+                                          _occluded(sq, ray.o, ray.d, ray.t_max, on).numpy())
+                res.setdefault("variants_bitwise_equal", {})[sname] = bool(same)
             if steps and m:
                 res["steps"] = {a: _steps(acc, ray, on, q == "any", lanes)
                                 for a, acc in accs.items() if hasattr(acc, "counts")}
@@ -323,7 +354,8 @@ def ray_throughput(scene, *, backend: str, width: int = 1920, height: int = 1080
         res["shadow_agreement"] = sh["any"]["agreement"]["same_answer"]
         res["shadow_rays"] = sh["rays"]
     res.update(triangles=scene.face_count, build_s=build[first]["seconds"],
-               mitsuba_build_s=mi_build_s, accel=first, accels=list(accels), build=build,
+               mitsuba_build_s=mi_build_s, accel=first, accels=list(accels),
+               variants=list(sorted_q), build=build,
                stats=build[first]["stats"])
     return res
 
@@ -348,7 +380,8 @@ def run(ctx: Context) -> list[dict]:
                 if q not in b:
                     continue
                 ms = b[q]["ms"]
-                ours = "  ".join(f"{a} {ms[a]['mrays_per_s']:8.1f}" for a in r["accels"])
+                ours = "  ".join(f"{a} {ms[a]['mrays_per_s']:8.1f}"
+                                 for a in r["accels"] + r.get("variants", []) if a in ms)
                 print(f"  rays {name:16s} {batch:10s} {q:7s} {ours}  mitsuba "
                       f"{ms['mitsuba']['mrays_per_s']:8.1f} Mrays/s", flush=True)
     return rows
@@ -380,6 +413,7 @@ def markdown(rows: list[dict]) -> list[str]:
     if not rows or "batches" not in rows[0]:
         return _legacy_markdown(rows)
     accels = rows[0]["accels"]
+    sorted_ = rows[0].get("variants", [])
     cells, steps = [], []
     for r in rows:
         for batch, b in r["batches"].items():
@@ -389,14 +423,16 @@ def markdown(rows: list[dict]) -> list[str]:
                 x = b[q]
                 ms = x["ms"]
                 rate = {k: v["mrays_per_s"] for k, v in ms.items()}
-                best = max(accels, key=lambda a: rate[a])
+                ours = accels + [a for a in sorted_ if a in ms]
+                best = max(ours, key=lambda a: rate[a])
                 crate = {k: v.get("mrays_per_cpu_s", float("nan")) for k, v in ms.items()}
-                cbest = max(accels, key=lambda a: crate[a])
+                cbest = max(ours, key=lambda a: crate[a])
                 ag = x.get("agreement", {})
                 agree = (f"{ag['same_triangle']:.4f}" if "same_triangle" in ag
                          else f"{ag.get('same_answer', float('nan')):.4f}")
                 cells.append([r["scene"], batch, q, f"{b['rays']:,}"]
                              + [_fmt(rate[a]) for a in accels]
+                             + [_fmt(crate[a]) if a in ms else "–" for a in sorted_]
                              + [_fmt(rate["mitsuba"]),
                                 f"{rate[best] / rate['mitsuba']:.2f} ({best})",
                                 f"{crate[cbest] / crate['mitsuba']:.2f} ({cbest})", agree])
@@ -411,11 +447,18 @@ def markdown(rows: list[dict]) -> list[str]:
              + [f"{r['build'][a]['stats'].get('convert_seconds', 0.0):.3f}" for a in accels]
              + [f"{r['build']['mitsuba_build_s']:.3f}"] for r in rows]
     n = len(accels)
-    return (table("Ray throughput (identical batches; M rays/s from kernel time, median of "
-                  "repeats, contenders timed in turn)",
+    title = ("Ray throughput (identical batches; M rays/s from kernel time, median of "
+             "repeats, contenders timed in turn)")
+    if sorted_:
+        title = title[:-1] + ("; the query variants (+sort: rays sorted first, "
+                              "``renderer.accel.order``; +refill: lanes take the next ray, "
+                              "``WideBVH.refill``): M rays per CPU s, the call itself "
+                              "(sort, ray copy, Python tracing) included)")
+    return (table(title,
                   ["scene", "batch", "query", "rays"] + [f"{a} Mrays/s" for a in accels]
+                  + [f"{a} Mrays/CPU s" for a in sorted_]
                   + ["Mitsuba", "best / Mitsuba", "best / Mitsuba by CPU time", "agreement"],
-                  "lllr" + "r" * (n + 4), cells)
+                  "lllr" + "r" * (n + len(sorted_) + 4), cells)
             + table("Traversal steps per ray (instrumented traversal): node steps / triangle "
                     "steps / loop iterations of the slowest ray of each SIMD packet or warp",
                     ["scene", "batch", "query"] + accels, "lll" + "r" * n, steps)

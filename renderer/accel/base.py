@@ -25,6 +25,7 @@ import importlib
 from dataclasses import dataclass
 
 import drjit as dr
+import numpy as np
 
 from ..device import Types, types
 
@@ -133,7 +134,13 @@ def gather_floats(t: Types, src, index, stride: int, count: int, active=True) ->
     floats, a multiple of 4), per lane, with the gather the backend is fastest at: on CUDA
     packet gathers of Array4f (all of the record's quads that ``count`` touches); on LLVM
     one scalar gather per float (a packet gather is emitted there only when numpy's buffer
-    happens to be 64-byte aligned, and is slower than scalar gathers on the CPU)."""
+    happens to be 64-byte aligned, and is slower than scalar gathers on the CPU); where
+    ``src`` is a UInt64 view of float32 records (``as_pairs``), one 64-bit gather per two
+    floats (``gather_pairs``)."""
+    if dr.type_v(src) == dr.VarType.UInt64:
+        F32 = array_type(t, "Float32")
+        return [t.Float(dr.reinterpret_array(F32, w))
+                for w in gather_pairs(t, src, index, stride, count, active)]
     if t.backend == "llvm":
         base = index * stride
         return [dr.gather(t.Float, src, base + k, active) for k in range(count)]
@@ -144,3 +151,46 @@ def gather_floats(t: Types, src, index, stride: int, count: int, active=True) ->
         q = dr.gather(A4, src, base + k if k else base, active)
         out += [q.x, q.y, q.z, q.w]
     return out[:count]
+
+
+def gather_pairs(t: Types, src, index, stride: int, count: int, active=True) -> list:
+    """The first ``count`` 32-bit words (UInt32) of record ``index`` of ``src``, a UInt64
+    view of records of ``stride`` 32-bit words (``stride`` even): one 64-bit gather per two
+    words, each split into its low and high word (little-endian: word ``2k`` is the low
+    half of qword ``k``). Why (LLVM): on the CPU a gather costs about one load per lane
+    and element, whatever the element's width (AMD Zen 4: 16 scattered dwords cost as much
+    as 16 scattered qwords), so 64-bit gathers fetch a record with half the loads
+    (``profile-llvm.md``)."""
+    U32 = array_type(t, "UInt32")
+    base = index * (stride // 2)
+    out = []
+    for k in range((count + 1) // 2):
+        q = dr.gather(type(src), src, base + k if k else base, active)
+        out += [U32(q), U32(q >> 32)]
+    return out[:count]
+
+
+def as_pairs(t: Types, words: np.ndarray):
+    """A host array of 32-bit words (last axis even) as the UInt64 device array that
+    ``gather_pairs`` reads."""
+    # a fresh copy: ``words`` may be a view of a Dr.Jit array's memory (``.numpy()`` on
+    # LLVM), and a second array on the same memory confuses ``dr.freeze``, which tells
+    # its inputs apart by address (it then compiled float ops on the UInt64 view)
+    w = np.array(words, dtype=np.uint32, order="C", copy=True)
+    return array_type(t, "UInt64")(w.view(np.uint64).reshape(-1))
+
+
+def uses_pairs(t: Types) -> bool:
+    """Whether the traversals of ``t`` read their float32/UInt32 records through 64-bit
+    gathers (``gather_pairs``): on LLVM in float32 (float64 records are 64-bit already;
+    CUDA reads quads with packet gathers)."""
+    return t.backend == "llvm" and not t.is_double
+
+
+def traversal_triangles(t: Types, tri_data):
+    """The copy of the packed triangles ``tri_data`` that the traversal reads: a UInt64
+    view for ``gather_pairs`` where ``uses_pairs(t)``, else None (read ``tri_data``).
+    ``tri_data`` itself stays a Float for shading, which gathers one triangle per hit."""
+    if not uses_pairs(t):
+        return None
+    return as_pairs(t, tri_data.numpy().view(np.uint32))

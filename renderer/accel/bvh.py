@@ -22,7 +22,17 @@ import drjit as dr
 import numpy as np
 
 from ..device import Types
-from .base import Accelerator, DeviceTriangles, Ray, array_type, gather_floats
+from .base import (
+    Accelerator,
+    DeviceTriangles,
+    Ray,
+    array_type,
+    as_pairs,
+    gather_floats,
+    gather_pairs,
+    traversal_triangles,
+    uses_pairs,
+)
 from .bvh_build import BINS, LEAF_SIZE, BVHArrays, build_bvh, refit_boxes
 from .traverse import (
     DONE,
@@ -44,7 +54,9 @@ from .triangle import DEFAULT_ROUTINE, STRIDE, box_reach, triangle_routine, uplo
 def load_node(t: Types, nodes, children, cur, active=True):
     """Inner node(s) ``cur``: ``(a_lo, a_hi, b_lo, b_hi, ref_a, ref_b)``."""
     f = gather_floats(t, nodes, cur, 12, 12, active)
-    if t.backend == "llvm":
+    if dr.type_v(children) == dr.VarType.UInt64:
+        ref_a, ref_b = gather_pairs(t, children, cur, 2, 2, active)
+    elif t.backend == "llvm":
         ref_a = dr.gather(t.UInt32, children, cur * 2, active)
         ref_b = dr.gather(t.UInt32, children, cur * 2 + 1, active)
     else:
@@ -113,6 +125,7 @@ class BVH(Accelerator):
     tie_window: float = 0.0            # t window (world units) of tie_break "other"
     tie_slack: float = 0.0             # edge slack (world units) of tie_break "other"
     info: dict = field(default_factory=dict, repr=False)
+    tri_trav: object = None
 
     @classmethod
     def build(cls, scene, t: Types, *, intersection: str = DEFAULT_ROUTINE,
@@ -126,9 +139,13 @@ class BVH(Accelerator):
         t0 = time.perf_counter()
         tri_data, tris = upload_triangles(scene, t, order=a.order, routine=intersection)
         fdt = np.float64 if t.is_double else np.float32
-        nodes = t.Float(traversal_boxes(a, scene, t, intersection).astype(fdt).reshape(-1))
-        children = t.UInt32(a.children.reshape(-1))
-        dr.eval(nodes, children, tri_data, tris)
+        boxes = traversal_boxes(a, scene, t, intersection).astype(fdt)
+        if uses_pairs(t):
+            nodes, children = as_pairs(t, boxes.view(np.uint32)), as_pairs(t, a.children)
+        else:
+            nodes, children = t.Float(boxes.reshape(-1)), t.UInt32(a.children.reshape(-1))
+        tri_trav = traversal_triangles(t, tri_data)
+        dr.eval(nodes, children, tri_data, tri_trav, tris)
         fsize = 8 if t.is_double else 4
         F = max(scene.face_count, 1)
         info = {
@@ -140,8 +157,7 @@ class BVH(Accelerator):
             "traversal_triangle_bytes_per_triangle": STRIDE * fsize,
         }
         return cls(nodes, children, tri_data, tris, backend=t.backend, precision=t.precision,
-                   intersection=intersection,
-                   info=info)
+                   intersection=intersection, info=info, tri_trav=tri_trav)
 
     def counts(self, ray: Ray, active=True, any_hit: bool = False):
         """The instrumented traversal (profiling): ``(node_steps, triangle_steps,
@@ -153,7 +169,8 @@ class BVH(Accelerator):
         t = self.types
         routine = triangle_routine(self.intersection)
         robust = robust_scale(t)
-        nodes, children, tri_data, order = self.nodes, self.children, self.tri_data, self.tris.order
+        nodes, children, order = self.nodes, self.children, self.tris.order
+        tri_data = self.tri_data if self.tri_trav is None else self.tri_trav
         t_max = ray.t_max
         o, d, inv, active, n = setup(t, ray, active)
         stack = dr.alloc_local(t.UInt32, STACK_SIZE)

@@ -148,6 +148,19 @@ def triangle_step(t: Types, routine, o, d, tri_data, order, i, t_max, rec: Close
     h &= th <= rec.t
     nearer = h & (th < rec.t)
     tie = h & rec.found & (th == rec.t)
+    if t.backend == "llvm":
+        # exact ties are rare: read both original face indices only in a symbolic branch
+        # taken when some lane of the packet has one (a masked gather costs its loads on
+        # the CPU even for masked-off lanes); ``rec.order`` is not kept on this path
+        wins = dr.if_stmt(
+            (i, rec.prim, tie), tie,
+            lambda i, p, tie: tie & (dr.gather(t.UInt32, order, i, tie)
+                                     < dr.gather(t.UInt32, order, p, tie)),
+            lambda i, p, tie: tie & False)
+        accept = nearer | wins
+        return Closest(t=dr.select(accept, th, rec.t), u=dr.select(accept, u, rec.u),
+                       v=dr.select(accept, v, rec.v), prim=dr.select(accept, i, rec.prim),
+                       order=rec.order, found=rec.found | accept)
     i_order = dr.gather(t.UInt32, order, i, nearer | tie)
     accept = nearer | (tie & (i_order < rec.order))
     return Closest(t=dr.select(accept, th, rec.t), u=dr.select(accept, u, rec.u),

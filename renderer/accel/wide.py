@@ -23,11 +23,15 @@ hi.y, hi.z; CWBVH, Ylitie et al. 2017, rounded outwards by ``quantize``). Unquan
 record and tests one ray against every child box.
 
 Why quantised: on the CPU (LLVM, 16 lanes per SIMD packet) a step's cost is its gathers,
-one per float per lane; quantised boxes need one gather per word, a quarter of the float
-layout's box gathers. Closest-hit steps sort the hit children by entry distance (a sorting
-network), go to the nearest and push the rest far to near; any-hit steps push every hit
-child in slot order (nearest-first any-hit was measured: 3-35 % more loop iterations per
-ray on Sponza, Conference and the bunny).
+one load per element per lane; quantised boxes need a quarter of the float layout's box
+words. On LLVM (float32) the records, the references and the traversal's copy of the
+triangles are moreover read as UInt64 views, two words per 64-bit gather
+(``base.gather_pairs``): the same bytes with half the loads.
+
+Closest-hit steps sort the hit children by entry distance (a sorting network), go to the
+nearest and push the rest far to near; any-hit steps push every hit child in slot order
+(nearest-first any-hit was measured: 3-35 % more loop iterations per ray on Sponza,
+Conference and the bunny).
 """
 from __future__ import annotations
 
@@ -38,7 +42,18 @@ import drjit as dr
 import numpy as np
 
 from ..device import Types
-from .base import Accelerator, DeviceTriangles, Ray, array_type, gather_floats
+from .base import (
+    Accelerator,
+    ClosestHit,
+    DeviceTriangles,
+    Ray,
+    array_type,
+    as_pairs,
+    gather_floats,
+    gather_pairs,
+    traversal_triangles,
+    uses_pairs,
+)
 from .bvh import traversal_boxes
 from .bvh_build import BINS, LEAF_SIZE, BVHArrays, build_bvh
 from .traverse import (
@@ -52,6 +67,7 @@ from .traverse import (
     pop,
     probe_pad,
     robust_scale,
+    safe_inv,
     setup,
     slab,
     triangle_step,
@@ -59,6 +75,9 @@ from .traverse import (
 from .triangle import DEFAULT_ROUTINE, STRIDE, triangle_routine, upload_triangles
 
 WIDTHS = (4, 8)
+#: Fewest lanes a refill traversal runs on (``WideBVH.refill``): enough blocks of work for
+#: every CPU thread; batches no larger run the ordinary traversal.
+REFILL_MIN_LANES = 4096
 
 
 @dataclass
@@ -249,7 +268,10 @@ HEAD = 4
 def gather_words(t: Types, src, index, stride: int, count: int, active=True) -> list:
     """The first ``count`` UInt32 of record ``index`` of ``src`` (records of ``stride``
     words, a multiple of 4): packet gathers of Array4u on CUDA, one scalar gather per word
-    on LLVM (as ``base.gather_floats``)."""
+    on LLVM, one 64-bit gather per two words where ``src`` is a UInt64 view
+    (``base.gather_pairs``, LLVM float32)."""
+    if dr.type_v(src) == dr.VarType.UInt64:
+        return gather_pairs(t, src, index, stride, count, active)
     if t.backend == "llvm":
         base = index * stride
         return [dr.gather(t.UInt32, src, base + k, active) for k in range(count)]
@@ -327,7 +349,7 @@ def child_boxes(t: Types, W: int, nodes, cur, active=True) -> list:
     """``[(lo, hi)]`` (Array3f) of the ``W`` children of node(s) ``cur``: ``nodes`` is
     a Float of SoA float boxes (``6 W`` per node) or a UInt32 of quantised records
     (``quantize``: ``record_words(W)`` words per node, decoded as ``origin + q * scale``)."""
-    if dr.type_v(nodes) != dr.VarType.UInt32:
+    if dr.type_v(nodes) not in (dr.VarType.UInt32, dr.VarType.UInt64):
         f = gather_floats(t, nodes, cur, 6 * W, 6 * W, active)
         return [(t.Array3f(f[k], f[W + k], f[2 * W + k]),
                  t.Array3f(f[3 * W + k], f[4 * W + k], f[5 * W + k])) for k in range(W)]
@@ -374,6 +396,8 @@ class WideBVH(Accelerator):
     tie_window: float = 0.0            # t window (world units) of tie_break "other"
     tie_slack: float = 0.0             # edge slack (world units) of tie_break "other"
     info: dict = field(default_factory=dict, repr=False)
+    tri_trav: object = None
+    refill: int = 0
 
     @classmethod
     def build(cls, scene, t: Types, *, width: int = 4, quantized: bool | None = None,
@@ -398,10 +422,14 @@ class WideBVH(Accelerator):
         t0 = time.perf_counter()
         tri_data, tris = upload_triangles(scene, t, order=a.order, routine=intersection)
         fdt = np.float64 if t.is_double else np.float32
-        nodes = (t.UInt32(qwords.reshape(-1)) if quantized
-                 else t.Float(w.boxes.astype(fdt).reshape(-1)))
-        refs = t.UInt32(w.refs.reshape(-1))
-        dr.eval(nodes, refs, tri_data, tris)
+        pairs = uses_pairs(t)
+        if quantized:
+            nodes = as_pairs(t, qwords) if pairs else t.UInt32(qwords.reshape(-1))
+        else:
+            nodes = t.Float(w.boxes.astype(fdt).reshape(-1))
+        refs = as_pairs(t, w.refs) if pairs else t.UInt32(w.refs.reshape(-1))
+        tri_trav = traversal_triangles(t, tri_data)
+        dr.eval(nodes, refs, tri_data, tri_trav, tris)
         fsize = 8 if t.is_double else 4
         F = max(scene.face_count, 1)
         info = {
@@ -420,20 +448,126 @@ class WideBVH(Accelerator):
             "traversal_triangle_bytes_per_triangle": STRIDE * fsize,
         }
         return cls(nodes, refs, tri_data, tris, width=width, backend=t.backend,
-                   precision=t.precision, intersection=intersection, info=info)
+                   precision=t.precision, intersection=intersection, info=info,
+                   tri_trav=tri_trav)
 
     def counts(self, ray: Ray, active=True, any_hit: bool = False):
         """The instrumented traversal (profiling): ``(node_steps, triangle_steps,
         iterations)`` UInt32 per ray, the same traversal as the query with counters."""
         return self._traverse(ray, active, any_hit, counting=True)
 
-    @dr.syntax
     def _traverse(self, ray: Ray, active, any_hit: bool, probe=None, counting: bool = False):
+        if self.refill and self.types.backend == "llvm" and not counting and probe is None:
+            n = dr.width(ray.o, ray.d, ray.t_max, active)
+            lanes = max(-(-n // self.refill), min(n, REFILL_MIN_LANES))
+            if lanes < n:
+                return self._traverse_refill(ray, active, any_hit, n, lanes)
+        return self._traverse_lanes(ray, active, any_hit, probe, counting)
+
+    @dr.syntax
+    def _traverse_refill(self, ray: Ray, active, any_hit: bool, n: int, lanes: int):
+        """The traversal with lanes that take a new ray when theirs is done (LLVM; the
+        accelerator's ``refill``): ``lanes`` SIMD lanes start on the first ``lanes`` rays of
+        the batch; a lane whose ray has finished writes its result and takes the next
+        untraced ray from an atomic counter (``dr.scatter_inc``), so a 16-lane packet stops
+        paying for its slowest ray until the batch runs out. The rays are evaluated first
+        and gathered by index, so this is a query for evaluated batches (the bench's
+        ``bvh4+refill``), not for a caller's megakernel. Each ray's traversal is the one
+        of ``_traverse_lanes`` (same steps, same order), so the hits are bitwise the same;
+        on random rays it gained 10-70 % on bunny, Sponza and Conference, and it lost on
+        coherent batches (primary, shadow, reflection rays: a refilled packet mixes rays
+        from far apart) and on the Cornell box (rays of a few steps)."""
         t = self.types
         W = self.width
         routine = triangle_routine(self.intersection)
         robust = robust_scale(t)
-        nodes, refs, tri_data, order = self.nodes, self.refs, self.tri_data, self.tris.order
+        nodes, refs, order = self.nodes, self.refs, self.tris.order
+        tri_data = self.tri_data if self.tri_trav is None else self.tri_trav
+        O, D = (v if dr.width(v) == n else v + dr.zeros(t.Array3f, n)
+                for v in (t.Array3f(ray.o), t.Array3f(ray.d)))
+        TM = t.Float(ray.t_max)
+        TM = TM if dr.width(TM) == n else TM + dr.zeros(t.Float, n)
+        ACT = t.Bool(active)
+        ACT = ACT if dr.width(ACT) == n else ACT & dr.full(t.Bool, True, n)
+        dr.eval(O, D, TM, ACT)          # gathered by ray index in the loop
+        counter = dr.full(t.UInt32, lanes, 1)          # the next ray nobody has taken
+        out_t, out_u, out_v = (dr.zeros(t.Float, n) for _ in range(3))
+        out_prim = dr.zeros(t.UInt32, n)
+        out_found = dr.zeros(t.Bool, n)
+        ray_id = dr.arange(t.UInt32, lanes)
+        valid = dr.full(t.Bool, True, lanes)
+        o = dr.gather(t.Array3f, O, ray_id)
+        d = dr.gather(t.Array3f, D, ray_id)
+        t_max = dr.gather(t.Float, TM, ray_id)
+        inv = safe_inv(t, d)
+        stack = dr.alloc_local(t.UInt32, STACK_SIZE)
+        sp = dr.zeros(t.UInt32, lanes)
+        cur = dr.select(dr.gather(t.Bool, ACT, ray_id), t.UInt32(0), t.UInt32(DONE))
+        first = dr.zeros(t.UInt32, lanes)
+        end = dr.zeros(t.UInt32, lanes)
+        rec = Closest.empty(t, t_max, lanes)
+
+        while dr.hint(valid, max_iterations=-1, label=f"bvh{W}_refill",
+                      exclude=[self, t, routine, robust, any_hit, W, n, O, D, TM, ACT,
+                               counter, out_t, out_u, out_v, out_prim, out_found]):
+            is_leaf, is_inner, first, end = enter_leaf(cur, first, end)
+            sp, cur, to_pop = masked_step(
+                t, is_inner,
+                lambda sp, cur, to_pop, on, best_t=rec.t, o=o, inv=inv: wide_node_step(
+                    t, W, nodes, refs, o, inv, best_t, robust, stack, sp, cur, to_pop,
+                    any_hit, on),
+                (sp, cur, is_leaf | False))
+            sp, cur = pop(stack, sp, cur, to_pop)
+            rec, first = masked_step(
+                t, first < end,
+                lambda rec, first, on, o=o, d=d, t_max=t_max: (
+                    triangle_step(t, routine, o, d, tri_data, order, first, t_max, rec,
+                                  any_hit, on),
+                    first + 1 if on is True else dr.select(on, first + 1, first)),
+                (rec, first))
+            busy = (first < end) | (cur != DONE)
+            if dr.hint(any_hit, mode="scalar"):
+                busy &= ~rec.found
+            finish = valid & ~busy
+            # the finished rays' results, then each finished lane takes the next ray
+            if dr.hint(any_hit, mode="scalar"):
+                dr.scatter(out_found, rec.found, ray_id, finish)
+            else:
+                dr.scatter(out_t, rec.t, ray_id, finish)
+                dr.scatter(out_u, rec.u, ray_id, finish)
+                dr.scatter(out_v, rec.v, ray_id, finish)
+                dr.scatter(out_prim, rec.prim, ray_id, finish)
+                dr.scatter(out_found, rec.found, ray_id, finish)
+            nid = dr.scatter_inc(counter, t.UInt32(0), finish)
+            ray_id = dr.select(finish, nid, ray_id)
+            valid = dr.select(finish, nid < n, valid)
+            take = finish & valid
+            o = dr.select(take, dr.gather(t.Array3f, O, nid, take), o)
+            d = dr.select(take, dr.gather(t.Array3f, D, nid, take), d)
+            inv = dr.select(take, safe_inv(t, d), inv)
+            t_max = dr.select(take, dr.gather(t.Float, TM, nid, take), t_max)
+            on = dr.gather(t.Bool, ACT, nid, take)
+            cur = dr.select(take, dr.select(on, t.UInt32(0), t.UInt32(DONE)), cur)
+            sp = dr.select(take, 0, sp)
+            first = dr.select(take, 0, first)
+            end = dr.select(take, 0, end)
+            rec = Closest(t=dr.select(take, t_max, rec.t), u=dr.select(take, 0.0, rec.u),
+                          v=dr.select(take, 0.0, rec.v), prim=dr.select(take, 0, rec.prim),
+                          order=dr.select(take, DONE, rec.order),
+                          found=rec.found & ~take)
+        if dr.hint(any_hit, mode="scalar"):
+            return out_found
+        return ClosestHit(t=out_t, u=out_u, v=out_v, prim=out_prim, found=out_found)
+
+    @dr.syntax
+    def _traverse_lanes(self, ray: Ray, active, any_hit: bool, probe=None,
+                        counting: bool = False):
+        t = self.types
+        W = self.width
+        routine = triangle_routine(self.intersection)
+        robust = robust_scale(t)
+        nodes, refs, order = self.nodes, self.refs, self.tris.order
+        tri_data = self.tri_data if self.tri_trav is None else self.tri_trav
         t_max = ray.t_max
         o, d, inv, active, n = setup(t, ray, active)
         stack = dr.alloc_local(t.UInt32, STACK_SIZE)
