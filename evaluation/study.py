@@ -118,6 +118,9 @@ class Profile:
     grid: bool = True
     #: Brute force only on scenes with at most this many triangles (it tests them all).
     brute_max_faces: int = 200_000
+    #: Per-object boxes only on scenes whose largest object has at most this many triangles
+    #: (inside a box every triangle is tested: brute force per object); None: no limit.
+    boxes_max_object_faces: int | None = None
     #: Factor points with more spp than this run after every other factor point.
     defer_spp: int = 64
 
@@ -127,7 +130,7 @@ PROFILES = {
     "gpu": Profile(brute_max_faces=5000),
     # The 2-core CPU run: same factors, the grid stops at 64 spp, fewer repeats.
     "cpu": Profile(grid_spp=(1, 4, 16), ref_spp=256, warmup=0, repeats=3,
-                   brute_max_faces=2000),
+                   brute_max_faces=2000, boxes_max_object_faces=20_000),
     # CI: tiny images, three spp values, a short depth range.
     "tiny": Profile(spp=(1, 4, 16), grid_spp=(1, 4), depths=(0, 1, 2, 6), default_spp=4,
                     size=16, ref_spp=256, warmup=0, repeats=1),
@@ -221,7 +224,9 @@ def build_sweep(scene_args, profile: Profile, *, backend: str = "llvm",
                          "shading": sc.settings.shading,
                          "default": default_settings(sc, profile),
                          "combinations": sorted(_specular_combinations(sc)),
-                         "faces": int(sc.face_count)}
+                         "faces": int(sc.face_count),
+                         "max_object_faces": max((int(o.face_count) for o in sc.objects),
+                                                 default=0)}
     values = {"spp": profile.spp, "max_depth": profile.depths,
               "min_weight": profile.min_weights, "precision": profile.precisions,
               "combination": profile.combinations, "intersection": tuple(ROUTINES),
@@ -251,6 +256,13 @@ def build_sweep(scene_args, profile: Profile, *, backend: str = "llvm",
                     info.setdefault("skipped", []).append(
                         f"accel=brute ({info['faces']} triangles > brute_max_faces "
                         f"{profile.brute_max_faces})")
+                    continue
+                big = info["max_object_faces"]
+                if (f == "accel" and v == "boxes" and profile.boxes_max_object_faces is not None
+                        and big > profile.boxes_max_object_faces):
+                    info.setdefault("skipped", []).append(
+                        f"accel=boxes (an object of {big} triangles > boxes_max_object_faces "
+                        f"{profile.boxes_max_object_faces})")
                     continue
                 late = f == "spp" and v > profile.defer_spp
                 add(info, to=deferred if late else specs, **{f: v})

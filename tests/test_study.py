@@ -244,3 +244,11 @@ def test_readme_block_is_replaced_in_place(tiny):
     assert study.update_readme(new, data, "results/study/x") == new     # idempotent
     with pytest.raises(ValueError):
         study.update_readme("no marker\n", data, "results/study/x")
+
+
+def test_boxes_are_skipped_on_scenes_with_one_huge_object():
+    prof = replace(TINY, factors=("accel",), boxes_max_object_faces=1000)
+    specs, scenes = study.build_sweep(["glass_bunny", "cornell_box"], prof)
+    accels = {(s["label"], s["accel"]) for s in specs}
+    assert ("glass_bunny", "boxes") not in accels and ("cornell_box", "boxes") in accels
+    assert any("accel=boxes" in x for x in scenes["glass_bunny"]["skipped"])
