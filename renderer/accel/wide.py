@@ -456,6 +456,15 @@ class WideBVH(Accelerator):
         iterations)`` UInt32 per ray, the same traversal as the query with counters."""
         return self._traverse(ray, active, any_hit, counting=True)
 
+    def _loop_inputs(self):
+        """What both traversal loops read: ``(types, width, routine, robust_scale, nodes,
+        refs, order, triangles)``, the triangles in the layout traversal reads
+        (``tri_trav`` where the backend has one)."""
+        t = self.types
+        tri_data = self.tri_data if self.tri_trav is None else self.tri_trav
+        return (t, self.width, triangle_routine(self.intersection), robust_scale(t),
+                self.nodes, self.refs, self.tris.order, tri_data)
+
     def _traverse(self, ray: Ray, active, any_hit: bool, probe=None, counting: bool = False):
         if self.refill and self.types.backend == "llvm" and not counting and probe is None:
             n = dr.width(ray.o, ray.d, ray.t_max, active)
@@ -477,12 +486,7 @@ class WideBVH(Accelerator):
         on random rays it gained 10-70 % on bunny, Sponza and Conference, and it lost on
         coherent batches (primary, shadow, reflection rays: a refilled packet mixes rays
         from far apart) and on the Cornell box (rays of a few steps)."""
-        t = self.types
-        W = self.width
-        routine = triangle_routine(self.intersection)
-        robust = robust_scale(t)
-        nodes, refs, order = self.nodes, self.refs, self.tris.order
-        tri_data = self.tri_data if self.tri_trav is None else self.tri_trav
+        t, W, routine, robust, nodes, refs, order, tri_data = self._loop_inputs()
         O, D = (v if dr.width(v) == n else v + dr.zeros(t.Array3f, n)
                 for v in (t.Array3f(ray.o), t.Array3f(ray.d)))
         TM = t.Float(ray.t_max)
@@ -562,12 +566,7 @@ class WideBVH(Accelerator):
     @dr.syntax
     def _traverse_lanes(self, ray: Ray, active, any_hit: bool, probe=None,
                         counting: bool = False):
-        t = self.types
-        W = self.width
-        routine = triangle_routine(self.intersection)
-        robust = robust_scale(t)
-        nodes, refs, order = self.nodes, self.refs, self.tris.order
-        tri_data = self.tri_data if self.tri_trav is None else self.tri_trav
+        t, W, routine, robust, nodes, refs, order, tri_data = self._loop_inputs()
         t_max = ray.t_max
         o, d, inv, active, n = setup(t, ray, active)
         stack = dr.alloc_local(t.UInt32, STACK_SIZE)
