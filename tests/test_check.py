@@ -184,6 +184,17 @@ def test_compare_gives_the_same_verdict_and_exit_code(user, tmp_path, capsys):
     assert "FAIL" in capsys.readouterr().out
 
 
+def test_compare_passes_the_bundled_cornell_box(tmp_path, capsys):
+    """The main job's comparison (ci/main.sh): mirror and glass in sight, so ours must trace
+    the reference's rays (its spawn rule) for the exact rule to pass."""
+    assert main(["compare", str(ROOT / "scenes/cornell_box.toml"), "--view", "all",
+                 "--backend", "llvm", "--out", str(tmp_path / "cmp")]) == 0
+    out = capsys.readouterr().out
+    lines = out.splitlines()
+    assert sum(ln.startswith("PASS") for ln in lines) == 3, out
+    assert not any(ln.startswith("FAIL") for ln in lines), out
+
+
 # ---- stores ---------------------------------------------------------------------------------
 def test_bundled_store_is_untouched_by_reference_on_a_copy(tmp_path, monkeypatch, capsys):
     before = _tree_hashes(golden.BUNDLED_STORE)

@@ -110,8 +110,12 @@ def cmd_compare(args: argparse.Namespace) -> int:
                            "--out DIR` makes one)", code=EXIT["file"])
 
     effects = effects_for_cli(scene, args)
+    # ours spawns secondary and shadow rays as the reference does (the harness's goldens and
+    # a --live render both use Mitsuba's own spawn_ray), so both trace the same rays
+    scene = scene.with_settings(spawn=golden.GOLDEN_SPAWN, ray_epsilon=None)
     print(f"{scene.name}: {scene.face_count} triangles, {len(scene.lights)} lights, "
-          f"shading {s.shading}, {'exact' if s.exact else f'{s.spp} spp'}")
+          f"shading {s.shading}, {'exact' if s.exact else f'{s.spp} spp'}; ours spawns "
+          f"rays as the reference does (spawn = {golden.GOLDEN_SPAWN!r})")
     print(f"effects: {effects}")
 
     # one upload / accelerator build for every view
