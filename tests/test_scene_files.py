@@ -197,6 +197,10 @@ BAD_CASES = {   # id: (scene text, extra files, field named, words expected in t
     "exact_with_spp": (edit("max_depth = 5", "spp = 4\nexact = true"), {}, "render.exact",
                        "spp = 4"),
     "negative_depth": (edit("max_depth = 5", "max_depth = -1"), {}, "render.max_depth", ">= 0"),
+    "unknown_spawn": (edit("max_depth = 5", 'spawn = "pbrt"'), {}, "render.spawn",
+                      "'scale-free', 'mitsuba'"),
+    "spawn_with_ray_epsilon": (edit("max_depth = 5", 'spawn = "mitsuba"\nray_epsilon = 1e-4'),
+                               {}, "render.spawn", "exclude each other"),
     "singular_scale": (edit("scale = 2.0", "scale = [2.0, 0.0, 2.0]"), {}, "objects[0].scale",
                        "singular"),
     "singular_matrix": (edit("scale = 2.0", "matrix = [[1,0,0,0],[0,0,0,0],[0,0,1,0],[0,0,0,1]]"),
@@ -241,6 +245,12 @@ def test_base_scene_is_valid(tmp_path):
     assert s.face_count == 2 + 80 and s.settings.exact and s.settings.spp == 1
     assert s.cameras[0].width == 16 and s.cameras[0].fov_y == 40.0
     assert s.objects[1].smooth and not s.objects[0].smooth     # spheres default smooth
+
+
+def test_spawn_setting_reaches_the_render_settings(tmp_path):
+    assert load_scene(write(tmp_path, BASE)).settings.spawn == "scale-free"
+    p = write(tmp_path, edit("max_depth = 5", 'spawn = "mitsuba"'), "m.toml")
+    assert load_scene(p).settings.spawn == "mitsuba"
 
 
 def test_spp_implies_converged_mode(tmp_path):
