@@ -18,12 +18,13 @@ from .bvh_build import pad_boxes
 from .traverse import (
     Closest,
     cull_t,
+    leaf_triangle_step,
     masked_step,
     probe_pad,
     robust_scale,
     setup,
     slab,
-    triangle_step,
+    traversal_result,
 )
 from .triangle import DEFAULT_ROUTINE, box_reach, triangle_routine, upload_triangles
 
@@ -130,18 +131,11 @@ class ObjectBoxes(Accelerator):
                 (first, end, obj))
 
             # ---- triangle step -----------------------------------------------------------
-            rec, first = masked_step(
-                t, first < end,
-                lambda rec, first, on: (
-                    triangle_step(t, routine, o, d, tri_data, order, first, t_max, rec,
-                                  any_hit, on, probe),
-                    first + 1 if on is True else dr.select(on, first + 1, first)),
-                (rec, first))
+            rec, first = leaf_triangle_step(t, routine, o, d, tri_data, order, first, end,
+                                            t_max, rec, any_hit, probe)
             if dr.hint(any_hit, mode="scalar"):
                 active &= ~rec.found
 
             active &= (first < end) | (obj < n_obj)
 
-        if dr.hint(any_hit, mode="scalar"):
-            return rec.found
-        return rec.result()
+        return traversal_result(rec, any_hit)

@@ -8,7 +8,7 @@ import drjit as dr
 
 from ..device import Types
 from .base import Accelerator, DeviceTriangles, Ray
-from .traverse import Closest, setup, triangle_step
+from .traverse import Closest, setup, traversal_result, triangle_step
 from .triangle import DEFAULT_ROUTINE, triangle_routine, upload_triangles
 
 
@@ -65,6 +65,4 @@ class BruteForce(Accelerator):
             if dr.hint(any_hit, mode="scalar"):
                 active &= ~rec.found
             i += 1
-        if dr.hint(any_hit, mode="scalar"):
-            return rec.found
-        return rec.result()
+        return traversal_result(rec, any_hit)

@@ -40,13 +40,14 @@ from .traverse import (
     Closest,
     cull_t,
     enter_leaf,
+    leaf_triangle_step,
     masked_step,
     pop,
     probe_pad,
     robust_scale,
     setup,
     slab,
-    triangle_step,
+    traversal_result,
 )
 from .triangle import DEFAULT_ROUTINE, STRIDE, box_reach, triangle_routine, upload_triangles
 
@@ -202,20 +203,11 @@ class BVH(Accelerator):
             sp, cur = pop(stack, sp, cur, to_pop)
 
             # ---- triangle step: one pending leaf triangle ---------------------------------
-            rec, first = masked_step(
-                t, first < end,
-                lambda rec, first, on: (
-                    triangle_step(t, routine, o, d, tri_data, order, first, t_max, rec,
-                                  any_hit, on, probe),
-                    first + 1 if on is True else dr.select(on, first + 1, first)),
-                (rec, first))
+            rec, first = leaf_triangle_step(t, routine, o, d, tri_data, order, first, end,
+                                            t_max, rec, any_hit, probe)
             if dr.hint(any_hit, mode="scalar"):
                 active &= ~rec.found
 
             active &= (first < end) | (cur != DONE)
 
-        if dr.hint(counting, mode="scalar"):
-            return n_node, n_tri, n_iter
-        if dr.hint(any_hit, mode="scalar"):
-            return rec.found
-        return rec.result()
+        return traversal_result(rec, any_hit, (n_node, n_tri, n_iter) if counting else None)

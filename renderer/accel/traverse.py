@@ -266,6 +266,29 @@ def pop(stack, sp, cur, where):
     return sp, dr.select(where, dr.select(can_pop, popped, DONE), cur)
 
 
+def leaf_triangle_step(t: Types, routine, o, d, tri_data, order, first, end, t_max,
+                       rec: Closest, any_hit: bool, probe=None) -> tuple:
+    """The triangle half of a traversal iteration, shared by every accelerator: where a
+    leaf triangle is pending (``first < end``), test triangle ``first`` (``triangle_step``)
+    and move on to the next. Returns ``(rec, first)``."""
+    return masked_step(
+        t, first < end,
+        lambda rec, first, on: (
+            triangle_step(t, routine, o, d, tri_data, order, first, t_max, rec, any_hit,
+                          on, probe),
+            first + 1 if on is True else dr.select(on, first + 1, first)),
+        (rec, first))
+
+
+def traversal_result(rec: Closest, any_hit: bool, counts=None):
+    """What a traversal returns: the counters ``(node_steps, triangle_steps, iterations)``
+    where it counted (``counts``), else ``rec.found`` for an any-hit query, else the
+    closest hit (``rec.result()``)."""
+    if counts is not None:
+        return counts
+    return rec.found if any_hit else rec.result()
+
+
 def masked_step(t: Types, where, step, state: tuple) -> tuple:
     """``step(*state, active)`` applied to the lanes ``where``; returns the new state. On
     LLVM the step runs inside a symbolic ``if`` with ``active=True``: a real branch, taken

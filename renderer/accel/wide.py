@@ -63,6 +63,7 @@ from .traverse import (
     Closest,
     cull_t,
     enter_leaf,
+    leaf_triangle_step,
     masked_step,
     pop,
     probe_pad,
@@ -70,7 +71,7 @@ from .traverse import (
     safe_inv,
     setup,
     slab,
-    triangle_step,
+    traversal_result,
 )
 from .triangle import DEFAULT_ROUTINE, STRIDE, triangle_routine, upload_triangles
 
@@ -522,13 +523,8 @@ class WideBVH(Accelerator):
                     any_hit, on),
                 (sp, cur, is_leaf | False))
             sp, cur = pop(stack, sp, cur, to_pop)
-            rec, first = masked_step(
-                t, first < end,
-                lambda rec, first, on, o=o, d=d, t_max=t_max: (
-                    triangle_step(t, routine, o, d, tri_data, order, first, t_max, rec,
-                                  any_hit, on),
-                    first + 1 if on is True else dr.select(on, first + 1, first)),
-                (rec, first))
+            rec, first = leaf_triangle_step(t, routine, o, d, tri_data, order, first, end,
+                                            t_max, rec, any_hit)
             busy = (first < end) | (cur != DONE)
             if dr.hint(any_hit, mode="scalar"):
                 busy &= ~rec.found
@@ -595,23 +591,14 @@ class WideBVH(Accelerator):
                 (sp, cur, is_leaf | False))
             sp, cur = pop(stack, sp, cur, to_pop)
 
-            rec, first = masked_step(
-                t, first < end,
-                lambda rec, first, on: (
-                    triangle_step(t, routine, o, d, tri_data, order, first, t_max, rec,
-                                  any_hit, on, probe),
-                    first + 1 if on is True else dr.select(on, first + 1, first)),
-                (rec, first))
+            rec, first = leaf_triangle_step(t, routine, o, d, tri_data, order, first, end,
+                                            t_max, rec, any_hit, probe)
             if dr.hint(any_hit, mode="scalar"):
                 active &= ~rec.found
 
             active &= (first < end) | (cur != DONE)
 
-        if dr.hint(counting, mode="scalar"):
-            return n_node, n_tri, n_iter
-        if dr.hint(any_hit, mode="scalar"):
-            return rec.found
-        return rec.result()
+        return traversal_result(rec, any_hit, (n_node, n_tri, n_iter) if counting else None)
 
 
 class BVH4(WideBVH):
