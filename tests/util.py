@@ -3,9 +3,11 @@ test scenes, and ``pixel_ray``, the test oracle of the camera model (written ind
 ``renderer.camera`` on purpose)."""
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
-from renderer.scene import Camera, Material, ObjectInfo, PointLight, Scene, Settings
+from renderer.scene import Camera, Material, PointLight, Scene, Settings
 
 
 def material(name="m", *, ka=0.0, kd=0.0, ks=0.0, n=32.0, k_refl=0.0, k_refr=0.0, ior=1.5,
@@ -43,41 +45,20 @@ def box(lo, hi):
 
 def make_scene(objects, *, materials, lights=(), camera=None, settings=None, ambient=0.0,
                name="test") -> Scene:
-    """objects: list of (vertices (V,3), faces (F,3), material index[, smooth])."""
-    verts, norms, faces, fmat, fobj, infos = [], [], [], [], [], []
-    nv = nf = 0
-    for k, ob in enumerate(objects):
-        V, F, m = ob[0], ob[1], ob[2]
-        smooth = ob[3] if len(ob) > 3 else False
-        V = np.asarray(V, np.float64)
-        F = np.asarray(F, np.int64)
-        fn = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
-        fn /= np.linalg.norm(fn, axis=1, keepdims=True)
-        vn = np.zeros_like(V)
-        for i in range(3):
-            np.add.at(vn, F[:, i], fn)
-        vn /= np.maximum(np.linalg.norm(vn, axis=1, keepdims=True), 1e-30)
-        verts.append(V)
-        norms.append(vn)
-        faces.append(F + nv)
-        fmat.append(np.full(len(F), m))
-        fobj.append(np.full(len(F), k))
-        infos.append(ObjectInfo(name=f"obj{k}", kind="test", material=m, first_face=nf,
-                                face_count=len(F), first_vertex=nv, vertex_count=len(V),
-                                smooth=bool(smooth)))
-        nv += len(V)
-        nf += len(F)
+    """objects: list of (vertices (V,3), faces (F,3), material index[, smooth]).
+
+    ``evaluation.hard_cases.mesh_scene`` (the one builder of in-memory scenes), with this
+    module's defaults: a 16x16 camera, objects of kind "test", and no float64 vertices (a
+    float64 render sees the float32 positions widened, as for a scene built in code)."""
+    from evaluation.hard_cases import mesh_scene
+
     if camera is None:
         camera = Camera(position=np.array([0, 0, 5.0]), target=np.zeros(3),
                         up=np.array([0, 1.0, 0]), fov_y=40.0, width=16, height=16)
-    return Scene(cameras=[camera], settings=settings or Settings(), lights=list(lights),
-                 materials=list(materials), objects=infos,
-                 vertices=np.concatenate(verts).astype(np.float32),
-                 normals=np.concatenate(norms).astype(np.float32),
-                 faces=np.concatenate(faces).astype(np.int32),
-                 face_material=np.concatenate(fmat).astype(np.int32),
-                 face_object=np.concatenate(fobj).astype(np.int32),
-                 ambient=np.broadcast_to(np.asarray(ambient, np.float64), (3,)).copy(), name=name)
+    sc = mesh_scene(objects, list(materials), lights=lights, camera=camera, settings=settings,
+                    ambient=ambient, name=name)
+    return replace(sc, objects=[replace(o, kind="test") for o in sc.objects],
+                   vertices64=None, normals64=None)
 
 
 def light(pos, intensity, falloff="inverse_square", name="l"):
