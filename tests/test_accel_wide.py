@@ -175,9 +175,9 @@ def test_llvm_reads_records_through_64_bit_gathers(width):
     t = types("llvm")
     V, faces = soup(500, seed=2)
     sc = scene_from_arrays(V, faces, n_objects=1)
-    acc = WideBVH.build(sc, t, width=width)
-    as_cuda = replace(t, backend="cuda")
-    ref = WideBVH.build(sc, as_cuda, width=width)
+    acc = WideBVH.build(sc, t, width=width, leaf_size=4)
+    as_cuda = replace(t, backend="cuda")          # the same tree (each backend has its
+    ref = WideBVH.build(sc, as_cuda, width=width, leaf_size=4)   # default leaf size)
     assert dr.type_v(acc.nodes) == dr.VarType.UInt64
     assert dr.type_v(acc.refs) == dr.VarType.UInt64
     assert np.array_equal(acc.nodes.numpy().view(np.uint32), ref.nodes.numpy())

@@ -33,7 +33,7 @@ import drjit as dr
 import numpy as np
 
 from renderer.accel import ACCELERATORS, Ray, build_accelerator
-from renderer.accel.bvh_build import build_bvh
+from renderer.accel.bvh_build import build_bvh, leaf_size_for
 from renderer.accel.order import SortedQueries
 from renderer.device import array3, types
 
@@ -231,7 +231,7 @@ def ray_throughput(scene, *, backend: str, width: int = 1920, height: int = 1080
 
     # ---- builds: one binary SAH build, uploaded as is and collapsed to the wide BVHs -------
     t0, c0 = time.perf_counter(), time.process_time()
-    binary = build_bvh(scene.vertices, scene.faces)
+    binary = build_bvh(scene.vertices, scene.faces, leaf_size=leaf_size_for(t.backend))
     binary_s, binary_cpu = time.perf_counter() - t0, time.process_time() - c0
     accs, build = {}, {"triangles": scene.face_count, "binary_build_s": binary.build_seconds,
                        "binary_build_cpu_s": binary_cpu,
