@@ -30,8 +30,8 @@ C_TRAV, C_TRI = 1.0, 1.0     # SAH costs of one node visit and one triangle test
 LEAF_SIZE = 4                # default most triangles per leaf (LLVM)
 #: The default leaf size per backend (``leaf_size_for``): on the GPU, where every traversal
 #: step is a real branch that a warp takes only when one of its threads needs it, leaves
-#: of at most 2 triangles trace 1.1-1.3x faster than leaves of 4 (H200, bitwise the same
-#: hits; Conference alone 2 % slower: ``results/h200/throughput/branches.md``).
+#: of at most 2 triangles trace 1.05-1.24x faster than leaves of 4 (H200, per-scene medians,
+#: bitwise the same hits; Conference alone 2 % slower: ``results/h200/throughput/branches.md``).
 LEAF_SIZES = {"llvm": LEAF_SIZE, "cuda": 2}
 BINS = 32                    # default SAH bins per axis
 BIG_NODE = 1024              # nodes larger than this (level average) get root_bins bins

@@ -1,0 +1,170 @@
+"""Probe: traversal variants against Mitsuba on the GPU (``results/h200/throughput/branches.md``).
+
+    python -m evaluation.bench.probe_traversal --mode branches [--backend cuda] [--out DIR]
+    python -m evaluation.bench.probe_traversal --mode leaf ...
+
+``branches``: the traversal steps written inline with masked updates (what CUDA ran before
+``traverse.masked_step`` became a symbolic ``if`` everywhere) against real branches for both
+steps (``+br``), for the triangle step only (``+brtri``) or the node step only (``+brnode``);
+also leaves of 2 and 8 triangles and Möller–Trumbore, inline. ``leaf``: with the branches,
+leaves of 1, 2, 4 and 8 triangles, the 4-wide BVH from the leaf-2 build, the 8-wide BVH and
+Möller–Trumbore. Batches as the throughput part's (primary, incoherent, reflection;
+closest and any hit), every contender timed in turn (``throughput._timed``), and every
+contender's hits compared with the binary BVH's (t and face where found). Writes
+``OUT/<mode>.json`` and prints one line per query.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import warnings
+
+import drjit as dr
+import numpy as np
+
+import renderer.accel.bvh as bvh_module
+import renderer.accel.traverse as traverse_module
+import renderer.accel.wide as wide_module
+from renderer.accel import ACCELERATORS
+from renderer.accel.base import Ray
+from renderer.accel.bvh_build import build_bvh
+from renderer.device import array3, types
+from renderer.scene import load_scene
+
+from . import throughput as T
+
+SCENES = ("cornell_sphere", "platonic_solids", "bunny", "sponza", "conference")
+#: Which steps branch in the ``branches`` mode (set by each contender while it traces).
+BRANCH = {"node": True, "tri": True}
+
+
+def _switchable(kind: str):
+    """A ``masked_step`` that branches when ``BRANCH[kind]`` (or on LLVM), else inline."""
+    def masked_step(t, where, step, state):
+        if t.backend == "llvm" or BRANCH[kind]:
+            return dr.if_stmt(state, where, lambda *s: step(*s, True), lambda *s: s)
+        return step(*state, where)
+    return masked_step
+
+
+def _accelerators(scene, t, mode: str) -> tuple[dict, dict]:
+    binary = build_bvh(scene.vertices, scene.faces, leaf_size=4)
+    accs = {a: ACCELERATORS[a].build(scene, t, binary=binary) for a in ("bvh", "bvh4")}
+    if mode == "leaf":
+        for ls in (1, 2, 8):
+            b = build_bvh(scene.vertices, scene.faces, leaf_size=ls)
+            accs[f"bvh-leaf{ls}"] = ACCELERATORS["bvh"].build(scene, t, binary=b)
+            if ls == 2:
+                accs["bvh4-leaf2"] = ACCELERATORS["bvh4"].build(scene, t, binary=b)
+        accs["bvh8"] = ACCELERATORS["bvh8"].build(scene, t, binary=binary)
+    else:
+        for ls in (2, 8):
+            accs[f"bvh-leaf{ls}"] = ACCELERATORS["bvh"].build(scene, t, leaf_size=ls)
+    accs["bvh-mt"] = ACCELERATORS["bvh"].build(scene, t, binary=binary,
+                                               intersection="moller_trumbore")
+    dr.eval(accs)
+    branches = mode == "leaf"
+    conts = {a: (a, branches, branches) for a in accs}
+    if mode == "branches":
+        for a in ("bvh", "bvh4"):
+            conts[a + "+br"] = (a, True, True)
+            conts[a + "+brtri"] = (a, False, True)
+            conts[a + "+brnode"] = (a, True, False)
+    return accs, conts
+
+
+def _query(t, acc, ray, on, q, node, tri):
+    BRANCH["node"], BRANCH["tri"] = node, tri
+    try:
+        if q == "closest":
+            h = acc.intersect(ray, on)
+            return h.t, dr.gather(t.UInt32, acc.tris.order, h.prim, h.found), h.found
+        return (acc.intersect_p(ray, on),)
+    finally:
+        BRANCH["node"] = BRANCH["tri"] = True
+
+
+def _same(got, ref, q) -> bool:
+    if q != "closest":
+        return bool(np.array_equal(got[0], ref[0]))
+    f = ref[2]
+    return bool(np.array_equal(got[2], f) and np.array_equal(got[0][f], ref[0][f])
+                and np.array_equal(got[1][f], ref[1][f]))
+
+
+def probe(scene_name: str, t, mode: str, width: int, height: int, repeats: int) -> list:
+    from reference import mitsuba_variant
+    from reference.mitsuba_scene import load_triangles, rays
+    scene = load_scene(f"scenes/{scene_name}.toml")
+    accs, conts = _accelerators(scene, t, mode)
+    mitsuba_variant("cuda_ad_rgb" if t.backend == "cuda" else "llvm_ad_rgb")
+    mscene, _ = load_triangles(scene.vertices, scene.faces)
+    o, d = T.primary_rays_host(scene, width, height, t)
+    n = len(o)
+    ray = Ray(o=array3(t, o), d=array3(t, d), t_max=t.Float(np.full(n, np.inf, np.float32)))
+    ht, face, hf = (x.numpy() for x in _query(t, accs["bvh"], ray, dr.full(t.Bool, True, n),
+                                              "closest", True, True))
+    t_h = np.where(hf, ht, np.inf)
+    face = np.where(hf, face, 0).astype(np.int64)
+    batches = {"primary": (o, d, True),
+               "incoherent": T.incoherent_rays_host(scene, n) + (False,),
+               "reflection": T.reflection_rays_host(scene, o, d, t_h, face) + (False,)}
+    rows = []
+    for bname, (bo, bd, coherent) in batches.items():
+        m = len(bo)
+        ray = Ray(o=array3(t, bo), d=array3(t, bd),
+                  t_max=t.Float(np.full(m, np.inf, np.float32)))
+        on = dr.full(t.Bool, True, m)
+        mray = rays(bo, bd, None)
+        dr.eval(ray, on, mray)
+        for q in ("closest", "any"):
+            fns = {k: (lambda a=a, nb=nb, tb=tb, q=q, ray=ray, on=on:
+                        _query(t, accs[a], ray, on, q, nb, tb))
+                   for k, (a, nb, tb) in conts.items()}
+            if q == "closest":
+                def mitsuba(mray=mray, coherent=coherent):
+                    pi = mscene.ray_intersect_preliminary(mray, coherent=coherent)
+                    return pi.t, pi.prim_index
+            else:
+                def mitsuba(mray=mray, coherent=coherent):
+                    return mscene.ray_test(mray, coherent=coherent)
+            fns["mitsuba"] = mitsuba
+            ref = [x.numpy() for x in fns["bvh"]()]
+            same = {k: _same([x.numpy() for x in fns[k]()], ref, q) for k in conts}
+            timing = T._timed(fns, repeats)
+            rows.append({"scene": scene_name, "batch": bname, "query": q, "rays": m,
+                         "same": same, "ms": timing})
+            base = timing["mitsuba"]["kernel_ms"]
+            line = "  ".join(f"{k} {base / v['kernel_ms']:.2f}"
+                             for k, v in timing.items() if k != "mitsuba")
+            differ = [k for k, v in same.items() if not v]
+            print(f"{scene_name} {bname} {q} mitsuba {m / base / 1e3:.0f} Mrays/s | "
+                  f"x mitsuba: {line}" + (f"  DIFFER: {differ}" if differ else ""), flush=True)
+    return rows
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--mode", choices=("branches", "leaf"), default="branches")
+    ap.add_argument("--backend", default="cuda")
+    ap.add_argument("--scenes", default=",".join(SCENES))
+    ap.add_argument("--out", default=os.environ.get("OUT", "out"))
+    a = ap.parse_args(argv)
+    warnings.simplefilter("ignore")
+    t = types(a.backend)
+    size = (1920, 1080) if a.backend == "cuda" else (160, 90)
+    if a.mode == "branches":
+        bvh_module.masked_step = wide_module.masked_step = _switchable("node")
+        traverse_module.masked_step = _switchable("tri")
+    rows = []
+    for name in a.scenes.split(","):
+        rows += probe(name, t, a.mode, *size, 7 if a.backend == "cuda" else 3)
+        os.makedirs(a.out, exist_ok=True)
+        with open(os.path.join(a.out, f"{a.mode}.json"), "w") as f:
+            json.dump({"backend": a.backend, "rows": rows}, f, indent=1)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
