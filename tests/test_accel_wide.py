@@ -240,13 +240,14 @@ def test_render_identical_across_accelerators():
         assert np.array_equal(images[a], images["brute"]), a
 
 
-@pytest.mark.parametrize("width", [4, 8])
+@pytest.mark.parametrize("width", [0, 4, 8])
 @pytest.mark.parametrize("rays", ["random", "adversarial"])
 def test_refill_traversal_matches_brute_force(width, rays, monkeypatch):
-    """``refill`` (lanes take the next ray when theirs is done, LLVM) gives bitwise brute
-    force's hits; few lanes, so that every lane traces several rays."""
-    import renderer.accel.wide as wide
-    monkeypatch.setattr(wide, "REFILL_MIN_LANES", 64)
+    """``refill`` (lanes take the next ray when theirs is done) gives bitwise brute force's
+    hits, for the wide BVHs (``width``) and the binary one (0); few lanes, so that every
+    lane traces several rays."""
+    import renderer.accel.traverse as traverse
+    monkeypatch.setattr(traverse, "REFILL_MIN_LANES", 64)
     t = types("llvm")
     if rays == "random":
         V, faces = soup(2000, seed=7)
@@ -256,7 +257,9 @@ def test_refill_traversal_matches_brute_force(width, rays, monkeypatch):
         ray, active = adversarial_rays(t, V, faces, seed=5)
     sc = scene_from_arrays(V, faces, n_objects=2)
     ref = hits(BruteForce.build(sc, t), ray, active, t)
-    acc = replace(WideBVH.build(sc, t, width=width), refill=8)
+    acc = replace(WideBVH.build(sc, t, width=width) if width else BVH.build(sc, t), refill=8)
     assert_same_hits(hits(acc, ray, active, t), ref)
+    occluded = acc.intersect_p(ray, active).numpy()
+    assert np.array_equal(occluded, BruteForce.build(sc, t).intersect_p(ray, active).numpy())
     assert np.array_equal(acc.counts(ray, active)[0].numpy(),      # counts: lane traversal
                           replace(acc, refill=0).counts(ray, active)[0].numpy())

@@ -6,7 +6,10 @@
 ``branches``: the traversal steps written inline with masked updates (what CUDA ran before
 ``traverse.masked_step`` became a symbolic ``if`` everywhere) against real branches for both
 steps (``+br``), for the triangle step only (``+brtri``) or the node step only (``+brnode``);
-also leaves of 2 and 8 triangles and Möller–Trumbore, inline. ``leaf``: with the branches,
+also leaves of 2 and 8 triangles and Möller–Trumbore, inline. ``refill``: the binary and 4-wide
+BVHs whose threads take the next ray when theirs is done (``refill``, rays per thread:
+``traverse.refill_traversal``), and the tie-break gather in a branch
+(``traverse.TIE_BRANCH_BACKENDS``), against the binary and 4-wide BVHs. ``leaf``: with the branches,
 leaves of 1, 2, 4 and 8 triangles, the 4-wide BVH from the leaf-2 build, the 8-wide BVH and
 Möller–Trumbore. Batches as the throughput part's (primary, incoherent, reflection;
 closest and any hit), every contender timed in turn (``throughput._timed``), and every
@@ -19,6 +22,7 @@ import argparse
 import json
 import os
 import warnings
+from dataclasses import replace
 
 import drjit as dr
 import numpy as np
@@ -61,6 +65,17 @@ def _accelerators(scene, t, mode: str) -> tuple[dict, dict]:
     else:
         for ls in (2, 8):
             accs[f"bvh-leaf{ls}"] = ACCELERATORS["bvh"].build(scene, t, leaf_size=ls)
+    if mode == "refill":
+        b = build_bvh(scene.vertices, scene.faces, leaf_size=2)
+        accs = {"bvh": ACCELERATORS["bvh"].build(scene, t, binary=b),
+                "bvh4": ACCELERATORS["bvh4"].build(scene, t, binary=b)}
+        dr.eval(accs)
+        accs["bvh+tiebranch"] = _TieBranch(accs["bvh"])
+        for r in (2, 4, 8, 16):
+            accs[f"bvh+refill{r}"] = replace(accs["bvh"], refill=r)
+        for r in (4, 8):
+            accs[f"bvh4+refill{r}"] = replace(accs["bvh4"], refill=r)
+        return accs, {a: (a, True, True) for a in accs}
     accs["bvh-mt"] = ACCELERATORS["bvh"].build(scene, t, binary=binary,
                                                intersection="moller_trumbore")
     dr.eval(accs)
@@ -72,6 +87,27 @@ def _accelerators(scene, t, mode: str) -> tuple[dict, dict]:
             conts[a + "+brtri"] = (a, False, True)
             conts[a + "+brnode"] = (a, True, False)
     return accs, conts
+
+
+class _TieBranch:
+    """``acc`` traced with the tie-break gather in a symbolic branch on every backend."""
+
+    def __init__(self, acc):
+        self.acc, self.tris = acc, acc.tris
+
+    def _with(self, fn, *args):
+        old = traverse_module.TIE_BRANCH_BACKENDS
+        traverse_module.TIE_BRANCH_BACKENDS = ("llvm", "cuda")
+        try:
+            return fn(*args)
+        finally:
+            traverse_module.TIE_BRANCH_BACKENDS = old
+
+    def intersect(self, ray, on):
+        return self._with(self.acc.intersect, ray, on)
+
+    def intersect_p(self, ray, on):
+        return self._with(self.acc.intersect_p, ray, on)
 
 
 def _query(t, acc, ray, on, q, node, tri):
@@ -146,7 +182,7 @@ def probe(scene_name: str, t, mode: str, width: int, height: int, repeats: int) 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--mode", choices=("branches", "leaf"), default="branches")
+    ap.add_argument("--mode", choices=("branches", "leaf", "refill"), default="branches")
     ap.add_argument("--backend", default="cuda")
     ap.add_argument("--scenes", default=",".join(SCENES))
     ap.add_argument("--out", default=os.environ.get("OUT", "out"))

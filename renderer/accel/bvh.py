@@ -44,6 +44,8 @@ from .traverse import (
     masked_step,
     pop,
     probe_pad,
+    refill_lanes,
+    refill_traversal,
     robust_scale,
     setup,
     slab,
@@ -128,6 +130,7 @@ class BVH(Accelerator):
     tie_slack: float = 0.0             # edge slack (world units) of tie_break "other"
     info: dict = field(default_factory=dict, repr=False)
     tri_trav: object = None
+    refill: int = 0                    # rays per lane of ``traverse.refill_traversal``
 
     @classmethod
     def build(cls, scene, t: Types, *, intersection: str = DEFAULT_ROUTINE,
@@ -167,8 +170,26 @@ class BVH(Accelerator):
         iterations)`` UInt32 per ray, the same traversal as the query with counters."""
         return self._traverse(ray, active, any_hit, counting=True)
 
-    @dr.syntax
     def _traverse(self, ray: Ray, active, any_hit: bool, probe=None, counting: bool = False):
+        if self.refill and not counting and probe is None:
+            n = dr.width(ray.o, ray.d, ray.t_max, active)
+            lanes = refill_lanes(n, self.refill)
+            if lanes < n:
+                t = self.types
+                nodes, children = self.nodes, self.children
+                robust = robust_scale(t)
+                return refill_traversal(
+                    t, triangle_routine(self.intersection),
+                    self.tri_data if self.tri_trav is None else self.tri_trav,
+                    self.tris.order,
+                    lambda sp, cur, to_pop, best_t, o, inv, stack: node_step(
+                        t, nodes, children, o, inv, best_t, robust, stack, sp, cur, to_pop),
+                    ray, active, any_hit, n, lanes, "bvh_refill")
+        return self._traverse_lanes(ray, active, any_hit, probe, counting)
+
+    @dr.syntax
+    def _traverse_lanes(self, ray: Ray, active, any_hit: bool, probe=None,
+                        counting: bool = False):
         t = self.types
         routine = triangle_routine(self.intersection)
         robust = robust_scale(t)

@@ -31,6 +31,9 @@ STACK_SIZE = 32              # UInt32 entries per ray: 128 bytes (drjit #532 lim
 #: original face index) and "other" (a probe for the golden tests, ``tie_probe``: another
 #: triangle as near as the nearest one within the precision, where there is one).
 TIE_BREAKS = ("lowest", "other")
+#: Backends whose closest-hit step reads the original face indices of an exact tie in a
+#: symbolic branch (``triangle_step``); elsewhere a masked gather on every nearer hit.
+TIE_BRANCH_BACKENDS = ("llvm",)
 
 
 class Probe(NamedTuple):
@@ -148,7 +151,7 @@ def triangle_step(t: Types, routine, o, d, tri_data, order, i, t_max, rec: Close
     h &= th <= rec.t
     nearer = h & (th < rec.t)
     tie = h & rec.found & (th == rec.t)
-    if t.backend == "llvm":
+    if t.backend in TIE_BRANCH_BACKENDS:
         # exact ties are rare: read both original face indices only in a symbolic branch
         # taken when some lane of the packet has one (a masked gather costs its loads on
         # the CPU even for masked-off lanes); ``rec.order`` is not kept on this path
@@ -299,3 +302,98 @@ def masked_step(t: Types, where, step, state: tuple) -> tuple:
     bitwise the same hits. Inside the ``if`` Dr.Jit masks the step's gathers and stack
     writes itself."""
     return dr.if_stmt(state, where, lambda *s: step(*s, True), lambda *s: s)
+
+
+#: Fewest lanes a refill traversal runs on (``refill_lanes``): on the CPU enough blocks of
+#: work for every thread; batches no larger run the ordinary traversal.
+REFILL_MIN_LANES = 4096
+
+
+def refill_lanes(n: int, refill: int) -> int:
+    """Lanes of a refill traversal of ``n`` rays with about ``refill`` rays per lane
+    (``refill_traversal``); ``n`` (no refill) where that leaves no lane a second ray."""
+    return min(n, max(-(-n // refill), REFILL_MIN_LANES)) if refill else n
+
+
+@dr.syntax
+def refill_traversal(t: Types, routine, tri_data, order, node_fn, ray: Ray, active,
+                     any_hit: bool, n: int, lanes: int, label: str):
+    """A traversal whose ``lanes`` lanes take a new ray when theirs is done: they start on
+    the first ``lanes`` rays of the batch; a lane whose ray has finished writes its result
+    and takes the next untraced ray from an atomic counter (``dr.scatter_inc``), so a SIMD
+    packet (LLVM) or warp (CUDA) stops paying for its slowest ray until the batch runs out
+    (Aila & Laine 2009's persistent threads with dynamic fetch). The rays are evaluated
+    first and gathered by index, so this is a query for evaluated batches, not for a
+    caller's megakernel. ``node_fn(sp, cur, to_pop, best_t, o, inv, stack)`` is the
+    accelerator's node step under ``masked_step`` (returns ``(sp, cur, to_pop)``); each
+    ray's steps are those of the accelerator's own loop, in the same order, so the hits are
+    bitwise the same. Returns what the accelerator's query returns (``found`` for any hit,
+    else a ``ClosestHit``)."""
+    O, D = (v if dr.width(v) == n else v + dr.zeros(t.Array3f, n)
+            for v in (t.Array3f(ray.o), t.Array3f(ray.d)))
+    TM = t.Float(ray.t_max)
+    TM = TM if dr.width(TM) == n else TM + dr.zeros(t.Float, n)
+    ACT = t.Bool(active)
+    ACT = ACT if dr.width(ACT) == n else ACT & dr.full(t.Bool, True, n)
+    dr.eval(O, D, TM, ACT)              # gathered by ray index in the loop
+    counter = dr.full(t.UInt32, lanes, 1)          # the next ray nobody has taken
+    out_t, out_u, out_v = (dr.zeros(t.Float, n) for _ in range(3))
+    out_prim = dr.zeros(t.UInt32, n)
+    out_found = dr.zeros(t.Bool, n)
+    ray_id = dr.arange(t.UInt32, lanes)
+    valid = dr.full(t.Bool, True, lanes)
+    o = dr.gather(t.Array3f, O, ray_id)
+    d = dr.gather(t.Array3f, D, ray_id)
+    t_max = dr.gather(t.Float, TM, ray_id)
+    inv = safe_inv(t, d)
+    stack = dr.alloc_local(t.UInt32, STACK_SIZE)
+    sp = dr.zeros(t.UInt32, lanes)
+    cur = dr.select(dr.gather(t.Bool, ACT, ray_id), t.UInt32(0), t.UInt32(DONE))
+    first = dr.zeros(t.UInt32, lanes)
+    end = dr.zeros(t.UInt32, lanes)
+    rec = Closest.empty(t, t_max, lanes)
+
+    while dr.hint(valid, max_iterations=-1, label=label,
+                  exclude=[t, routine, tri_data, order, node_fn, any_hit, n, O, D, TM, ACT,
+                           counter, out_t, out_u, out_v, out_prim, out_found]):
+        is_leaf, is_inner, first, end = enter_leaf(cur, first, end)
+        sp, cur, to_pop = masked_step(
+            t, is_inner,
+            lambda sp, cur, to_pop, on, best_t=rec.t, o=o, inv=inv: node_fn(
+                sp, cur, to_pop, best_t, o, inv, stack),
+            (sp, cur, is_leaf | False))
+        sp, cur = pop(stack, sp, cur, to_pop)
+        rec, first = leaf_triangle_step(t, routine, o, d, tri_data, order, first, end,
+                                        t_max, rec, any_hit)
+        busy = (first < end) | (cur != DONE)
+        if dr.hint(any_hit, mode="scalar"):
+            busy &= ~rec.found
+        finish = valid & ~busy
+        # the finished rays' results, then each finished lane takes the next ray
+        if dr.hint(any_hit, mode="scalar"):
+            dr.scatter(out_found, rec.found, ray_id, finish)
+        else:
+            dr.scatter(out_t, rec.t, ray_id, finish)
+            dr.scatter(out_u, rec.u, ray_id, finish)
+            dr.scatter(out_v, rec.v, ray_id, finish)
+            dr.scatter(out_prim, rec.prim, ray_id, finish)
+            dr.scatter(out_found, rec.found, ray_id, finish)
+        nid = dr.scatter_inc(counter, t.UInt32(0), finish)
+        ray_id = dr.select(finish, nid, ray_id)
+        valid = dr.select(finish, nid < n, valid)
+        take = finish & valid
+        o = dr.select(take, dr.gather(t.Array3f, O, nid, take), o)
+        d = dr.select(take, dr.gather(t.Array3f, D, nid, take), d)
+        inv = dr.select(take, safe_inv(t, d), inv)
+        t_max = dr.select(take, dr.gather(t.Float, TM, nid, take), t_max)
+        on = dr.gather(t.Bool, ACT, nid, take)
+        cur = dr.select(take, dr.select(on, t.UInt32(0), t.UInt32(DONE)), cur)
+        sp = dr.select(take, 0, sp)
+        first = dr.select(take, 0, first)
+        end = dr.select(take, 0, end)
+        rec = Closest(t=dr.select(take, t_max, rec.t), u=dr.select(take, 0.0, rec.u),
+                      v=dr.select(take, 0.0, rec.v), prim=dr.select(take, 0, rec.prim),
+                      order=dr.select(take, DONE, rec.order), found=rec.found & ~take)
+    if dr.hint(any_hit, mode="scalar"):
+        return out_found
+    return ClosestHit(t=out_t, u=out_u, v=out_v, prim=out_prim, found=out_found)

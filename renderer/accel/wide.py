@@ -44,7 +44,6 @@ import numpy as np
 from ..device import Types
 from .base import (
     Accelerator,
-    ClosestHit,
     DeviceTriangles,
     Ray,
     array_type,
@@ -67,8 +66,9 @@ from .traverse import (
     masked_step,
     pop,
     probe_pad,
+    refill_lanes,
+    refill_traversal,
     robust_scale,
-    safe_inv,
     setup,
     slab,
     traversal_result,
@@ -76,9 +76,6 @@ from .traverse import (
 from .triangle import DEFAULT_ROUTINE, STRIDE, triangle_routine, upload_triangles
 
 WIDTHS = (4, 8)
-#: Fewest lanes a refill traversal runs on (``WideBVH.refill``): enough blocks of work for
-#: every CPU thread; batches no larger run the ordinary traversal.
-REFILL_MIN_LANES = 4096
 
 
 @dataclass
@@ -469,97 +466,18 @@ class WideBVH(Accelerator):
                 self.nodes, self.refs, self.tris.order, tri_data)
 
     def _traverse(self, ray: Ray, active, any_hit: bool, probe=None, counting: bool = False):
-        if self.refill and self.types.backend == "llvm" and not counting and probe is None:
+        if self.refill and not counting and probe is None:
             n = dr.width(ray.o, ray.d, ray.t_max, active)
-            lanes = max(-(-n // self.refill), min(n, REFILL_MIN_LANES))
+            lanes = refill_lanes(n, self.refill)
             if lanes < n:
-                return self._traverse_refill(ray, active, any_hit, n, lanes)
+                t, W, routine, robust, nodes, refs, order, tri_data = self._loop_inputs()
+                return refill_traversal(
+                    t, routine, tri_data, order,
+                    lambda sp, cur, to_pop, best_t, o, inv, stack: wide_node_step(
+                        t, W, nodes, refs, o, inv, best_t, robust, stack, sp, cur, to_pop,
+                        any_hit, True),
+                    ray, active, any_hit, n, lanes, f"bvh{W}_refill")
         return self._traverse_lanes(ray, active, any_hit, probe, counting)
-
-    @dr.syntax
-    def _traverse_refill(self, ray: Ray, active, any_hit: bool, n: int, lanes: int):
-        """The traversal with lanes that take a new ray when theirs is done (LLVM; the
-        accelerator's ``refill``): ``lanes`` SIMD lanes start on the first ``lanes`` rays of
-        the batch; a lane whose ray has finished writes its result and takes the next
-        untraced ray from an atomic counter (``dr.scatter_inc``), so a 16-lane packet stops
-        paying for its slowest ray until the batch runs out. The rays are evaluated first
-        and gathered by index, so this is a query for evaluated batches (the bench's
-        ``bvh4+refill``), not for a caller's megakernel. Each ray's traversal is the one
-        of ``_traverse_lanes`` (same steps, same order), so the hits are bitwise the same;
-        on random rays it gained 10-70 % on bunny, Sponza and Conference, and it lost on
-        coherent batches (primary, shadow, reflection rays: a refilled packet mixes rays
-        from far apart) and on the Cornell box (rays of a few steps)."""
-        t, W, routine, robust, nodes, refs, order, tri_data = self._loop_inputs()
-        O, D = (v if dr.width(v) == n else v + dr.zeros(t.Array3f, n)
-                for v in (t.Array3f(ray.o), t.Array3f(ray.d)))
-        TM = t.Float(ray.t_max)
-        TM = TM if dr.width(TM) == n else TM + dr.zeros(t.Float, n)
-        ACT = t.Bool(active)
-        ACT = ACT if dr.width(ACT) == n else ACT & dr.full(t.Bool, True, n)
-        dr.eval(O, D, TM, ACT)          # gathered by ray index in the loop
-        counter = dr.full(t.UInt32, lanes, 1)          # the next ray nobody has taken
-        out_t, out_u, out_v = (dr.zeros(t.Float, n) for _ in range(3))
-        out_prim = dr.zeros(t.UInt32, n)
-        out_found = dr.zeros(t.Bool, n)
-        ray_id = dr.arange(t.UInt32, lanes)
-        valid = dr.full(t.Bool, True, lanes)
-        o = dr.gather(t.Array3f, O, ray_id)
-        d = dr.gather(t.Array3f, D, ray_id)
-        t_max = dr.gather(t.Float, TM, ray_id)
-        inv = safe_inv(t, d)
-        stack = dr.alloc_local(t.UInt32, STACK_SIZE)
-        sp = dr.zeros(t.UInt32, lanes)
-        cur = dr.select(dr.gather(t.Bool, ACT, ray_id), t.UInt32(0), t.UInt32(DONE))
-        first = dr.zeros(t.UInt32, lanes)
-        end = dr.zeros(t.UInt32, lanes)
-        rec = Closest.empty(t, t_max, lanes)
-
-        while dr.hint(valid, max_iterations=-1, label=f"bvh{W}_refill",
-                      exclude=[self, t, routine, robust, any_hit, W, n, O, D, TM, ACT,
-                               counter, out_t, out_u, out_v, out_prim, out_found]):
-            is_leaf, is_inner, first, end = enter_leaf(cur, first, end)
-            sp, cur, to_pop = masked_step(
-                t, is_inner,
-                lambda sp, cur, to_pop, on, best_t=rec.t, o=o, inv=inv: wide_node_step(
-                    t, W, nodes, refs, o, inv, best_t, robust, stack, sp, cur, to_pop,
-                    any_hit, on),
-                (sp, cur, is_leaf | False))
-            sp, cur = pop(stack, sp, cur, to_pop)
-            rec, first = leaf_triangle_step(t, routine, o, d, tri_data, order, first, end,
-                                            t_max, rec, any_hit)
-            busy = (first < end) | (cur != DONE)
-            if dr.hint(any_hit, mode="scalar"):
-                busy &= ~rec.found
-            finish = valid & ~busy
-            # the finished rays' results, then each finished lane takes the next ray
-            if dr.hint(any_hit, mode="scalar"):
-                dr.scatter(out_found, rec.found, ray_id, finish)
-            else:
-                dr.scatter(out_t, rec.t, ray_id, finish)
-                dr.scatter(out_u, rec.u, ray_id, finish)
-                dr.scatter(out_v, rec.v, ray_id, finish)
-                dr.scatter(out_prim, rec.prim, ray_id, finish)
-                dr.scatter(out_found, rec.found, ray_id, finish)
-            nid = dr.scatter_inc(counter, t.UInt32(0), finish)
-            ray_id = dr.select(finish, nid, ray_id)
-            valid = dr.select(finish, nid < n, valid)
-            take = finish & valid
-            o = dr.select(take, dr.gather(t.Array3f, O, nid, take), o)
-            d = dr.select(take, dr.gather(t.Array3f, D, nid, take), d)
-            inv = dr.select(take, safe_inv(t, d), inv)
-            t_max = dr.select(take, dr.gather(t.Float, TM, nid, take), t_max)
-            on = dr.gather(t.Bool, ACT, nid, take)
-            cur = dr.select(take, dr.select(on, t.UInt32(0), t.UInt32(DONE)), cur)
-            sp = dr.select(take, 0, sp)
-            first = dr.select(take, 0, first)
-            end = dr.select(take, 0, end)
-            rec = Closest(t=dr.select(take, t_max, rec.t), u=dr.select(take, 0.0, rec.u),
-                          v=dr.select(take, 0.0, rec.v), prim=dr.select(take, 0, rec.prim),
-                          order=dr.select(take, DONE, rec.order),
-                          found=rec.found & ~take)
-        if dr.hint(any_hit, mode="scalar"):
-            return out_found
-        return ClosestHit(t=out_t, u=out_u, v=out_v, prim=out_prim, found=out_found)
 
     @dr.syntax
     def _traverse_lanes(self, ray: Ray, active, any_hit: bool, probe=None,
