@@ -43,13 +43,15 @@ from .part import Context, Part, jsonable, table
 SCENES = SEED_SCENES + ("bunny", "sponza", "conference", "bunny_1m")
 ACCELS = ("bvh", "bvh4", "bvh8")     # binary, and the wide BVHs collapsed from it
 BATCHES = ("primary", "shadow", "incoherent", "reflection")
-#: Query variants for evaluated batches on the CPU, each wrapping an accelerator of
-#: ``ACCELS``: the rays sorted first (``renderer.accel.order.SortedQueries``), and lanes that
-#: take the next ray when theirs is done (``WideBVH.refill``, rays per lane); and the
-#: batches they run on.
+#: Query variants for evaluated batches, each wrapping an accelerator of ``ACCELS``: the
+#: rays sorted first (``renderer.accel.order.SortedQueries``; CPU only: on the GPU the sort
+#: costs more than it saves, ``results/h200/throughput/ray-sort.md``), and lanes that take
+#: the next ray when theirs is done (``traverse.refill_traversal``, ``REFILL`` rays per lane
+#: by backend); and the batches they run on.
 VARIANTS = {"bvh4+sort": ("bvh4", "sort"), "bvh4+refill": ("bvh4", "refill")}
+VARIANT_BACKENDS = {"sort": ("llvm",), "refill": ("llvm", "cuda")}
 VARIANT_BATCHES = ("incoherent", "reflection")
-REFILL = 32
+REFILL = {"llvm": 32, "cuda": 8}
 SEED = 12                           # the incoherent batch's random generator
 #: Offset of the host-side reflection batch's origins (fraction of the scene diagonal): both
 #: renderers get the same rays, so any offset that clears the surface will do.
@@ -257,8 +259,9 @@ def ray_throughput(scene, *, backend: str, width: int = 1920, height: int = 1080
         return ray, on, mray
 
     sorted_q = {s: (SortedQueries.for_scene(accs[a], scene) if kind == "sort"
-                    else replace(accs[a], refill=REFILL))
-                for s, (a, kind) in VARIANTS.items() if a in accs and t.backend == "llvm"}
+                    else replace(accs[a], refill=REFILL[t.backend]))
+                for s, (a, kind) in VARIANTS.items()
+                if a in accs and t.backend in VARIANT_BACKENDS[kind]}
 
     def measure(name, bo, bd, btmax, queries, coherent):
         m = len(bo)
@@ -353,7 +356,7 @@ def ray_throughput(scene, *, backend: str, width: int = 1920, height: int = 1080
         res["mitsuba_shadow"] = sh["any"]["ms"]["mitsuba"]
         res["shadow_agreement"] = sh["any"]["agreement"]["same_answer"]
         res["shadow_rays"] = sh["rays"]
-    res.update(triangles=scene.face_count, build_s=build[first]["seconds"],
+    res.update(backend=t.backend, triangles=scene.face_count, build_s=build[first]["seconds"],
                mitsuba_build_s=mi_build_s, accel=first, accels=list(accels),
                variants=list(sorted_q), build=build,
                stats=build[first]["stats"])
@@ -414,6 +417,7 @@ def markdown(rows: list[dict]) -> list[str]:
         return _legacy_markdown(rows)
     accels = rows[0]["accels"]
     sorted_ = rows[0].get("variants", [])
+    by_kernel = rows[0].get("backend") == "cuda"    # the variants' column: kernel time on
     cells, steps = [], []
     for r in rows:
         for batch, b in r["batches"].items():
@@ -432,7 +436,8 @@ def markdown(rows: list[dict]) -> list[str]:
                          else f"{ag.get('same_answer', float('nan')):.4f}")
                 cells.append([r["scene"], batch, q, f"{b['rays']:,}"]
                              + [_fmt(rate[a]) for a in accels]
-                             + [_fmt(crate[a]) if a in ms else "–" for a in sorted_]
+                             + [_fmt((rate if by_kernel else crate)[a]) if a in ms else "–"
+                                for a in sorted_]
                              + [_fmt(rate["mitsuba"]),
                                 f"{rate[best] / rate['mitsuba']:.2f} ({best})",
                                 f"{crate[cbest] / crate['mitsuba']:.2f} ({cbest})", agree])
@@ -449,14 +454,19 @@ def markdown(rows: list[dict]) -> list[str]:
     n = len(accels)
     title = ("Ray throughput (identical batches; M rays/s from kernel time, median of "
              "repeats, contenders timed in turn)")
-    if sorted_:
+    if sorted_ and by_kernel:
+        title = title[:-1] + ("; the query variant +refill (threads take the next ray, "
+                              "``traverse.refill_traversal``, evaluated batches only): M "
+                              "rays/s from kernel time like the others)")
+    elif sorted_:
         title = title[:-1] + ("; the query variants (+sort: rays sorted first, "
                               "``renderer.accel.order``; +refill: lanes take the next ray, "
-                              "``WideBVH.refill``): M rays per CPU s, the call itself "
-                              "(sort, ray copy, Python tracing) included)")
+                              "``traverse.refill_traversal``): M rays per CPU s, the call "
+                              "itself (sort, ray copy, Python tracing) included)")
+    unit = "Mrays/s" if by_kernel else "Mrays/CPU s"
     return (table(title,
                   ["scene", "batch", "query", "rays"] + [f"{a} Mrays/s" for a in accels]
-                  + [f"{a} Mrays/CPU s" for a in sorted_]
+                  + [f"{a} {unit}" for a in sorted_]
                   + ["Mitsuba", "best / Mitsuba", "best / Mitsuba by CPU time", "agreement"],
                   "lllr" + "r" * (n + len(sorted_) + 4), cells)
             + table("Traversal steps per ray (instrumented traversal): node steps / triangle "
