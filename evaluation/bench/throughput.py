@@ -461,8 +461,8 @@ def markdown(rows: list[dict]) -> list[str]:
     elif sorted_:
         title = title[:-1] + ("; the query variants (+sort: rays sorted first, "
                               "``renderer.accel.order``; +refill: lanes take the next ray, "
-                              "``traverse.refill_traversal``): M rays per CPU s, the call "
-                              "itself (sort, ray copy, Python tracing) included)")
+                              "``WideBVH.refill``): M rays per CPU s, the call itself "
+                              "(sort, ray copy, Python tracing) included)")
     unit = "Mrays/s" if by_kernel else "Mrays/CPU s"
     return (table(title,
                   ["scene", "batch", "query", "rays"] + [f"{a} Mrays/s" for a in accels]
