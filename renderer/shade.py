@@ -403,10 +403,6 @@ def _light_term(li, ctx: ShadingContext, lobe: PhongLobe, sa: SceneArrays, t: Ty
     L = ls.wi
     cos_theta = dr.dot(L, N)
     lit = ctx.active & (cos_theta > 0)
-    if dr.hint(fx.shadows, mode="scalar"):
-        shadow = shadow_ray(sp, ls.p, t.is_double, opt.eps, opt.spawn)
-        blocked = sa.accel.intersect_p(shadow, lit)
-        lit &= ~blocked
     brdf = lobe.kd * cos_theta
     if dr.hint(fx.specular, mode="scalar"):
         R_l = dr.fma(N, 2.0 * cos_theta, -L)
@@ -415,6 +411,14 @@ def _light_term(li, ctx: ShadingContext, lobe: PhongLobe, sa: SceneArrays, t: Ty
         if dr.hint(fx.physical, mode="scalar"):
             spec = spec * cos_theta
         brdf = dr.fma(lobe.ks, spec, brdf)
+    if dr.hint(fx.shadows, mode="scalar"):
+        # no shadow ray where the light adds exactly nothing (brdf 0: a purely specular
+        # surface outside its highlight, e.g. glass with kd = 0 and a sharp Phong lobe):
+        # ``Li * 0 + result`` is ``result`` whether the light is blocked or not
+        lit &= dr.max(brdf) > 0
+        shadow = shadow_ray(sp, ls.p, t.is_double, opt.eps, opt.spawn)
+        blocked = sa.accel.intersect_p(shadow, lit)
+        lit &= ~blocked
     return dr.select(lit, dr.fma(ls.Li, brdf, result), result)
 
 
