@@ -102,7 +102,7 @@ def _results(fn) -> list:
 
 def probe(name: str, t, width: int, height: int, repeats: int) -> list:
     from reference import mitsuba_variant
-    from reference.mitsuba_scene import load_triangles, rays
+    from reference.mitsuba_scene import load_triangles
     scene = load_scene(f"scenes/{name}.toml")
     binary = build_bvh(scene.vertices, scene.faces, leaf_size=4)
     accs = {a: ACCELERATORS[a].build(scene, t, binary=binary) for a in ("bvh", "bvh4")}
@@ -127,11 +127,7 @@ def probe(name: str, t, width: int, height: int, repeats: int) -> list:
     rows = []
     for bname, (bo, bd) in batches.items():
         m = len(bo)
-        ray = Ray(o=array3(t, bo), d=array3(t, bd),
-                  t_max=t.Float(np.full(m, np.inf, np.float32)))
-        on = dr.full(t.Bool, True, m)
-        mray = rays(bo, bd, None)
-        dr.eval(ray, on, mray)
+        ray, on, mray = T.upload_batch(t, bo, bd)
         for q in ("closest", "any"):
             query = T._closest if q == "closest" else T._occluded
             conts = dict(accs, **{k: v for k, (_, v) in variants.items()})

@@ -131,7 +131,7 @@ def _same(got, ref, q) -> bool:
 
 def probe(scene_name: str, t, mode: str, width: int, height: int, repeats: int) -> list:
     from reference import mitsuba_variant
-    from reference.mitsuba_scene import load_triangles, rays
+    from reference.mitsuba_scene import load_triangles
     scene = load_scene(f"scenes/{scene_name}.toml")
     accs, conts = _accelerators(scene, t, mode)
     mitsuba_variant("cuda_ad_rgb" if t.backend == "cuda" else "llvm_ad_rgb")
@@ -149,11 +149,7 @@ def probe(scene_name: str, t, mode: str, width: int, height: int, repeats: int) 
     rows = []
     for bname, (bo, bd, coherent) in batches.items():
         m = len(bo)
-        ray = Ray(o=array3(t, bo), d=array3(t, bd),
-                  t_max=t.Float(np.full(m, np.inf, np.float32)))
-        on = dr.full(t.Bool, True, m)
-        mray = rays(bo, bd, None)
-        dr.eval(ray, on, mray)
+        ray, on, mray = T.upload_batch(t, bo, bd)
         for q in ("closest", "any"):
             fns = {k: (lambda a=a, nb=nb, tb=tb, q=q, ray=ray, on=on:
                         _query(t, accs[a], ray, on, q, nb, tb))
@@ -186,10 +182,14 @@ def main(argv=None) -> int:
     ap.add_argument("--backend", default="cuda")
     ap.add_argument("--scenes", default=",".join(SCENES))
     ap.add_argument("--out", default=os.environ.get("OUT", "out"))
+    ap.add_argument("--size", default="", help="batch WxH (default 1920x1080 on CUDA, "
+                    "160x90 on the CPU)")
     a = ap.parse_args(argv)
     warnings.simplefilter("ignore")
     t = types(a.backend)
     size = (1920, 1080) if a.backend == "cuda" else (160, 90)
+    if a.size:
+        size = tuple(int(x) for x in a.size.lower().split("x"))
     if a.mode == "branches":
         bvh_module.masked_step = wide_module.masked_step = _switchable("node")
         traverse_module.masked_step = _switchable("tri")

@@ -33,7 +33,7 @@ import drjit as dr
 import numpy as np
 
 from renderer.accel import ACCELERATORS, Ray, build_accelerator
-from renderer.accel.bvh_build import build_bvh, leaf_size_for
+from renderer.accel.bvh_build import build_bvh
 from renderer.accel.order import SortedQueries
 from renderer.device import array3, types
 
@@ -141,6 +141,18 @@ def reflection_rays_host(scene, o, d, t, prim_face) -> tuple[np.ndarray, np.ndar
     return ro.astype(np.float32), r.astype(np.float32)
 
 
+def upload_batch(t, bo, bd, btmax=None) -> tuple:
+    """The host batch ``(bo, bd, btmax)`` (t_max inf where None) on the device for both
+    renderers: ``(ray, on, mitsuba_ray)``, evaluated."""
+    from reference.mitsuba_scene import rays
+    btmax = np.full(len(bo), np.inf, np.float32) if btmax is None else btmax
+    ray = Ray(o=array3(t, bo), d=array3(t, bd), t_max=t.Float(btmax))
+    on = dr.full(t.Bool, True, len(bo))
+    mray = rays(bo, bd, btmax if np.all(np.isfinite(btmax)) else None)
+    dr.eval(ray, on, mray)
+    return ray, on, mray
+
+
 # ---- the measurement ----------------------------------------------------------------------
 def _timed(fns: dict, repeats: int, warmup: int = 2, eager=()) -> dict:
     """Time each ``fns[name]()``, which traces a query and returns the variables to
@@ -225,7 +237,7 @@ def ray_throughput(scene, *, backend: str, width: int = 1920, height: int = 1080
     run the instrumented traversals. The legacy keys (``ours_primary``, ``ours_shadow``,
     ``primary_agreement`` ...) hold the first accelerator's primary and shadow rows."""
     from reference import mitsuba_variant
-    from reference.mitsuba_scene import load_triangles, rays
+    from reference.mitsuba_scene import load_triangles
     t = types(backend)
     lanes = 32 if t.backend == "cuda" else 16
     o, d = primary_rays_host(scene, width, height, t)
@@ -233,7 +245,7 @@ def ray_throughput(scene, *, backend: str, width: int = 1920, height: int = 1080
 
     # ---- builds: one binary SAH build, uploaded as is and collapsed to the wide BVHs -------
     t0, c0 = time.perf_counter(), time.process_time()
-    binary = build_bvh(scene.vertices, scene.faces, leaf_size=leaf_size_for(t.backend))
+    binary = build_bvh(scene.vertices, scene.faces)
     binary_s, binary_cpu = time.perf_counter() - t0, time.process_time() - c0
     accs, build = {}, {"triangles": scene.face_count, "binary_build_s": binary.build_seconds,
                        "binary_build_cpu_s": binary_cpu,
@@ -251,12 +263,7 @@ def ray_throughput(scene, *, backend: str, width: int = 1920, height: int = 1080
     first = accels[0]
 
     def upload(bo, bd, btmax):
-        m = len(bo)
-        ray = Ray(o=array3(t, bo), d=array3(t, bd), t_max=t.Float(btmax))
-        on = dr.full(t.Bool, True, m)
-        mray = rays(bo, bd, btmax if np.all(np.isfinite(btmax)) else None)
-        dr.eval(ray, on, mray)
-        return ray, on, mray
+        return upload_batch(t, bo, bd, btmax)
 
     sorted_q = {s: (SortedQueries.for_scene(accs[a], scene) if kind == "sort"
                     else replace(accs[a], refill=REFILL[t.backend]))

@@ -33,7 +33,7 @@ from .base import (
     traversal_triangles,
     uses_pairs,
 )
-from .bvh_build import BINS, BVHArrays, build_bvh, leaf_size_for, refit_boxes
+from .bvh_build import BINS, LEAF_SIZE, BVHArrays, build_bvh, refit_boxes
 from .traverse import (
     DONE,
     STACK_SIZE,
@@ -110,8 +110,7 @@ def traversal_boxes(a: BVHArrays, scene, t: Types, intersection: str) -> np.ndar
 class BVH(Accelerator):
     """Bounding volume hierarchy accelerator (see the module docstring).
 
-    Build with ``BVH.build(scene, t, intersection=DEFAULT_ROUTINE, leaf_size=None, bins=32)``
-    (``leaf_size`` None: ``bvh_build.leaf_size_for(t.backend)``).
+    Build with ``BVH.build(scene, t, intersection=DEFAULT_ROUTINE, leaf_size=2, bins=32)``.
     nodes: Float (12 N) child boxes; children: UInt32 (2 N) child references;
     tri_data: Float (12 F) packed triangles in BVH order; tris: DeviceTriangles in BVH order;
     backend, precision: of the arrays (``types``); intersection: name of the triangle
@@ -134,12 +133,11 @@ class BVH(Accelerator):
 
     @classmethod
     def build(cls, scene, t: Types, *, intersection: str = DEFAULT_ROUTINE,
-              leaf_size: int | None = None, bins: int = BINS, binary: BVHArrays | None = None,
+              leaf_size: int = LEAF_SIZE, bins: int = BINS, binary: BVHArrays | None = None,
               **build_options) -> "BVH":
         """``build_options`` go to ``build_bvh`` (root_bins, all_axes, sah_leaves,
         depth_first, sample); ``binary``: an existing build of ``scene`` to upload instead."""
         triangle_routine(intersection)
-        leaf_size = leaf_size_for(t.backend) if leaf_size is None else leaf_size
         a = binary if binary is not None else build_bvh(
             scene.vertices, scene.faces, leaf_size=leaf_size, bins=bins, **build_options)
         t0 = time.perf_counter()

@@ -27,23 +27,18 @@ from .triangle import unit_roundoff
 
 MAX_LEVELS = STACK_SIZE      # levels of inner nodes; the stack never holds more entries
 C_TRAV, C_TRI = 1.0, 1.0     # SAH costs of one node visit and one triangle test
-LEAF_SIZE = 4                # default most triangles per leaf (LLVM)
-#: The default leaf size per backend (``leaf_size_for``): on the GPU, where every traversal
-#: step is a real branch that a warp takes only when one of its threads needs it, leaves
-#: of at most 2 triangles trace 1.05-1.24x faster than leaves of 4 (H200, per-scene medians,
-#: bitwise the same hits; Conference alone 2 % slower: ``results/h200/throughput/branches.md``).
-LEAF_SIZES = {"llvm": LEAF_SIZE, "cuda": 2}
+#: Default most triangles per leaf. Every traversal step is a real branch, which a warp
+#: (CUDA) or SIMD packet (LLVM) takes only when one of its lanes needs it; so smaller leaves
+#: pay: leaves of at most 2 triangles trace 1.05-1.24x faster than leaves of 4 on an H200
+#: (per-scene medians; Conference 0.98x: ``results/h200/throughput/branches.md``) and 0-30 %
+#: faster with the 4-wide BVH on the CPU (``results/cpu/leaf-size.md``), hits bitwise the same.
+LEAF_SIZE = 2
 BINS = 32                    # default SAH bins per axis
 BIG_NODE = 1024              # nodes larger than this (level average) get root_bins bins
 AXES_MIN = 1024              # three-axis SAH only in levels whose nodes average more triangles
 BIN_DIV = 4                  # bins per node: at most (triangles per node, rounded up to
                              # 2^k) / BIN_DIV
 SAMPLE = 1024                # larger nodes are binned from a sample of about this many
-
-
-def leaf_size_for(backend: str) -> int:
-    """The default most triangles per leaf of a build for ``backend`` (``LEAF_SIZES``)."""
-    return LEAF_SIZES.get(backend, LEAF_SIZE)
 
 
 def pad_boxes(lo: np.ndarray, hi: np.ndarray, extent: float):

@@ -54,7 +54,7 @@ from .base import (
     uses_pairs,
 )
 from .bvh import traversal_boxes
-from .bvh_build import BINS, BVHArrays, build_bvh, leaf_size_for
+from .bvh_build import BINS, LEAF_SIZE, BVHArrays, build_bvh
 from .traverse import (
     DONE,
     LEAF_BIT,
@@ -377,8 +377,7 @@ def _network(n: int) -> list[tuple[int, int]]:
 class WideBVH(Accelerator):
     """Wide BVH accelerator (see the module docstring).
 
-    Build with ``WideBVH.build(scene, t, width=4, intersection=..., leaf_size=None, bins=32)``
-    (``leaf_size`` None: ``bvh_build.leaf_size_for(t.backend)``).
+    Build with ``WideBVH.build(scene, t, width=4, intersection=..., leaf_size=2, bins=32)``.
     nodes: Float (6 width N) SoA child boxes; refs: UInt32 (width N) child references;
     tri_data, tris: as ``BVH``; width: 4 or 8; backend, precision, intersection, info.
     """
@@ -400,7 +399,7 @@ class WideBVH(Accelerator):
 
     @classmethod
     def build(cls, scene, t: Types, *, width: int = 4, quantized: bool | None = None,
-              intersection: str = DEFAULT_ROUTINE, leaf_size: int | None = None,
+              intersection: str = DEFAULT_ROUTINE, leaf_size: int = LEAF_SIZE,
               bins: int = BINS, binary: BVHArrays | None = None,
               **build_options) -> "WideBVH":
         """``binary``: a binary build of ``scene`` to convert (else one is built with
@@ -410,7 +409,6 @@ class WideBVH(Accelerator):
         triangle_routine(intersection)
         if quantized is None:  # 8-bit boxes are fitted to float32 boxes: float64 keeps floats
             quantized = not t.is_double
-        leaf_size = leaf_size_for(t.backend) if leaf_size is None else leaf_size
         a = binary if binary is not None else build_bvh(
             scene.vertices, scene.faces, leaf_size=leaf_size, bins=bins, **build_options)
         a = replace(a, boxes=traversal_boxes(a, scene, t, intersection))
