@@ -34,6 +34,10 @@ C_TRAV, C_TRI = 1.0, 1.0     # SAH costs of one node visit and one triangle test
 #: faster with the 4-wide BVH on the CPU (``results/cpu/leaf-size.md``), hits bitwise the same.
 LEAF_SIZE = 2
 BINS = 32                    # default SAH bins per axis
+SPATIAL = 0.3                # default budget of extra references for spatial splits
+SPATIAL_MIN_TRIANGLES = 16384  # ... in scenes of more triangles than this
+SPATIAL_MIN_REFS = 512       # ... in nodes of more references than this
+SPATIAL_DEPTH = 24           # ... in the top inner levels
 BIG_NODE = 1024              # nodes larger than this (level average) get root_bins bins
 AXES_MIN = 1024              # three-axis SAH only in levels whose nodes average more triangles
 BIN_DIV = 4                  # bins per node: at most (triangles per node, rounded up to
@@ -62,6 +66,9 @@ class BVHArrays:
     levels: number of inner-node levels (<= MAX_LEVELS); leaf_count; sah_cost (relative to
         the root's surface area, C_trav = C_tri = 1); build_seconds;
     bounds: float64 (3,) lo, hi of all triangles.
+    cells: None, or with spatial splits ``(lo, hi)`` float64 (F', 3) per leaf position: the
+        cell its reference was cut to (``renderer.accel.spatial``); ``order`` then holds a
+        face once per reference.
     """
 
     boxes: np.ndarray
@@ -72,6 +79,7 @@ class BVHArrays:
     sah_cost: float
     build_seconds: float
     bounds: tuple = (np.zeros(3), np.zeros(3))
+    cells: tuple | None = None
 
     @property
     def node_count(self) -> int:
@@ -222,7 +230,7 @@ class _Level:
 def build_bvh(vertices: np.ndarray, faces: np.ndarray, *, leaf_size: int = LEAF_SIZE,
               bins: int = BINS, root_bins: int = BINS, all_axes: bool = True,
               sah_leaves: bool = False, depth_first: bool = True,
-              sample: int = SAMPLE) -> BVHArrays:
+              sample: int = SAMPLE, spatial: float = SPATIAL) -> BVHArrays:
     """Build a BVH over the triangles ``faces`` (int (F, 3)) of ``vertices`` (float (V, 3)).
 
     leaf_size: most triangles per leaf (1..16); a node with more is always split.
@@ -237,6 +245,9 @@ def build_bvh(vertices: np.ndarray, faces: np.ndarray, *, leaf_size: int = LEAF_
     depth_first: number the inner nodes in depth-first order (a node's first child directly
         follows it); False keeps the level-by-level order of the build.
     sample: nodes of more triangles are binned from a strided sample of about this many.
+    spatial: spatial splits near the root (``renderer.accel.spatial``) with at most
+        ``spatial * F`` extra references, in scenes of more than ``SPATIAL_MIN_TRIANGLES``
+        triangles; 0: object splits only.
     A node whose centroids coincide, or one too deep to finish with SAH splits inside
     MAX_LEVELS levels, is split at the median instead.
     """
@@ -260,16 +271,30 @@ def build_bvh(vertices: np.ndarray, faces: np.ndarray, *, leaf_size: int = LEAF_
     else:
         s_lo = s_hi = np.zeros(3, np.float32)
     bounds = (s_lo.astype(np.float64), s_hi.astype(np.float64))
-    n_max = max(F, 1)
+    top = None
+    if spatial > 0 and F > max(leaf_size, SPATIAL_MIN_TRIANGLES):
+        from .spatial import spatial_top
+        top = spatial_top(V, Fi, lo.T, hi.T, int(spatial * F), SPATIAL_MIN_REFS,
+                          SPATIAL_DEPTH)
+        if top is not None and not len(top.nodes):
+            top = None
+    R = F if top is None else int(top.face.size)          # references
+    if top is not None:
+        lo, hi = top.lo.T.copy(), top.hi.T.copy()
+    n_max = max(R, 1) + (0 if top is None else len(top.nodes))
     tree = _Tree(np.empty((n_max, 12), np.float32), np.empty((n_max, 2), np.uint32),
-                 np.empty(F, np.int64), float(np.max(s_hi - s_lo)) if F else 0.0)
+                 np.empty(R, np.int64), float(np.max(s_hi - s_lo)) if F else 0.0)
 
     if F <= leaf_size:
         _single_leaf(tree, s_lo, s_hi)
     else:
         # ---- level by level: bin, choose splits, partition, emit children ---------------
-        lv = _Level(0, np.arange(F, dtype=np.int64), list(lo), list(hi),
-                    np.array([F], np.int64), np.array([0], np.int64), np.array([-1], np.int64))
+        if top is None:
+            lv = _Level(0, np.arange(F, dtype=np.int64), list(lo), list(hi),
+                        np.array([F], np.int64), np.array([0], np.int64),
+                        np.array([-1], np.int64))
+        else:
+            lv = _top_nodes(top, tree, lo, hi)
         while lv.nseg:
             _layout(lv, opt)
             _bin(lv, opt)
@@ -281,11 +306,39 @@ def build_bvh(vertices: np.ndarray, faces: np.ndarray, *, leaf_size: int = LEAF_
     boxes, children = tree.boxes[:tree.n_nodes], tree.children[:tree.n_nodes]
     if depth_first and F > leaf_size:
         boxes, children = _depth_first(boxes, children)
-    arrays = BVHArrays(boxes.copy(), children.copy(), tree.order, tree.levels,
-                       tree.leaf_count, 0.0, 0.0, bounds)
+    order, cells = tree.order, None
+    if top is not None:                   # leaf positions hold references: their faces
+        order = top.face[tree.order]
+        cells = (top.cell_lo[tree.order], top.cell_hi[tree.order])
+    arrays = BVHArrays(boxes.copy(), children.copy(), order, tree.levels,
+                       tree.leaf_count, 0.0, 0.0, bounds, cells)
     arrays.sah_cost = _sah_cost(arrays)
     arrays.build_seconds = time.perf_counter() - t_start
     return arrays
+
+
+def _top_nodes(top, tree: _Tree, lo, hi) -> _Level:
+    """Write ``spatial_top``'s top nodes into ``tree`` (padded child boxes; top children
+    linked, bucket children linked later by the level-wise build) and return the buckets as
+    the first pending level of that build (at the deepest bucket's depth, so its
+    ``MAX_LEVELS`` bound holds for every bucket)."""
+    T = len(top.nodes)
+    for k in range(2):
+        blo, bhi = pad_boxes(top.nodes[:, 6 * k:6 * k + 3], top.nodes[:, 6 * k + 3:6 * k + 6],
+                             tree.extent)
+        tree.boxes[:T, 6 * k:6 * k + 3], tree.boxes[:T, 6 * k + 3:6 * k + 6] = blo, bhi
+    ch = top.children
+    tree.children[:T] = np.where(ch >= 0, ch, 0).astype(np.uint32)
+    slot = np.empty(len(top.buckets), np.int64)
+    node, k = np.nonzero(ch < 0)
+    slot[-1 - ch[node, k]] = 2 * node + k
+    tree.n_nodes = T
+    tree.levels = max(top.depth)
+    counts = np.array([b.size for b in top.buckets], np.int64)
+    first = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
+    el = np.concatenate(top.buckets)
+    return _Level(max(top.depth), el, [r[el] for r in lo], [r[el] for r in hi], counts,
+                  first, slot)
 
 
 def _single_leaf(tree: _Tree, s_lo, s_hi) -> None:
@@ -562,6 +615,9 @@ def refit_boxes(a: BVHArrays, vertices: np.ndarray, faces: np.ndarray, dtype, ex
     p = [V[Fi[:, k]] for k in range(3)]
     t_lo = np.minimum(np.minimum(p[0], p[1]), p[2])                  # (F, 3) in BVH order
     t_hi = np.maximum(np.maximum(p[0], p[1]), p[2])
+    if a.cells is not None:               # each reference: its triangle clipped to its cell
+        from .spatial import clipped_boxes
+        t_lo, t_hi = clipped_boxes(vertices, faces, a.order, a.cells[0], a.cells[1], dt)
     ref = a.children.astype(np.int64)
     is_leaf = (ref & LEAF_BIT) != 0
     real = np.isfinite(a.boxes.reshape(N, 2, 6)[:, :, 0])          # (N, 2)
@@ -641,5 +697,8 @@ def check_bvh(a: BVHArrays) -> None:
     for f, c in zip(first[real], count[real]):
         seen[f:f + c] += 1
     assert F == 0 or np.all(seen == 1)
-    assert np.array_equal(np.sort(a.order), np.arange(F))
+    if a.cells is None:
+        assert np.array_equal(np.sort(a.order), np.arange(F))
+    else:                                 # every face at least once
+        assert np.array_equal(np.unique(a.order), np.arange(int(a.order.max()) + 1))
     assert a.levels <= MAX_LEVELS
