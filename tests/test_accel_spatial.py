@@ -9,9 +9,10 @@ from accel_util import assert_same_hits, hits, random_rays, scene_from_arrays, s
 from test_accel_wide import adversarial_rays, grid
 
 import renderer.accel.bvh_build as bvh_build
+import renderer.accel.spatial as spatial
 from renderer.accel import BVH, BruteForce, WideBVH
 from renderer.accel.bvh import traversal_boxes
-from renderer.accel.bvh_build import LEAF_BIT, build_bvh, check_bvh
+from renderer.accel.bvh_build import LEAF_BIT, SPATIAL, build_bvh, check_bvh
 from renderer.device import types
 
 
@@ -20,6 +21,7 @@ def small_scenes_split(monkeypatch):
     """Spatial splits in test-sized scenes (the defaults start at 16384 triangles)."""
     monkeypatch.setattr(bvh_build, "SPATIAL_MIN_TRIANGLES", 64)
     monkeypatch.setattr(bvh_build, "SPATIAL_MIN_REFS", 32)
+    monkeypatch.setattr(spatial, "PROBE_DEPTH", 12)
 
 
 def floor_and_clutter(seed=3):
@@ -36,8 +38,8 @@ def floor_and_clutter(seed=3):
 
 def test_spatial_splits_duplicate_the_large_triangles_and_lower_the_sah(small_scenes_split):
     V, faces = floor_and_clutter()
-    plain = build_bvh(V, faces, spatial=0.0)
-    a = build_bvh(V, faces)
+    plain = build_bvh(V, faces)                   # spatial splits are opt-in
+    a = build_bvh(V, faces, spatial=SPATIAL)
     check_bvh(a)
     assert a.cells is not None and a.order.size > len(faces)       # references were cut
     counts = np.bincount(a.order, minlength=len(faces))
@@ -53,23 +55,28 @@ def test_spatial_bvh_matches_brute_force(small_scenes_split, precision, intersec
     sc = scene_from_arrays(V, faces, n_objects=2)
     ray, active = random_rays(t, 6000, seed=23)
     ref = hits(BruteForce.build(sc, t, intersection=intersection), ray, active, t)
-    acc = BVH.build(sc, t, intersection=intersection)
+    acc = BVH.build(sc, t, intersection=intersection, spatial=SPATIAL)
     assert acc.tris.order.numpy().size > len(faces)
     assert_same_hits(hits(acc, ray, active, t), ref)
     for width in (4, 8):
-        assert_same_hits(hits(WideBVH.build(sc, t, width=width, intersection=intersection),
-                              ray, active, t), ref)
+        assert_same_hits(hits(WideBVH.build(sc, t, width=width, intersection=intersection,
+                                            spatial=SPATIAL), ray, active, t), ref)
 
 
 def test_spatial_bvh_matches_brute_force_on_adversarial_rays(small_scenes_split):
     """Shared edges, coincident faces, grazing and axis-parallel rays (the grid of
-    ``test_accel_wide``), with its large tilted sheet cut by the splits."""
+    ``test_accel_wide``) in a scene whose two large triangles are cut by the splits."""
     t = types("llvm")
-    V, faces = grid(32)
+    Vg, fg = grid(32)
+    Vc, fc = floor_and_clutter(seed=11)
+    V = np.concatenate([Vg, Vc])
+    faces = np.concatenate([fg, fc + len(Vg)])
     sc = scene_from_arrays(V, faces, n_objects=2)
     ray, active = adversarial_rays(t, V, faces, seed=8)
     ref = hits(BruteForce.build(sc, t), ray, active, t)
-    assert_same_hits(hits(BVH.build(sc, t), ray, active, t), ref)
+    acc = BVH.build(sc, t, spatial=SPATIAL)
+    assert acc.tris.order.numpy().size > len(faces)
+    assert_same_hits(hits(acc, ray, active, t), ref)
 
 
 @pytest.mark.parametrize("precision", ["float32", "float64"])
@@ -80,7 +87,8 @@ def test_every_triangle_is_covered_by_its_references_boxes(small_scenes_split, p
     t = types("llvm", precision)
     V, faces = floor_and_clutter(seed=5)
     sc = scene_from_arrays(V, faces)
-    a = build_bvh(sc.vertices, sc.faces)
+    a = build_bvh(sc.vertices, sc.faces, spatial=SPATIAL)
+    assert a.cells is not None
     boxes = traversal_boxes(a, sc, t, "watertight").reshape(-1, 2, 6)
     # the box of every leaf position
     pos_lo = np.full((a.order.size, 3), np.inf)

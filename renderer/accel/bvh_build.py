@@ -34,10 +34,17 @@ C_TRAV, C_TRI = 1.0, 1.0     # SAH costs of one node visit and one triangle test
 #: faster with the 4-wide BVH on the CPU (``results/cpu/leaf-size.md``), hits bitwise the same.
 LEAF_SIZE = 2
 BINS = 32                    # default SAH bins per axis
-SPATIAL = 0.3                # default budget of extra references for spatial splits
-SPATIAL_MIN_TRIANGLES = 16384  # ... in scenes of more triangles than this
-SPATIAL_MIN_REFS = 512       # ... in nodes of more references than this
-SPATIAL_DEPTH = 24           # ... in the top inner levels
+#: Spatial splits (``build_bvh(spatial=...)``, opt-in): the budget of extra references the
+#: probe uses (``evaluation.bench.probe_spatial``), and where they are tried: scenes of more
+#: triangles than ``SPATIAL_MIN_TRIANGLES``, nodes of more references than
+#: ``SPATIAL_MIN_REFS``, the top ``SPATIAL_DEPTH`` inner levels. Off by default: on the CPU
+#: they made closest-hit rays 6-31 % faster on Sponza and Conference but Conference's
+#: any-hit primary rays 31 % slower (its large occluders move down the tree), and they are
+#: not yet measured on the GPU (``results/cpu/spatial.md``).
+SPATIAL = 0.3
+SPATIAL_MIN_TRIANGLES = 16384
+SPATIAL_MIN_REFS = 512
+SPATIAL_DEPTH = 12
 BIG_NODE = 1024              # nodes larger than this (level average) get root_bins bins
 AXES_MIN = 1024              # three-axis SAH only in levels whose nodes average more triangles
 BIN_DIV = 4                  # bins per node: at most (triangles per node, rounded up to
@@ -230,7 +237,7 @@ class _Level:
 def build_bvh(vertices: np.ndarray, faces: np.ndarray, *, leaf_size: int = LEAF_SIZE,
               bins: int = BINS, root_bins: int = BINS, all_axes: bool = True,
               sah_leaves: bool = False, depth_first: bool = True,
-              sample: int = SAMPLE, spatial: float = SPATIAL) -> BVHArrays:
+              sample: int = SAMPLE, spatial: float = 0.0) -> BVHArrays:
     """Build a BVH over the triangles ``faces`` (int (F, 3)) of ``vertices`` (float (V, 3)).
 
     leaf_size: most triangles per leaf (1..16); a node with more is always split.
@@ -246,8 +253,8 @@ def build_bvh(vertices: np.ndarray, faces: np.ndarray, *, leaf_size: int = LEAF_
         follows it); False keeps the level-by-level order of the build.
     sample: nodes of more triangles are binned from a strided sample of about this many.
     spatial: spatial splits near the root (``renderer.accel.spatial``) with at most
-        ``spatial * F`` extra references, in scenes of more than ``SPATIAL_MIN_TRIANGLES``
-        triangles; 0: object splits only.
+        ``spatial * F`` extra references (``SPATIAL``: 0.3), in scenes of more than
+        ``SPATIAL_MIN_TRIANGLES`` triangles; 0 (the default): object splits only.
     A node whose centroids coincide, or one too deep to finish with SAH splits inside
     MAX_LEVELS levels, is split at the median instead.
     """

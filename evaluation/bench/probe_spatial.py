@@ -1,0 +1,116 @@
+"""Probe: the BVH with and without spatial splits (``renderer.accel.spatial``) against
+Mitsuba, on the throughput part's batches.
+
+    python -m evaluation.bench.probe_spatial [--backend llvm] [--size 640x360]
+        [--scenes sponza,conference] [--out DIR]
+
+Per scene: one build with ``spatial=0`` and one with the default, each as the binary and
+the 4-wide BVH; per batch and query the kernel time of every contender (timed in turn,
+``throughput._timed``), the hits compared with the plain build's (t and face where found),
+and the instrumented traversal's steps. Writes ``OUT/spatial.json``.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import warnings
+
+import drjit as dr
+import numpy as np
+
+from renderer.accel import ACCELERATORS
+from renderer.accel.bvh_build import SPATIAL, build_bvh
+from renderer.device import types
+from renderer.scene import load_scene
+
+from . import throughput as T
+
+SCENES = ("sponza", "conference")
+
+
+def probe(name: str, t, width: int, height: int, repeats: int) -> list:
+    from reference import mitsuba_variant
+    from reference.mitsuba_scene import load_triangles
+    scene = load_scene(f"scenes/{name}.toml")
+    builds = {"plain": build_bvh(scene.vertices, scene.faces, spatial=0.0),
+              "spatial": build_bvh(scene.vertices, scene.faces, spatial=SPATIAL)}
+    accs = {f"{a}-{b}": ACCELERATORS[a].build(scene, t, binary=arrays)
+            for b, arrays in builds.items() for a in ("bvh", "bvh4")}
+    dr.eval(accs)
+    mitsuba_variant("cuda_ad_rgb" if t.backend == "cuda" else "llvm_ad_rgb")
+    mscene, _ = load_triangles(scene.vertices, scene.faces)
+    o, d = T.primary_rays_host(scene, width, height, t)
+    ray, on, _ = T.upload_batch(t, o, d)
+    ht, hp, hf = T._closest(accs["bvh-plain"], ray.o, ray.d, ray.t_max, on)
+    valid = hf.numpy()
+    order = accs["bvh-plain"].tris.order.numpy().astype(np.int64)
+    t_h = np.where(valid, ht.numpy(), np.inf)
+    face = np.where(valid, order[np.minimum(hp.numpy(), len(order) - 1)], 0)
+    batches = {"primary": (o, d, True),
+               "incoherent": T.incoherent_rays_host(scene, len(o)) + (False,),
+               "reflection": T.reflection_rays_host(scene, o, d, t_h, face) + (False,)}
+    rows = []
+    for bname, (bo, bd, coherent) in batches.items():
+        ray, on, mray = T.upload_batch(t, bo, bd)
+        for q in ("closest", "any"):
+            def ours(acc, q=q, ray=ray, on=on):
+                if q == "closest":
+                    h = acc.intersect(ray, on)
+                    return h.t, dr.gather(t.UInt32, acc.tris.order, h.prim, h.found), h.found
+                return (acc.intersect_p(ray, on),)
+            fns = {k: (lambda acc=acc, ours=ours: ours(acc)) for k, acc in accs.items()}
+            if q == "closest":
+                def mitsuba(mray=mray, coherent=coherent):
+                    pi = mscene.ray_intersect_preliminary(mray, coherent=coherent)
+                    return pi.t, pi.prim_index
+            else:
+                def mitsuba(mray=mray, coherent=coherent):
+                    return mscene.ray_test(mray, coherent=coherent)
+            fns["mitsuba"] = mitsuba
+            ref = [x.numpy() for x in fns["bvh-plain"]()]
+            same = {}
+            for k in accs:
+                got = [x.numpy() for x in fns[k]()]
+                f = ref[-1]
+                same[k] = bool(np.array_equal(got[0], ref[0]) if q == "any" else
+                               (np.array_equal(got[2], f) and np.array_equal(got[0][f], ref[0][f])
+                                and np.array_equal(got[1][f], ref[1][f])))
+            steps = {k: [float(x.numpy().mean()) for x in accs[k].counts(ray, on, q == "any")]
+                     for k in accs}
+            timing = T._timed(fns, repeats)
+            rows.append({"scene": name, "batch": bname, "query": q, "rays": len(bo),
+                         "same": same, "steps": steps, "ms": timing,
+                         "references": {b: int(a.order.size) for b, a in builds.items()},
+                         "build_s": {b: a.build_seconds for b, a in builds.items()},
+                         "sah": {b: a.sah_cost for b, a in builds.items()}})
+            base = timing["mitsuba"]["kernel_ms"]
+            line = "  ".join(f"{k} {base / v['kernel_ms']:.3f}"
+                             for k, v in timing.items() if k != "mitsuba")
+            print(f"{name} {bname} {q} | x mitsuba: {line} | same {all(same.values())}",
+                  flush=True)
+    return rows
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--backend", default="llvm")
+    ap.add_argument("--size", default="640x360")
+    ap.add_argument("--scenes", default=",".join(SCENES))
+    ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--out", default=os.environ.get("OUT", "out"))
+    a = ap.parse_args(argv)
+    warnings.simplefilter("ignore")
+    t = types(a.backend)
+    w, h = (int(x) for x in a.size.lower().split("x"))
+    rows = []
+    for name in a.scenes.split(","):
+        rows += probe(name, t, w, h, a.repeats)
+        os.makedirs(a.out, exist_ok=True)
+        with open(os.path.join(a.out, "spatial.json"), "w") as f:
+            json.dump({"backend": a.backend, "size": [w, h], "rows": rows}, f, indent=1)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
