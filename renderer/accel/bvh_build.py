@@ -38,9 +38,9 @@ BINS = 32                    # default SAH bins per axis
 #: probe uses (``evaluation.bench.probe_spatial``), and where they are tried: scenes of more
 #: triangles than ``SPATIAL_MIN_TRIANGLES``, nodes of more references than
 #: ``SPATIAL_MIN_REFS``, the top ``SPATIAL_DEPTH`` inner levels. Off by default: on the CPU
-#: they made closest-hit rays 6-31 % faster on Sponza and Conference but Conference's
-#: any-hit primary rays 31 % slower (its large occluders move down the tree), and they are
-#: not yet measured on the GPU (``results/cpu/spatial.md``).
+#: they made closest-hit rays 1.12-1.30x faster on Sponza and Conference but the binary
+#: BVH's any-hit primary rays on Conference 0.69x (its large occluders move down the tree),
+#: and they are not yet measured on the GPU (``results/cpu/spatial.md``).
 SPATIAL = 0.3
 SPATIAL_MIN_TRIANGLES = 16384
 SPATIAL_MIN_REFS = 512
