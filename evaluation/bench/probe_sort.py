@@ -134,14 +134,7 @@ def probe(name: str, t, width: int, height: int, repeats: int) -> list:
             fns = {k: (lambda acc=acc, query=query, ray=ray, on=on:
                         query(acc, ray.o, ray.d, ray.t_max, on))
                    for k, acc in conts.items()}
-            if q == "closest":
-                def mitsuba(mray=mray):
-                    pi = mscene.ray_intersect_preliminary(mray, coherent=False)
-                    return pi.t, pi.prim_index
-            else:
-                def mitsuba(mray=mray):
-                    return mscene.ray_test(mray, coherent=False)
-            fns["mitsuba"] = mitsuba
+            fns["mitsuba"] = T.mitsuba_query(mscene, mray, q, False)
             same = {k: all(np.array_equal(x, y) for x, y in
                            zip(_results(fns[a]), _results(fns[k])))
                     for k, (a, _) in variants.items()}

@@ -25,6 +25,7 @@ from renderer.device import types
 from renderer.scene import load_scene
 
 from . import throughput as T
+from .probe_traversal import same_hits
 
 SCENES = ("sponza", "conference")
 
@@ -60,22 +61,9 @@ def probe(name: str, t, width: int, height: int, repeats: int) -> list:
                     return h.t, dr.gather(t.UInt32, acc.tris.order, h.prim, h.found), h.found
                 return (acc.intersect_p(ray, on),)
             fns = {k: (lambda acc=acc, ours=ours: ours(acc)) for k, acc in accs.items()}
-            if q == "closest":
-                def mitsuba(mray=mray, coherent=coherent):
-                    pi = mscene.ray_intersect_preliminary(mray, coherent=coherent)
-                    return pi.t, pi.prim_index
-            else:
-                def mitsuba(mray=mray, coherent=coherent):
-                    return mscene.ray_test(mray, coherent=coherent)
-            fns["mitsuba"] = mitsuba
+            fns["mitsuba"] = T.mitsuba_query(mscene, mray, q, coherent)
             ref = [x.numpy() for x in fns["bvh-plain"]()]
-            same = {}
-            for k in accs:
-                got = [x.numpy() for x in fns[k]()]
-                f = ref[-1]
-                same[k] = bool(np.array_equal(got[0], ref[0]) if q == "any" else
-                               (np.array_equal(got[2], f) and np.array_equal(got[0][f], ref[0][f])
-                                and np.array_equal(got[1][f], ref[1][f])))
+            same = {k: same_hits([x.numpy() for x in fns[k]()], ref, q) for k in accs}
             steps = {k: [float(x.numpy().mean()) for x in accs[k].counts(ray, on, q == "any")]
                      for k in accs}
             timing = T._timed(fns, repeats)

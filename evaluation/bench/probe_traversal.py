@@ -121,7 +121,9 @@ def _query(t, acc, ray, on, q, node, tri):
         BRANCH["node"] = BRANCH["tri"] = True
 
 
-def _same(got, ref, q) -> bool:
+def same_hits(got, ref, q) -> bool:
+    """Whether ``got`` has ``ref``'s hits: the any-hit answers, or found and, where found,
+    t and face (the ``(t, face, found)`` of a closest-hit query)."""
     if q != "closest":
         return bool(np.array_equal(got[0], ref[0]))
     f = ref[2]
@@ -154,16 +156,9 @@ def probe(scene_name: str, t, mode: str, width: int, height: int, repeats: int) 
             fns = {k: (lambda a=a, nb=nb, tb=tb, q=q, ray=ray, on=on:
                         _query(t, accs[a], ray, on, q, nb, tb))
                    for k, (a, nb, tb) in conts.items()}
-            if q == "closest":
-                def mitsuba(mray=mray, coherent=coherent):
-                    pi = mscene.ray_intersect_preliminary(mray, coherent=coherent)
-                    return pi.t, pi.prim_index
-            else:
-                def mitsuba(mray=mray, coherent=coherent):
-                    return mscene.ray_test(mray, coherent=coherent)
-            fns["mitsuba"] = mitsuba
+            fns["mitsuba"] = T.mitsuba_query(mscene, mray, q, coherent)
             ref = [x.numpy() for x in fns["bvh"]()]
-            same = {k: _same([x.numpy() for x in fns[k]()], ref, q) for k in conts}
+            same = {k: same_hits([x.numpy() for x in fns[k]()], ref, q) for k in conts}
             timing = T._timed(fns, repeats)
             rows.append({"scene": scene_name, "batch": bname, "query": q, "rays": m,
                          "same": same, "ms": timing})

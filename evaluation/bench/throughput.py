@@ -153,6 +153,17 @@ def upload_batch(t, bo, bd, btmax=None) -> tuple:
     return ray, on, mray
 
 
+def mitsuba_query(mscene, mray, query: str, coherent: bool):
+    """Mitsuba's query of ``mray`` as a function to time: closest hit (``(t, prim_index)``
+    of ``ray_intersect_preliminary``) or any hit (``ray_test``)."""
+    if query == "closest":
+        def closest():
+            pi = mscene.ray_intersect_preliminary(mray, coherent=coherent)
+            return pi.t, pi.prim_index
+        return closest
+    return lambda: mscene.ray_test(mray, coherent=coherent)
+
+
 # ---- the measurement ----------------------------------------------------------------------
 def _timed(fns: dict, repeats: int, warmup: int = 2, eager=()) -> dict:
     """Time each ``fns[name]()``, which traces a query and returns the variables to
@@ -284,15 +295,9 @@ def ray_throughput(scene, *, backend: str, width: int = 1920, height: int = 1080
                     fns[a] = lambda acc=acc: _closest(acc, ray.o, ray.d, ray.t_max, on)
                 else:
                     fns[a] = lambda acc=acc: _occluded(acc, ray.o, ray.d, ray.t_max, on)
-            if q == "closest":
-                def mi_trace():
-                    pi = mscene.ray_intersect_preliminary(mray, coherent=coherent)
-                    return pi.t, pi.prim_index
-            else:
-                def mi_trace():
-                    return mscene.ray_test(mray, coherent=coherent)
+            mi_trace = mitsuba_query(mscene, mray, q, coherent)
 
-            def mi_fn():
+            def mi_fn(mi_trace=mi_trace):
                 out = mi_trace()
                 dr.eval(out)
                 return out
