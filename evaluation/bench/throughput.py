@@ -33,7 +33,7 @@ import drjit as dr
 import numpy as np
 
 from renderer.accel import ACCELERATORS, Ray, build_accelerator
-from renderer.accel.bvh_build import build_bvh
+from renderer.accel.bvh_build import SPATIAL, build_bvh
 from renderer.accel.order import SortedQueries
 from renderer.device import array3, types
 
@@ -43,14 +43,20 @@ from .part import Context, Part, jsonable, table
 SCENES = SEED_SCENES + ("bunny", "sponza", "conference", "bunny_1m")
 ACCELS = ("bvh", "bvh4", "bvh8")     # binary, and the wide BVHs collapsed from it
 BATCHES = ("primary", "shadow", "incoherent", "reflection")
-#: Query variants for evaluated batches, each wrapping an accelerator of ``ACCELS``: the
-#: rays sorted first (``renderer.accel.order.SortedQueries``; CPU only: on the GPU the sort
-#: costs more than it saves, ``results/h200/throughput/ray-sort.md``), and lanes that take
-#: the next ray when theirs is done (``traverse.refill_traversal``, ``REFILL`` rays per lane
-#: by backend); and the batches they run on.
-VARIANTS = {"bvh4+sort": ("bvh4", "sort"), "bvh4+refill": ("bvh4", "refill")}
-VARIANT_BACKENDS = {"sort": ("llvm",), "refill": ("llvm", "cuda")}
-VARIANT_BATCHES = ("incoherent", "reflection")
+#: Variants of an accelerator of ``ACCELS``: queries for evaluated batches, the rays sorted
+#: first (``renderer.accel.order.SortedQueries``; CPU only: on the GPU the sort costs more
+#: than it saves, ``results/h200/throughput/ray-sort.md``) and lanes that take the next ray
+#: when theirs is done (``traverse.refill_traversal``, ``REFILL`` rays per lane by
+#: backend); and the BVH built with spatial splits (``build_bvh(spatial=SPATIAL)``, opt-in
+#: in the renderer; only in scenes where the build cuts references). The backends and the
+#: batches each kind runs on.
+VARIANTS = {"bvh4+sort": ("bvh4", "sort"), "bvh4+refill": ("bvh4", "refill"),
+            "bvh+spatial": ("bvh", "spatial")}
+VARIANT_BACKENDS = {"sort": ("llvm",), "refill": ("llvm", "cuda"),
+                    "spatial": ("llvm", "cuda")}
+VARIANT_BATCHES = {"sort": ("incoherent", "reflection"),
+                   "refill": ("incoherent", "reflection"), "spatial": BATCHES}
+EAGER = ("sort", "refill")            # kinds that launch kernels while tracing
 REFILL = {"llvm": 32, "cuda": 8}
 SEED = 12                           # the incoherent batch's random generator
 #: Offset of the host-side reflection batch's origins (fraction of the scene diagonal): both
@@ -276,18 +282,33 @@ def ray_throughput(scene, *, backend: str, width: int = 1920, height: int = 1080
     def upload(bo, bd, btmax):
         return upload_batch(t, bo, bd, btmax)
 
-    sorted_q = {s: (SortedQueries.for_scene(accs[a], scene) if kind == "sort"
-                    else replace(accs[a], refill=REFILL[t.backend]))
-                for s, (a, kind) in VARIANTS.items()
-                if a in accs and t.backend in VARIANT_BACKENDS[kind]}
+    sorted_q, kinds = {}, {}
+    for s, (a, kind) in VARIANTS.items():
+        if a not in accs or t.backend not in VARIANT_BACKENDS[kind]:
+            continue
+        if kind == "sort":
+            sorted_q[s] = SortedQueries.for_scene(accs[a], scene)
+        elif kind == "refill":
+            sorted_q[s] = replace(accs[a], refill=REFILL[t.backend])
+        else:
+            sb = build_bvh(scene.vertices, scene.faces, spatial=SPATIAL)
+            if sb.cells is None:          # no reference cut: the same tree as ``a``
+                continue
+            build[s] = {"binary_build_s": sb.build_seconds, "references": int(sb.order.size),
+                        "sah_cost": sb.sah_cost}
+            sorted_q[s] = _build_accelerator(a, scene, t, binary=sb)
+            dr.eval(sorted_q[s])
+        kinds[s] = kind
+    eager = tuple(s for s in sorted_q if kinds[s] in EAGER)
+
+    def variants_for(batch: str) -> dict:
+        return {s: v for s, v in sorted_q.items() if batch in VARIANT_BATCHES[kinds[s]]}
 
     def measure(name, bo, bd, btmax, queries, coherent):
         m = len(bo)
         ray, on, mray = upload(bo, bd, btmax)
         out = {"rays": m}
-        contenders = dict(accs)
-        if name in VARIANT_BATCHES:
-            contenders.update(sorted_q)
+        contenders = dict(accs, **variants_for(name))
         for q in queries:
             fns = {}
             for a, acc in contenders.items():
@@ -302,7 +323,7 @@ def ray_throughput(scene, *, backend: str, width: int = 1920, height: int = 1080
                 dr.eval(out)
                 return out
             fns["mitsuba"] = mi_trace
-            timing = _timed(fns, repeats, eager=tuple(sorted_q)) if m else {}
+            timing = _timed(fns, repeats, eager=eager) if m else {}
             res = {"ms": {k: _rate(v, m) for k, v in timing.items()}}
             if m and q == "closest":
                 ht, hp, hf = _closest(accs[first], ray.o, ray.d, ray.t_max, on)
@@ -319,10 +340,11 @@ def ray_throughput(scene, *, backend: str, width: int = 1920, height: int = 1080
                 ours = _occluded(accs[first], ray.o, ray.d, ray.t_max, on).numpy()
                 res["agreement"] = {"same_answer": float(np.mean(ours == mi_fn().numpy())),
                                     "hits": int(ours.sum())}
-            for sname, sq in (sorted_q.items() if name in VARIANT_BATCHES and m else ()):
-                if q == "closest":
-                    a_ = _closest(accs[first], ray.o, ray.d, ray.t_max, on)
-                    b_ = _closest(sq, ray.o, ray.d, ray.t_max, on)
+            for sname, sq in (variants_for(name).items() if m else ()):
+                if q == "closest":           # t, original face, found
+                    a_, b_ = (_closest(x, ray.o, ray.d, ray.t_max, on) for x in (accs[first], sq))
+                    a_, b_ = ((h[0], dr.gather(t.UInt32, x.tris.order, h[1], h[2]), h[2])
+                              for h, x in ((a_, accs[first]), (b_, sq)))
                     same = all(np.array_equal(x.numpy(), y.numpy()) for x, y in zip(a_, b_))
                 else:
                     same = np.array_equal(_occluded(accs[first], ray.o, ray.d, ray.t_max,
@@ -370,7 +392,8 @@ def ray_throughput(scene, *, backend: str, width: int = 1920, height: int = 1080
         res["shadow_rays"] = sh["rays"]
     res.update(backend=t.backend, triangles=scene.face_count, build_s=build[first]["seconds"],
                mitsuba_build_s=mi_build_s, accel=first, accels=list(accels),
-               variants=list(sorted_q), build=build,
+               variants=[s for s, (a, k) in VARIANTS.items()
+                         if a in accs and t.backend in VARIANT_BACKENDS[k]], build=build,
                stats=build[first]["stats"])
     return res
 
@@ -468,12 +491,17 @@ def markdown(rows: list[dict]) -> list[str]:
              "repeats, contenders timed in turn)")
     if sorted_ and by_kernel:
         title = title[:-1] + ("; the query variant +refill (threads take the next ray, "
-                              "``traverse.refill_traversal``, evaluated batches only): M "
-                              "rays/s from kernel time like the others)")
+                              "``traverse.refill_traversal``, evaluated batches only)"
+                              + (" and bvh+spatial (the BVH built with spatial splits, "
+                                 "where they cut references)" if "bvh+spatial" in sorted_
+                                 else "") + ": M rays/s from kernel time like the others)")
     elif sorted_:
         title = title[:-1] + ("; the query variants (+sort: rays sorted first, "
                               "``renderer.accel.order``; +refill: lanes take the next ray, "
-                              "``WideBVH.refill``): M rays per CPU s, the call itself "
+                              "``WideBVH.refill``"
+                              + ("; +spatial: the BVH built with spatial splits, where they "
+                                 "cut references" if "bvh+spatial" in sorted_ else "")
+                              + "): M rays per CPU s, the call itself "
                               "(sort, ray copy, Python tracing) included)")
     unit = "Mrays/s" if by_kernel else "Mrays/CPU s"
     return (table(title,
