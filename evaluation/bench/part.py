@@ -102,3 +102,37 @@ def table(title: str, columns: list[str], align: str, rows: list[list[str]]) -> 
              "| " + " | ".join(rule[a] for a in align) + " |"]
     lines += ["| " + " | ".join(cells) + " |" for cells in rows]
     return lines + [""]
+
+
+def run_probe(out_file, force: bool, names: list[str], probe_scene, header: dict) -> int:
+    """The command line of a probe (``evaluation.bench.probe_*``): refuse an existing
+    ``out_file`` without ``--force`` and a scene name with no ``scenes/NAME.toml`` (one line
+    on stderr, exit 2) before anything runs; then ``probe_scene(name)`` (a list of rows) per
+    scene, the rows so far written atomically (``header`` plus ``rows``) after each one;
+    Ctrl-C stops cleanly (one line, exit 130, the rows of the finished scenes kept)."""
+    import json
+    import sys
+
+    from renderer.outputs import OutputError, check_output_file
+    from renderer.scene.model import SceneError
+
+    out_file = Path(out_file)
+    try:
+        out_file.parent.mkdir(parents=True, exist_ok=True)
+        check_output_file(out_file, overwrite=force, flag="--force")
+        missing = [n for n in names if not Path(f"scenes/{n}.toml").is_file()]
+        if missing:
+            raise SceneError(f"--scenes: no scenes/{missing[0]}.toml")
+    except (OutputError, SceneError) as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    rows = []
+    try:
+        for name in names:
+            rows += probe_scene(name)
+            write_atomic(out_file, json.dumps(jsonable(dict(header, rows=rows)), indent=1))
+    except KeyboardInterrupt:
+        print(f"interrupted: {out_file} holds the scenes finished before", file=sys.stderr)
+        return 130
+    print(f"wrote {out_file}", flush=True)
+    return 0

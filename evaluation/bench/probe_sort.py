@@ -1,20 +1,20 @@
 """Probe: rays sorted before tracing, on the GPU (``results/h200/throughput/ray-sort.md``).
 
-    python -m evaluation.bench.probe_sort [--backend cuda] [--out DIR]
+    python -m evaluation.bench.probe_sort [--backend cuda] [--out DIR] [--force]
 
 For the incoherent and reflection batches of the throughput part, the binary and 4-wide
 BVHs plain and wrapped in sorted queries with several keys (``KeyedSort``), against
 Mitsuba, every contender timed in turn with the sort's kernels included
 (``throughput._timed``). Each sorted variant's hits are compared bitwise with its plain
 BVH's, and one sorted call's kernel history (kernel kinds and times) is recorded. Writes
-``OUT/ray-sort.json``.
+``OUT/ray-sort.json`` (``part.run_probe``: an existing one only with ``--force``).
 """
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import warnings
+from pathlib import Path
 
 import drjit as dr
 import numpy as np
@@ -27,6 +27,7 @@ from renderer.device import array3, types
 from renderer.scene import load_scene
 
 from . import throughput as T
+from .part import run_probe
 
 SCENES = ("cornell_sphere", "platonic_solids", "bunny", "sponza", "conference")
 #: (accelerator, key mode, origin bits per axis, direction bits per axis)
@@ -157,20 +158,17 @@ def probe(name: str, t, width: int, height: int, repeats: int) -> list:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--backend", default="cuda")
+    ap.add_argument("--backend", default="cuda", choices=("cuda", "llvm"))
     ap.add_argument("--scenes", default=",".join(SCENES))
     ap.add_argument("--out", default=os.environ.get("OUT", "out"))
+    ap.add_argument("--force", action="store_true", help="replace an existing result")
     a = ap.parse_args(argv)
     warnings.simplefilter("ignore")
     t = types(a.backend)
     size = (1920, 1080) if a.backend == "cuda" else (160, 90)
-    rows = []
-    for name in a.scenes.split(","):
-        rows += probe(name, t, *size, 7 if a.backend == "cuda" else 3)
-        os.makedirs(a.out, exist_ok=True)
-        with open(os.path.join(a.out, "ray-sort.json"), "w") as f:
-            json.dump({"backend": a.backend, "rows": rows}, f, indent=1)
-    return 0
+    return run_probe(Path(a.out) / "ray-sort.json", a.force, a.scenes.split(","),
+                     lambda name: probe(name, t, *size, 7 if a.backend == "cuda" else 3),
+                     {"backend": a.backend})
 
 
 if __name__ == "__main__":

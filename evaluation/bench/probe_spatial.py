@@ -2,19 +2,20 @@
 Mitsuba, on the throughput part's batches.
 
     python -m evaluation.bench.probe_spatial [--backend llvm] [--size 640x360]
-        [--scenes sponza,conference] [--out DIR]
+        [--scenes sponza,conference] [--out DIR] [--force]
 
 Per scene: one build with ``spatial=0`` and one with the default, each as the binary and
 the 4-wide BVH; per batch and query the kernel time of every contender (timed in turn,
 ``throughput._timed``), the hits compared with the plain build's (t and face where found),
-and the instrumented traversal's steps. Writes ``OUT/spatial.json``.
+and the instrumented traversal's steps. Writes ``OUT/spatial.json`` (``part.run_probe``:
+an existing one only with ``--force``).
 """
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import warnings
+from pathlib import Path
 
 import drjit as dr
 import numpy as np
@@ -25,7 +26,8 @@ from renderer.device import types
 from renderer.scene import load_scene
 
 from . import throughput as T
-from .probe_traversal import same_hits
+from .part import run_probe
+from .probe_traversal import batch_size, same_hits
 
 SCENES = ("sponza", "conference")
 
@@ -82,22 +84,20 @@ def probe(name: str, t, width: int, height: int, repeats: int) -> list:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--backend", default="llvm")
-    ap.add_argument("--size", default="640x360")
+    ap.add_argument("--backend", default="llvm", choices=("cuda", "llvm"))
+    ap.add_argument("--size", type=batch_size, default=(640, 360), help="batch WxH")
     ap.add_argument("--scenes", default=",".join(SCENES))
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--out", default=os.environ.get("OUT", "out"))
+    ap.add_argument("--force", action="store_true", help="replace an existing result")
     a = ap.parse_args(argv)
+    if a.repeats < 1:
+        ap.error(f"--repeats: expected at least 1, got {a.repeats}")
     warnings.simplefilter("ignore")
     t = types(a.backend)
-    w, h = (int(x) for x in a.size.lower().split("x"))
-    rows = []
-    for name in a.scenes.split(","):
-        rows += probe(name, t, w, h, a.repeats)
-        os.makedirs(a.out, exist_ok=True)
-        with open(os.path.join(a.out, "spatial.json"), "w") as f:
-            json.dump({"backend": a.backend, "size": [w, h], "rows": rows}, f, indent=1)
-    return 0
+    return run_probe(Path(a.out) / "spatial.json", a.force, a.scenes.split(","),
+                     lambda name: probe(name, t, *a.size, a.repeats),
+                     {"backend": a.backend, "size": list(a.size)})
 
 
 if __name__ == "__main__":

@@ -1,7 +1,7 @@
 """Probe: traversal variants against Mitsuba on the GPU (``results/h200/throughput/branches.md``).
 
     python -m evaluation.bench.probe_traversal --mode branches [--backend cuda] [--out DIR]
-    python -m evaluation.bench.probe_traversal --mode leaf ...
+    python -m evaluation.bench.probe_traversal --mode leaf ...    [--size WxH] [--force]
 
 ``branches``: the traversal steps written inline with masked updates (what CUDA ran before
 ``traverse.masked_step`` became a symbolic ``if`` everywhere) against real branches for both
@@ -19,10 +19,10 @@ contender's hits compared with the binary BVH's (t and face where found). Writes
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import warnings
 from dataclasses import replace
+from pathlib import Path
 
 import drjit as dr
 import numpy as np
@@ -37,6 +37,7 @@ from renderer.device import array3, types
 from renderer.scene import load_scene
 
 from . import throughput as T
+from .part import run_probe
 
 SCENES = ("cornell_sphere", "platonic_solids", "bunny", "sponza", "conference")
 #: Which steps branch in the ``branches`` mode (set by each contender while it traces).
@@ -171,30 +172,36 @@ def probe(scene_name: str, t, mode: str, width: int, height: int, repeats: int) 
     return rows
 
 
+def batch_size(text: str) -> tuple[int, int]:
+    try:
+        w, h = (int(x) for x in text.lower().split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected WxH, got {text!r}") from None
+    if w < 1 or h < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive WxH, got {text!r}")
+    return w, h
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--mode", choices=("branches", "leaf", "refill"), default="branches")
-    ap.add_argument("--backend", default="cuda")
+    ap.add_argument("--backend", default="cuda", choices=("cuda", "llvm"))
     ap.add_argument("--scenes", default=",".join(SCENES))
     ap.add_argument("--out", default=os.environ.get("OUT", "out"))
-    ap.add_argument("--size", default="", help="batch WxH (default 1920x1080 on CUDA, "
-                    "160x90 on the CPU)")
+    ap.add_argument("--size", type=batch_size, default=None,
+                    help="batch WxH (default 1920x1080 on CUDA, 160x90 on the CPU)")
+    ap.add_argument("--force", action="store_true", help="replace an existing result")
     a = ap.parse_args(argv)
     warnings.simplefilter("ignore")
     t = types(a.backend)
-    size = (1920, 1080) if a.backend == "cuda" else (160, 90)
-    if a.size:
-        size = tuple(int(x) for x in a.size.lower().split("x"))
+    size = a.size or ((1920, 1080) if a.backend == "cuda" else (160, 90))
     if a.mode == "branches":
         bvh_module.masked_step = wide_module.masked_step = _switchable("node")
         traverse_module.masked_step = _switchable("tri")
-    rows = []
-    for name in a.scenes.split(","):
-        rows += probe(name, t, a.mode, *size, 7 if a.backend == "cuda" else 3)
-        os.makedirs(a.out, exist_ok=True)
-        with open(os.path.join(a.out, f"{a.mode}.json"), "w") as f:
-            json.dump({"backend": a.backend, "rows": rows}, f, indent=1)
-    return 0
+    return run_probe(Path(a.out) / f"{a.mode}.json", a.force, a.scenes.split(","),
+                     lambda name: probe(name, t, a.mode, *size,
+                                        7 if a.backend == "cuda" else 3),
+                     {"backend": a.backend})
 
 
 if __name__ == "__main__":
