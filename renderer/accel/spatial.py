@@ -62,10 +62,6 @@ class TopSplit:
     buckets: list
     depth: list
 
-    @property
-    def extra(self) -> int:
-        return int(self.face.size) - int(np.unique(self.face).size)
-
 
 def _sweep_cost(cnt_l, cnt_r, blo, bhi):
     """SAH cost of a split after each bin: bins (B, 3) boxes ``blo``/``bhi`` (empty bins
@@ -78,6 +74,17 @@ def _sweep_cost(cnt_l, cnt_r, blo, bhi):
         cost = _half_area(llo, lhi) * cnt_l + _half_area(rlo, rhi) * cnt_r
     cost[(cnt_l == 0) | (cnt_r == 0)] = np.inf
     return cost, (llo, lhi, rlo, rhi)
+
+
+def _bin_boxes(b, lo, hi, bins: int):
+    """The union of the boxes ``lo``/``hi`` (R, 3) in each of ``bins`` bins (``b``: the bin
+    of each box): (bins, 3) lo and hi, +inf/-inf in empty bins."""
+    blo = np.full((bins, 3), np.inf)
+    bhi = np.full((bins, 3), -np.inf)
+    for j in range(3):
+        np.minimum.at(blo[:, j], b, lo[:, j])
+        np.maximum.at(bhi[:, j], b, hi[:, j])
+    return blo, bhi
 
 
 def _object_split(lo, hi):
@@ -94,11 +101,7 @@ def _object_split(lo, hi):
         scale = OBJECT_BINS / ext
         b = np.clip(((c[:, a] - cmin[a]) * scale).astype(np.int64), 0, OBJECT_BINS - 1)
         cnt = np.bincount(b, minlength=OBJECT_BINS)
-        blo = np.full((OBJECT_BINS, 3), np.inf)
-        bhi = np.full((OBJECT_BINS, 3), -np.inf)
-        for j in range(3):
-            np.minimum.at(blo[:, j], b, lo[:, j])
-            np.maximum.at(bhi[:, j], b, hi[:, j])
+        blo, bhi = _bin_boxes(b, lo, hi, OBJECT_BINS)
         nl = np.cumsum(cnt)[:-1]
         cost, (llo, lhi, rlo, rhi) = _sweep_cost(nl, len(lo) - nl, blo, bhi)
         k = int(np.argmin(cost))
@@ -137,11 +140,7 @@ def _spatial_split(lo, hi, nlo, nhi):
         clo, chi = lo[ref].astype(np.float64), hi[ref].astype(np.float64)
         clo[:, a] = np.maximum(clo[:, a], nlo[a] + b * w)
         chi[:, a] = np.minimum(chi[:, a], nlo[a] + (b + 1) * w)
-        blo = np.full((B, 3), np.inf)
-        bhi = np.full((B, 3), -np.inf)
-        for j in range(3):
-            np.minimum.at(blo[:, j], b, clo[:, j])
-            np.maximum.at(bhi[:, j], b, chi[:, j])
+        blo, bhi = _bin_boxes(b, clo, chi, B)
         nl = np.cumsum(enter)[:-1]
         nr = len(lo) - np.cumsum(leave)[:-1]
         cost, _ = _sweep_cost(nl, nr, blo, bhi)
