@@ -279,9 +279,6 @@ def ray_throughput(scene, *, backend: str, width: int = 1920, height: int = 1080
     build["mitsuba_build_s"] = mi_build_s
     first = accels[0]
 
-    def upload(bo, bd, btmax):
-        return upload_batch(t, bo, bd, btmax)
-
     sorted_q, kinds = {}, {}
     for s, (a, kind) in VARIANTS.items():
         if a not in accs or t.backend not in VARIANT_BACKENDS[kind]:
@@ -306,7 +303,7 @@ def ray_throughput(scene, *, backend: str, width: int = 1920, height: int = 1080
 
     def measure(name, bo, bd, btmax, queries, coherent):
         m = len(bo)
-        ray, on, mray = upload(bo, bd, btmax)
+        ray, on, mray = upload_batch(t, bo, bd, btmax)
         out = {"rays": m}
         contenders = dict(accs, **variants_for(name))
         for q in queries:
