@@ -63,7 +63,7 @@ def _m(name, module, old, new, why, *tests):
 
 MUTANTS = [
     _m("camera_half_pixel", "renderer.camera",
-       "px = t.Float(pix % width) + 0.5", "px = t.Float(pix % width) + 0.0",
+       "px = t.Float(x) + 0.5", "px = t.Float(x) + 0.0",
        "exact rays through the pixel corner instead of its centre (x only)"),
     _m("swapped_aspect", "renderer.camera",
        "tan_x = tan_y * cam.width / cam.height", "tan_x = tan_y * cam.height / cam.width",
@@ -146,8 +146,8 @@ MUTANTS = [
        "N = dr.select(dr.dot(V, sp.ns) >= 0, sp.ns, -sp.ns)", "N = sp.ns",
        "two-sided shading lost: back faces are shaded with the far-side normal"),
     _m("jitter_correlated", "renderer.camera",
-       "py = t.Float(pix // width) + (t.Float(s // k) + xi2) * inv_k",
-       "py = t.Float(pix // width) + (t.Float(s // k) + xi1) * inv_k",
+       "py = t.Float(y) + (t.Float(s // k) + xi2) * inv_k",
+       "py = t.Float(y) + (t.Float(s // k) + xi1) * inv_k",
        "converged mode: one random number for both axes, so every sample lies on its "
        "stratum's diagonal (a bias at edges; plain uniform jitter would be unbiased)",
        "tests/test_golden_regression.py", "-k",

@@ -18,12 +18,22 @@ import numpy as np
 from .outputs import atomic_path
 
 
-def develop(radiance, width: int, height: int, spp: int, t):
+def develop(radiance, width: int, height: int, spp: int, t,
+            block: tuple[int, int] | None = None):
     """Box-filter ``radiance`` (Array3f, width ``W·H·spp``, samples of a pixel contiguous)
-    into a TensorXf of shape (H, W, 3)."""
+    into a TensorXf of shape (H, W, 3). ``block``: the pixels come in that block order
+    (``camera.primary_rays(..., block=...)``); each is scattered to its row-major place, in
+    the kernel that computes it (exact mode: the frame stays one kernel)."""
     if spp > 1:
         radiance = dr.block_reduce(dr.ReduceOp.Add, radiance, spp) * (1.0 / spp)
-    return t.TensorXf(dr.ravel(radiance, order="F"), shape=(height, width, 3))
+    if block is None:
+        flat = dr.ravel(radiance, order="F")
+    else:
+        from .camera import block_pixel
+        x, y = block_pixel(dr.arange(t.UInt32, width * height), width, height, block)
+        flat = dr.zeros(t.Float, 3 * width * height)
+        dr.scatter(flat, radiance, y * width + x)        # flat[3 p + c] = radiance[c]
+    return t.TensorXf(flat, shape=(height, width, 3))
 
 
 def _check_image(image, what: str) -> np.ndarray:

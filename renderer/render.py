@@ -14,7 +14,7 @@ import drjit as dr
 import numpy as np
 
 from .accel import DEFAULT_ACCEL, DEFAULT_ROUTINE, build_accelerator
-from .camera import CameraArrays, camera_arrays, primary_rays
+from .camera import BLOCKS, CameraArrays, camera_arrays, primary_rays
 from .device import Types, array3, types
 from .effects import EffectSet
 from .film import develop
@@ -49,14 +49,16 @@ def make_frame_fn(t: Types, effects: EffectSet, options: TraceOptions, *, spp: i
     It closes over host constants only (types, effect set, options), never over a
     ``Renderer``, so wrapping it in ``dr.freeze`` creates no reference cycle (a cycle lets
     Python's collector free device memory in the middle of a later recording, which Dr.Jit
-    cannot record).
+    cannot record). The rays go in the backend's pixel-block order (``camera.BLOCKS``).
     """
+    block = BLOCKS[t.backend]
+
     def frame(cam: CameraArrays, arrays: SceneArrays, width: int, height: int,
               first_row=None, rows: int | None = None):
         o, d = primary_rays(cam, width, height, t, spp=spp, exact=exact, seed=seed,
-                            first_row=first_row, rows=rows)
+                            first_row=first_row, rows=rows, block=block)
         radiance = trace(arrays, o, d, t, effects, options)
-        return develop(radiance, width, height if rows is None else rows, spp, t)
+        return develop(radiance, width, height if rows is None else rows, spp, t, block)
     return frame
 
 
