@@ -33,7 +33,7 @@ import drjit as dr
 import numpy as np
 
 from renderer.accel import ACCELERATORS, Ray, build_accelerator
-from renderer.accel.bvh_build import SPATIAL, build_bvh
+from renderer.accel.bvh_build import build_bvh
 from renderer.accel.order import SortedQueries
 from renderer.device import array3, types
 
@@ -47,16 +47,18 @@ BATCHES = ("primary", "shadow", "incoherent", "reflection")
 #: first (``renderer.accel.order.SortedQueries``; CPU only: on the GPU the sort costs more
 #: than it saves, ``results/h200/throughput/ray-sort.md``) and lanes that take the next ray
 #: when theirs is done (``traverse.refill_traversal``, ``REFILL`` rays per lane by
-#: backend); and the BVH built with spatial splits (``build_bvh(spatial=SPATIAL)``, opt-in
-#: in the renderer; only in scenes where the build cuts references). The backends and the
-#: batches each kind runs on.
+#: backend); and the BVH built without spatial splits (``build_bvh(spatial=0)``; only in
+#: scenes where the default build cuts references), to show what the splits gain or cost.
+#: The backends and the batches each kind runs on.
 VARIANTS = {"bvh4+sort": ("bvh4", "sort"), "bvh4+refill": ("bvh4", "refill"),
-            "bvh+spatial": ("bvh", "spatial")}
+            "bvh-nosplit": ("bvh", "nosplit")}
 VARIANT_BACKENDS = {"sort": ("llvm",), "refill": ("llvm", "cuda"),
-                    "spatial": ("llvm", "cuda")}
+                    "nosplit": ("llvm", "cuda")}
 VARIANT_BATCHES = {"sort": ("incoherent", "reflection"),
-                   "refill": ("incoherent", "reflection"), "spatial": BATCHES}
+                   "refill": ("incoherent", "reflection"), "nosplit": BATCHES}
 EAGER = ("sort", "refill")            # kinds that launch kernels while tracing
+#: Variants shown beside the contenders but never "best": the renderer does not build them.
+NOT_CONTENDERS = ("bvh-nosplit",)
 REFILL = {"llvm": 32, "cuda": 8}
 SEED = 12                           # the incoherent batch's random generator
 #: Offset of the host-side reflection batch's origins (fraction of the scene diagonal): both
@@ -265,7 +267,7 @@ def ray_throughput(scene, *, backend: str, width: int = 1920, height: int = 1080
     binary = build_bvh(scene.vertices, scene.faces)
     binary_s, binary_cpu = time.perf_counter() - t0, time.process_time() - c0
     accs, build = {}, {"triangles": scene.face_count, "binary_build_s": binary.build_seconds,
-                       "binary_build_cpu_s": binary_cpu,
+                       "binary_build_cpu_s": binary_cpu, "references": int(binary.order.size),
                        "triangles_per_s": scene.face_count / max(binary.build_seconds, 1e-9),
                        "triangles_per_cpu_s": scene.face_count / max(binary_cpu, 1e-9)}
     for name in accels:
@@ -288,9 +290,9 @@ def ray_throughput(scene, *, backend: str, width: int = 1920, height: int = 1080
         elif kind == "refill":
             sorted_q[s] = replace(accs[a], refill=REFILL[t.backend])
         else:
-            sb = build_bvh(scene.vertices, scene.faces, spatial=SPATIAL)
-            if sb.cells is None:          # no reference cut: the same tree as ``a``
+            if binary.cells is None:      # the default build cut no reference: same tree
                 continue
+            sb = build_bvh(scene.vertices, scene.faces, spatial=0.0)
             build[s] = {"binary_build_s": sb.build_seconds, "references": int(sb.order.size),
                         "sah_cost": sb.sah_cost}
             sorted_q[s] = _build_accelerator(a, scene, t, binary=sb)
@@ -459,7 +461,7 @@ def markdown(rows: list[dict]) -> list[str]:
                 x = b[q]
                 ms = x["ms"]
                 rate = {k: v["mrays_per_s"] for k, v in ms.items()}
-                ours = accels + [a for a in sorted_ if a in ms]
+                ours = accels + [a for a in sorted_ if a in ms and a not in NOT_CONTENDERS]
                 best = max(ours, key=lambda a: rate[a])
                 crate = {k: v.get("mrays_per_cpu_s", float("nan")) for k, v in ms.items()}
                 cbest = max(ours, key=lambda a: crate[a])
@@ -489,13 +491,20 @@ def markdown(rows: list[dict]) -> list[str]:
     if sorted_ and by_kernel:
         title = title[:-1] + ("; the query variant +refill (threads take the next ray, "
                               "``traverse.refill_traversal``, evaluated batches only)"
+                              + (" and bvh-nosplit (the BVH built without the default "
+                                 "spatial splits, where those cut references)"
+                                 if "bvh-nosplit" in sorted_ else "")
                               + (" and bvh+spatial (the BVH built with spatial splits, "
                                  "where they cut references)" if "bvh+spatial" in sorted_
-                                 else "") + ": M rays/s from kernel time like the others)")
+                                 else "")
+                              + ": M rays/s from kernel time like the others)")
     elif sorted_:
         title = title[:-1] + ("; the query variants (+sort: rays sorted first, "
                               "``renderer.accel.order``; +refill: lanes take the next ray, "
                               "``WideBVH.refill``"
+                              + ("; -nosplit: the BVH built without the default spatial "
+                                 "splits, where those cut references"
+                                 if "bvh-nosplit" in sorted_ else "")
                               + ("; +spatial: the BVH built with spatial splits, where they "
                                  "cut references" if "bvh+spatial" in sorted_ else "")
                               + "): M rays per CPU s, the call itself "

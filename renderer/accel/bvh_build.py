@@ -34,13 +34,15 @@ C_TRAV, C_TRI = 1.0, 1.0     # SAH costs of one node visit and one triangle test
 #: faster with the 4-wide BVH on the CPU (``results/cpu/leaf-size.md``), hits bitwise the same.
 LEAF_SIZE = 2
 BINS = 32                    # default SAH bins per axis
-#: Spatial splits (``build_bvh(spatial=...)``, opt-in): the budget of extra references the
-#: probe uses (``evaluation.bench.probe_spatial``), and where they are tried: scenes of more
-#: triangles than ``SPATIAL_MIN_TRIANGLES``, nodes of more references than
-#: ``SPATIAL_MIN_REFS``, the top ``SPATIAL_DEPTH`` inner levels. Off by default: on the CPU
-#: they made closest-hit rays 1.12-1.30x faster on Sponza and Conference but the binary
-#: BVH's any-hit primary rays on Conference 0.69x (its large occluders move down the tree),
-#: and they are not yet measured on the GPU (``results/cpu/spatial.md``).
+#: Spatial splits (``build_bvh(spatial=...)``, on by default): the budget of extra
+#: references, and where they are tried: scenes of more triangles than
+#: ``SPATIAL_MIN_TRIANGLES``, nodes of more references than ``SPATIAL_MIN_REFS``, the top
+#: ``SPATIAL_DEPTH`` inner levels. Of the bench scenes only Sponza and Conference get cuts.
+#: H200, 1920x1080 batches against the same build without them: closest hit 1.08-1.26x
+#: faster (primary, incoherent, reflection), shadow rays 1.06-1.14x, any hit otherwise
+#: 1.04-1.14x except Conference's primary and reflection rays, 0.74-0.76x (its walls and
+#: floor, which stop those rays near the root, move down the tree); the CPU alike
+#: (``results/cpu/spatial.md``). A renderer's any-hit rays are shadow rays, so they pay.
 SPATIAL = 0.3
 SPATIAL_MIN_TRIANGLES = 16384
 SPATIAL_MIN_REFS = 512
@@ -237,7 +239,7 @@ class _Level:
 def build_bvh(vertices: np.ndarray, faces: np.ndarray, *, leaf_size: int = LEAF_SIZE,
               bins: int = BINS, root_bins: int = BINS, all_axes: bool = True,
               sah_leaves: bool = False, depth_first: bool = True,
-              sample: int = SAMPLE, spatial: float = 0.0) -> BVHArrays:
+              sample: int = SAMPLE, spatial: float = SPATIAL) -> BVHArrays:
     """Build a BVH over the triangles ``faces`` (int (F, 3)) of ``vertices`` (float (V, 3)).
 
     leaf_size: most triangles per leaf (1..16); a node with more is always split.
@@ -254,7 +256,7 @@ def build_bvh(vertices: np.ndarray, faces: np.ndarray, *, leaf_size: int = LEAF_
     sample: nodes of more triangles are binned from a strided sample of about this many.
     spatial: spatial splits near the root (``renderer.accel.spatial``) with at most
         ``spatial * F`` extra references (``SPATIAL``: 0.3), in scenes of more than
-        ``SPATIAL_MIN_TRIANGLES`` triangles; 0 (the default): object splits only.
+        ``SPATIAL_MIN_TRIANGLES`` triangles (the default); 0: object splits only.
     A node whose centroids coincide, or one too deep to finish with SAH splits inside
     MAX_LEVELS levels, is split at the median instead.
     """
