@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # One combined run on a lent GPU machine (see ci/device.sh for the set-up it shares):
-#   bash ci/device_all.sh STEP...      steps: tests hard bench peer routine study
+#   bash ci/device_all.sh STEP...      steps: tests hard bench peer frames routine study
 # Each step has its own time limit (SIGINT first, so partial results are written) and its
 # own folder under $OUT; logs go to $OUT/<step>.log.
 set -uo pipefail
@@ -23,6 +23,8 @@ for s in "$@"; do
              --out "$out/hard" --overwrite ;;
     bench) step bench 300 env OUT="$out/bench" bash ci/device.sh bench --parts throughput ;;
     peer)  step peer 280 env OUT="$out/peer" bash ci/device.sh bench --parts peer ;;
+    frames) step frames 150 bash ci/device.sh py -m evaluation.bench.probe_frame --backend cuda \
+              --out "$out/frames" --force ;;
     routine) step routine 200 bash ci/device.sh py -m evaluation.routine_cost --backend cuda \
                --out "$out/routine" ;;
     study) step study 420 env OUT="$out" TOTAL_S=400 bash ci/device_study.sh h200 ;;
