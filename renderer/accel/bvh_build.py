@@ -38,9 +38,9 @@ BINS = 32                    # default SAH bins per axis
 #: references, and where they are tried: scenes of more triangles than
 #: ``SPATIAL_MIN_TRIANGLES``, nodes of more references than ``SPATIAL_MIN_REFS``, the top
 #: ``SPATIAL_DEPTH`` inner levels. Of the bench scenes only Sponza and Conference get cuts.
-#: H200, 1920x1080 batches against the same build without them: closest hit 1.08-1.26x
+#: H200, 1920x1080 batches against the same build without them: closest hit 1.06-1.26x
 #: faster (primary, incoherent, reflection), shadow rays 1.06-1.14x, any hit otherwise
-#: 1.04-1.14x except Conference's primary and reflection rays, 0.74-0.76x (its walls and
+#: 1.04-1.13x except Conference's primary and reflection rays, 0.74-0.75x (its walls and
 #: floor, which stop those rays near the root, move down the tree); the CPU alike
 #: (``results/cpu/spatial.md``). A renderer's any-hit rays are shadow rays, so they pay.
 SPATIAL = 0.3
