@@ -22,6 +22,7 @@ import drjit as dr
 import numpy as np
 
 from ..device import Types
+from . import traverse
 from .base import (
     Accelerator,
     DeviceTriangles,
@@ -70,9 +71,10 @@ def load_node(t: Types, nodes, children, cur, active=True):
 
 
 def node_step(t: Types, nodes, children, o, inv, t_max, robust, stack, sp, cur, to_pop,
-              active=True, pad: float = 0.0):
+              active=True, pad: float = 0.0, any_hit: bool = False):
     """One inner node ``cur`` where ``active``: test both child boxes (grown by ``pad``)
-    against ``(0, t_max)``, push the far hit child, go to the near one. Returns
+    against ``(0, t_max)``, push one hit child and go to the other: the near one first for
+    closest hit, the far one first for any hit (``traverse.FAR_FIRST``). Returns
     ``(sp, cur, to_pop)``, ``to_pop`` grown by the lanes where neither child was hit."""
     a_lo, a_hi, b_lo, b_hi, ref_a, ref_b = load_node(t, nodes, children, cur, active)
     if pad:             # the tie probe's slack reaches beyond the padded boxes
@@ -83,7 +85,7 @@ def node_step(t: Types, nodes, children, o, inv, t_max, robust, stack, sp, cur, 
         hit_a &= active
         hit_b &= active
     both = hit_a & hit_b
-    b_first = tn_b < tn_a
+    b_first = (tn_b > tn_a) if any_hit and traverse.FAR_FIRST else (tn_b < tn_a)
     near = dr.select(hit_a & ~(hit_b & b_first), ref_a, ref_b)
     far = dr.select(b_first, ref_a, ref_b)
     stack.write(far, sp, both)
@@ -181,7 +183,8 @@ class BVH(Accelerator):
                     self.tri_data if self.tri_trav is None else self.tri_trav,
                     self.tris.order,
                     lambda sp, cur, to_pop, best_t, o, inv, stack: node_step(
-                        t, nodes, children, o, inv, best_t, robust, stack, sp, cur, to_pop),
+                        t, nodes, children, o, inv, best_t, robust, stack, sp, cur, to_pop,
+                        any_hit=any_hit),
                     ray, active, any_hit, n, lanes, "bvh_refill")
         return self._traverse_lanes(ray, active, any_hit, probe, counting)
 
@@ -219,7 +222,7 @@ class BVH(Accelerator):
                 t, is_inner,
                 lambda sp, cur, to_pop, on, best_t=cull: node_step(
                     t, nodes, children, o, inv, best_t, robust, stack, sp, cur, to_pop, on,
-                    probe_pad(probe)),
+                    probe_pad(probe), any_hit),
                 (sp, cur, is_leaf | False))
             sp, cur = pop(stack, sp, cur, to_pop)
 
