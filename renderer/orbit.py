@@ -19,7 +19,7 @@ from pathlib import Path
 import drjit as dr
 import numpy as np
 
-from .accel import DEFAULT_ACCEL, DEFAULT_ROUTINE
+from .accel import DEFAULT_ROUTINE
 from .effects import EffectSet
 from .film import srgb_encode
 from .outputs import atomic_path
@@ -88,7 +88,7 @@ def orbit_cameras(cam: Camera, n: int) -> list[Camera]:
 
 
 def render_orbit(scene: Scene, n: int, *, view: int = 0, backend: str = "auto",
-                 accel: str = DEFAULT_ACCEL, precision: str = "float32",
+                 accel: str | None = None, precision: str = "float32",
                  intersection: str = DEFAULT_ROUTINE, effects: EffectSet | None = None,
                  spp: int | None = None, exact: bool | None = None,
                  srgb: bool = True) -> OrbitResult:

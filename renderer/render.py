@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 import drjit as dr
 import numpy as np
 
-from .accel import DEFAULT_ACCEL, DEFAULT_ROUTINE, build_accelerator
+from .accel import DEFAULT_ROUTINE, build_accelerator, default_accel
 from .camera import BLOCKS, CameraArrays, camera_arrays, primary_rays
 from .device import Types, array3, types
 from .effects import EffectSet
@@ -68,7 +68,9 @@ class Renderer:
     Parameters (keyword-only after ``scene``):
       backend: "auto" | "cuda" | "llvm" (default "auto").
       precision: "float32" | "float64" (default "float32").
-      accel: "brute" | "boxes" | "bvh" (default ``renderer.accel.DEFAULT_ACCEL``, the BVH).
+      accel: a key of ``renderer.accel.ACCELERATORS`` (default None: the backend's,
+          ``renderer.accel.default_accel``: the binary BVH on CUDA, the 4-wide BVH on LLVM;
+          every accelerator gives the same pixels).
       intersection: triangle routine (default ``renderer.accel.DEFAULT_ROUTINE``).
       effects: EffectSet to trace (default: derived from the scene).
       spp, exact: override ``scene.settings`` as ``Scene.with_overrides`` does (``spp``
@@ -86,7 +88,7 @@ class Renderer:
     """
 
     def __init__(self, scene: Scene, *, backend: str = "auto", precision: str = "float32",
-                 accel: str = DEFAULT_ACCEL, intersection: str = DEFAULT_ROUTINE,
+                 accel: str | None = None, intersection: str = DEFAULT_ROUTINE,
                  effects: EffectSet | None = None, spp: int | None = None,
                  exact: bool | None = None, freeze: bool = False, tie_break: str = "lowest",
                  tie_window: float = 0.0, tie_slack: float = 0.0):
@@ -103,6 +105,7 @@ class Renderer:
             raise ValueError("effects.physical: does not match settings.shading "
                              f"{s.shading!r} of scene {scene.name!r}")
         t = self.t
+        accel = default_accel(t.backend) if accel is None else accel
         t0 = time.perf_counter()
         acc = build_accelerator(accel, scene, t, intersection=intersection,
                                 tie_break=tie_break, tie_window=tie_window,
@@ -185,15 +188,15 @@ class Renderer:
 
 
 def render(scene: Scene, *, view: int = 0, backend: str = "auto", precision: str = "float32",
-           accel: str = DEFAULT_ACCEL, intersection: str = DEFAULT_ROUTINE,
+           accel: str | None = None, intersection: str = DEFAULT_ROUTINE,
            effects: EffectSet | None = None, spp: int | None = None,
            exact: bool | None = None, tie_break: str = "lowest",
            tie_window: float = 0.0, tie_slack: float = 0.0) -> RenderResult:
     """Render ``scene`` from ``scene.cameras[view]``.
 
     Returns a RenderResult whose ``image`` is float32 (H, W, 3) linear RGB (row 0 = top).
-    Options are those of ``Renderer`` (the tie probe's included; accelerator
-    ``DEFAULT_ACCEL``, the BVH, unless given); ``effects`` defaults to
+    Options are those of ``Renderer`` (the tie probe's included; the backend's accelerator,
+    ``renderer.accel.default_accel``, unless given); ``effects`` defaults to
     ``EffectSet.from_scene(scene)``; ``spp``/``exact`` default to ``scene.settings``.
     """
     r = Renderer(scene, backend=backend, precision=precision, accel=accel,

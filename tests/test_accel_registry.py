@@ -5,9 +5,10 @@ from accel_util import scene_from_arrays, soup
 
 from renderer.accel import (
     ACCELERATORS,
-    DEFAULT_ACCEL,
+    DEFAULT_ACCELS,
     ROUTINES,
     build_accelerator,
+    default_accel,
     triangle_routine,
 )
 from renderer.device import types
@@ -17,7 +18,7 @@ def test_every_registered_accelerator_builds_by_name():
     t = types("llvm")
     V, faces = soup(50, seed=1)   # fixed seed: a reproducible soup
     sc = scene_from_arrays(V, faces)
-    assert DEFAULT_ACCEL in ACCELERATORS
+    assert set(DEFAULT_ACCELS.values()) <= set(ACCELERATORS)
     for name, cls in ACCELERATORS.items():
         acc = build_accelerator(name, sc, t)
         assert type(acc) is cls
@@ -25,6 +26,8 @@ def test_every_registered_accelerator_builds_by_name():
 
 
 def test_unknown_names_list_the_choices():
+    with pytest.raises(ValueError, match="backend: expected one of .*'llvm'"):
+        default_accel("metal")
     t = types("llvm")
     sc = scene_from_arrays(*soup(4, seed=1))
     with pytest.raises(ValueError, match="accel: expected one of .*'bvh'"):

@@ -172,7 +172,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
             "settings": f"{s.shading}, max_depth {s.max_depth}, min_weight {s.min_weight:g}, "
                         f"{'exact, 1 ray per pixel centre' if s.exact else f'{s.spp} spp'}",
             "ours: backend": f"{res.stats.get('backend', args.backend)}, {args.precision}, "
-                             f"accel {args.accel}",
+                             f"accel {res.stats.get('accel', args.accel)}",
             **ref_info,
         }
         entries.append(ReportEntry(

@@ -13,7 +13,7 @@ from __future__ import annotations
 import argparse
 
 from evaluation.verdict import EXIT_CODES
-from renderer.accel import ACCELERATORS, DEFAULT_ACCEL, DEFAULT_ROUTINE, ROUTINES
+from renderer.accel import ACCELERATORS, DEFAULT_ACCELS, DEFAULT_ROUTINE, ROUTINES
 from renderer.device import BACKENDS, PRECISIONS
 from renderer.effects import FLAGS, EffectSet
 from renderer.scene import SHADING_MODES, Scene, load_scene
@@ -80,8 +80,10 @@ def add_scene_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--max-depth", type=int, help="override the specular depth limit")
     add_backend_option(p)
     p.add_argument("--precision", default=PRECISIONS[0], choices=PRECISIONS)
-    p.add_argument("--accel", default=DEFAULT_ACCEL, choices=tuple(ACCELERATORS),
-                   help=f"acceleration structure (default {DEFAULT_ACCEL})")
+    p.add_argument("--accel", choices=tuple(ACCELERATORS),
+                   help="acceleration structure (default: the backend's, "
+                        + ", ".join(f"{a} on {b}" for b, a in DEFAULT_ACCELS.items())
+                        + "; every one gives the same pixels)")
     p.add_argument("--intersection", default=DEFAULT_ROUTINE, choices=tuple(ROUTINES),
                    help=f"ray/triangle routine (default {DEFAULT_ROUTINE})")
     p.add_argument("--effects", default="auto", choices=("auto", "all"),

@@ -9,7 +9,7 @@ import numpy as np
 from renderer.stats import kernel_ms, kernel_operations
 
 
-def frozen_frame_ms(scene, *, backend: str, accel: str, view: int = 0, effects=None,
+def frozen_frame_ms(scene, *, backend: str, accel: str | None, view: int = 0, effects=None,
                     frames: int = 20, warmup: int = 3, size: tuple[int, int] | None = None) -> dict:
     """Median time of ``frames`` frozen frames of ``scene`` (after ``warmup``), plus the
     traced (first) frame's wall time and the kernels' operation counts.

@@ -154,7 +154,7 @@ def agreement(ours: np.ndarray, peer: np.ndarray, ties: np.ndarray | None = None
     return d
 
 
-def tie_mask(scene, backend: str, accel: str) -> np.ndarray:
+def tie_mask(scene, backend: str, accel: str | None) -> np.ndarray:
     """Our tie mask of ``scene``'s first view (``evaluation.rules.tie_probe``; untimed)."""
     return tie_probe(scene, 0, backend=backend, accel=accel)[1]
 
@@ -164,7 +164,7 @@ def _at(scene, depth: int, size: int):
 
 
 def ours_frame(scene, *, backend: str, depth: int, size: int, frames: int = 20,
-               accel: str = "bvh") -> dict:
+               accel: str | None = None) -> dict:
     """Ours alone (frozen ``Renderer``, exact mode) on ``scene`` at ``depth`` and ``size``²:
     a row without the peer's columns."""
     sc = _at(scene, depth, size)
@@ -178,7 +178,7 @@ def ours_frame(scene, *, backend: str, depth: int, size: int, frames: int = 20,
 
 
 def whitted_frame_peer(scene, *, backend: str, depth: int, size: int, frames: int = 20,
-                       accel: str = "bvh") -> dict:
+                       accel: str | None = None) -> dict:
     """Ours vs the peer on ``scene`` at ``depth`` and ``size``², both timed as frozen frames;
     plus the image difference and the speed-ups (peer ms / ours ms)."""
     row = ours_frame(scene, backend=backend, depth=depth, size=size, frames=frames,

@@ -20,7 +20,7 @@ from .frames import frozen_frame_ms
 from .part import Context, Part, table
 
 
-def whitted_frame(scene, *, backend: str, frames: int = 20, accel: str = "bvh",
+def whitted_frame(scene, *, backend: str, frames: int = 20, accel: str | None = None,
                   strip_path=None, overwrite: bool = False) -> dict:
     """Our frozen Whitted frame (timed) vs Mitsuba's exact render of ``scene`` through the
     harness's integrator (not timed), with the image difference; ``strip_path``: where to

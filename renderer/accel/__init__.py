@@ -50,11 +50,27 @@ from .wide import BVH4, BVH8, WideBVH
 
 ACCELERATORS = {"brute": BruteForce, "boxes": ObjectBoxes, "bvh": BVH, "bvh4": BVH4,
                 "bvh8": BVH8}
-DEFAULT_ACCEL = "bvh"
+#: The renderer's accelerator per backend (``default_accel``): every one gives the same
+#: pixels, so the fastest is the default. Whitted frames, frozen, kernel time: on the H200
+#: the binary BVH (the wide BVHs 1.06-1.83x slower at depth 2, 1024²:
+#: ``results/h200/peer/experiments/pixel-blocks.md``); on this project's 2-core EPYC (LLVM,
+#: AVX-512) the 4-wide BVH, 1.06-1.20x faster than the binary one at depth 2, 512², on the
+#: Cornell box, Cornell spheres, Platonic solids and glass bunny, and 1.08-1.33x at the
+#: scenes' own depth, 384² (glass bunny, bunny, Sponza, Conference, Cornell spheres); the
+#: 8-wide BVH 0.69-1.12x.
+DEFAULT_ACCELS = {"cuda": "bvh", "llvm": "bvh4"}
 
-__all__ = ["ACCELERATORS", "BVH", "BVH4", "BVH8", "DEFAULT_ACCEL", "DEFAULT_ROUTINE", "ROUTINES",
+__all__ = ["ACCELERATORS", "BVH", "BVH4", "BVH8", "DEFAULT_ACCELS", "DEFAULT_ROUTINE", "ROUTINES",
            "TIE_BREAKS", "Accelerator", "BruteForce", "ClosestHit", "DeviceTriangles",
-           "ObjectBoxes", "Ray", "WideBVH", "build_accelerator", "triangle_routine"]
+           "ObjectBoxes", "Ray", "WideBVH", "build_accelerator", "default_accel",
+           "triangle_routine"]
+
+
+def default_accel(backend: str) -> str:
+    """The renderer's accelerator on ``backend`` ("cuda" or "llvm"): ``DEFAULT_ACCELS``."""
+    if backend not in DEFAULT_ACCELS:
+        raise ValueError(f"backend: expected one of {sorted(DEFAULT_ACCELS)}, got {backend!r}")
+    return DEFAULT_ACCELS[backend]
 
 
 def build_accelerator(name: str, scene, t: Types, *, intersection: str = DEFAULT_ROUTINE,
