@@ -320,9 +320,7 @@ def wide_node_step(t: Types, width: int, nodes, refs, o, inv, t_max, robust, sta
             hit &= active
         ref.append(dr.select(hit, r, DONE))
         key.append(dr.select(hit, tn, dr.inf))
-    if any_hit and traverse.FAR_FIRST:
-        key = [dr.select(r != DONE, -k, dr.inf) for k, r in zip(key, ref)]   # farthest first
-    if any_hit and not traverse.FAR_FIRST:
+    if any_hit and not traverse.FAR_FIRST:          # slot order
         nxt = dr.full(t.UInt32, DONE, dr.width(cur))
         for k in range(W):
             hit = ref[k] != DONE
@@ -332,6 +330,8 @@ def wide_node_step(t: Types, width: int, nodes, refs, o, inv, t_max, robust, sta
             sp = dr.select(push, sp + 1, sp)
             nxt = dr.select(take, ref[k], nxt)
     else:
+        if any_hit:             # farthest first: the ascending network on negated distances
+            key = [dr.select(r != DONE, -k, dr.inf) for k, r in zip(key, ref)]
         for i, j in _network(W):
             swap = key[j] < key[i]
             key[i], key[j] = dr.select(swap, key[j], key[i]), dr.select(swap, key[i], key[j])
