@@ -104,6 +104,20 @@ def table(title: str, columns: list[str], align: str, rows: list[list[str]]) -> 
     return lines + [""]
 
 
+def probe_parser(doc: str, scenes, backend: str = "cuda"):
+    """The command line every probe (``evaluation.bench.probe_*``) shares: ``--backend``,
+    ``--scenes`` (comma-separated, default ``scenes``), ``--out`` (default ``$OUT`` or
+    ``out``) and ``--force``; the probe adds its own options to the parser returned."""
+    import argparse
+    import os
+    ap = argparse.ArgumentParser(description=doc.splitlines()[0])
+    ap.add_argument("--backend", default=backend, choices=("cuda", "llvm"))
+    ap.add_argument("--scenes", default=",".join(scenes))
+    ap.add_argument("--out", default=os.environ.get("OUT", "out"))
+    ap.add_argument("--force", action="store_true", help="replace an existing result")
+    return ap
+
+
 def run_probe(out_file, force: bool, names: list[str], probe_scene, header: dict) -> int:
     """The command line of a probe (``evaluation.bench.probe_*``): refuse an existing
     ``out_file`` without ``--force`` and a scene name with no ``scenes/NAME.toml`` (one line

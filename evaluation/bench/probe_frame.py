@@ -20,8 +20,6 @@ Writes ``OUT/frame-variants.json`` (``part.run_probe``: an existing one only wit
 """
 from __future__ import annotations
 
-import argparse
-import os
 import warnings
 from pathlib import Path
 
@@ -29,7 +27,7 @@ import numpy as np
 
 from renderer.scene import load_scene
 
-from .part import run_probe
+from .part import probe_parser, run_probe
 
 SCENES = ("cornell_box", "cornell_sphere", "platonic_solids", "glass_bunny")
 VARIANTS = ("bvh", "rows", "block16x2", "block4x8", "bvh4", "bvh8", "bvh-nosplit",
@@ -93,14 +91,10 @@ def probe(name: str, backend: str, size: int, depth: int, frames: int) -> list:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--backend", default="cuda", choices=("cuda", "llvm"))
+    ap = probe_parser(__doc__, SCENES)
     ap.add_argument("--size", type=int, default=1024)
     ap.add_argument("--depth", type=int, default=2)
     ap.add_argument("--frames", type=int, default=20)
-    ap.add_argument("--scenes", default=",".join(SCENES))
-    ap.add_argument("--out", default=os.environ.get("OUT", "out"))
-    ap.add_argument("--force", action="store_true", help="replace an existing result")
     a = ap.parse_args(argv)
     if a.size < 1 or a.depth < 0 or a.frames < 1:
         ap.error("--size and --frames: at least 1; --depth: at least 0")

@@ -11,8 +11,6 @@ BVH's, and one sorted call's kernel history (kernel kinds and times) is recorded
 """
 from __future__ import annotations
 
-import argparse
-import os
 import warnings
 from pathlib import Path
 
@@ -27,7 +25,7 @@ from renderer.device import array3, types
 from renderer.scene import load_scene
 
 from . import throughput as T
-from .part import run_probe
+from .part import probe_parser, run_probe
 
 SCENES = ("cornell_sphere", "platonic_solids", "bunny", "sponza", "conference")
 #: (accelerator, key mode, origin bits per axis, direction bits per axis)
@@ -157,11 +155,7 @@ def probe(name: str, t, width: int, height: int, repeats: int) -> list:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--backend", default="cuda", choices=("cuda", "llvm"))
-    ap.add_argument("--scenes", default=",".join(SCENES))
-    ap.add_argument("--out", default=os.environ.get("OUT", "out"))
-    ap.add_argument("--force", action="store_true", help="replace an existing result")
+    ap = probe_parser(__doc__, SCENES)
     a = ap.parse_args(argv)
     warnings.simplefilter("ignore")
     t = types(a.backend)

@@ -12,8 +12,6 @@ an existing one only with ``--force``).
 """
 from __future__ import annotations
 
-import argparse
-import os
 import warnings
 from pathlib import Path
 
@@ -26,7 +24,7 @@ from renderer.device import types
 from renderer.scene import load_scene
 
 from . import throughput as T
-from .part import run_probe
+from .part import probe_parser, run_probe
 from .probe_traversal import batch_size, same_hits
 
 SCENES = ("sponza", "conference")
@@ -83,13 +81,9 @@ def probe(name: str, t, width: int, height: int, repeats: int) -> list:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--backend", default="llvm", choices=("cuda", "llvm"))
+    ap = probe_parser(__doc__, SCENES, backend='llvm')
     ap.add_argument("--size", type=batch_size, default=(640, 360), help="batch WxH")
-    ap.add_argument("--scenes", default=",".join(SCENES))
     ap.add_argument("--repeats", type=int, default=5)
-    ap.add_argument("--out", default=os.environ.get("OUT", "out"))
-    ap.add_argument("--force", action="store_true", help="replace an existing result")
     a = ap.parse_args(argv)
     if a.repeats < 1:
         ap.error(f"--repeats: expected at least 1, got {a.repeats}")

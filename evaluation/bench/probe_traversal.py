@@ -19,7 +19,6 @@ contender's hits compared with the binary BVH's (t and face where found). Writes
 from __future__ import annotations
 
 import argparse
-import os
 import warnings
 from dataclasses import replace
 from pathlib import Path
@@ -37,7 +36,7 @@ from renderer.device import array3, types
 from renderer.scene import load_scene
 
 from . import throughput as T
-from .part import run_probe
+from .part import probe_parser, run_probe
 
 SCENES = ("cornell_sphere", "platonic_solids", "bunny", "sponza", "conference")
 #: Which steps branch in the ``branches`` mode (set by each contender while it traces).
@@ -183,14 +182,10 @@ def batch_size(text: str) -> tuple[int, int]:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = probe_parser(__doc__, SCENES)
     ap.add_argument("--mode", choices=("branches", "leaf", "refill"), default="branches")
-    ap.add_argument("--backend", default="cuda", choices=("cuda", "llvm"))
-    ap.add_argument("--scenes", default=",".join(SCENES))
-    ap.add_argument("--out", default=os.environ.get("OUT", "out"))
     ap.add_argument("--size", type=batch_size, default=None,
                     help="batch WxH (default 1920x1080 on CUDA, 160x90 on the CPU)")
-    ap.add_argument("--force", action="store_true", help="replace an existing result")
     a = ap.parse_args(argv)
     warnings.simplefilter("ignore")
     t = types(a.backend)
