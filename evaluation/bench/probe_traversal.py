@@ -65,6 +65,14 @@ def _accelerators(scene, t, mode: str) -> tuple[dict, dict]:
     else:
         for ls in (2, 8):
             accs[f"bvh-leaf{ls}"] = ACCELERATORS["bvh"].build(scene, t, leaf_size=ls)
+    if mode == "loops":
+        b = build_bvh(scene.vertices, scene.faces)
+        accs = {"bvh": ACCELERATORS["bvh"].build(scene, t, binary=b)}
+        accs["bvh+split"] = ACCELERATORS["bvh"].build(scene, t, binary=b, fused=False)
+        dr.eval(accs)
+        accs["bvh+cyc"] = replace(accs["bvh"], intersection="watertight_cyclic")
+        accs["bvh+hoist"] = replace(accs["bvh"], intersection="watertight_hoisted")
+        return accs, {a: (a, True, True) for a in accs}
     if mode == "refill":
         b = build_bvh(scene.vertices, scene.faces, leaf_size=2)
         accs = {"bvh": ACCELERATORS["bvh"].build(scene, t, binary=b),
@@ -87,6 +95,18 @@ def _accelerators(scene, t, mode: str) -> tuple[dict, dict]:
             conts[a + "+brtri"] = (a, False, True)
             conts[a + "+brnode"] = (a, True, False)
     return accs, conts
+
+
+def rotated(scene, t, acc, b):
+    """``acc`` tracing ``watertight_rotated`` on its triangles in the "rotations" layout."""
+    from renderer.accel import triangle as TR
+    from renderer.accel.base import traversal_triangles
+    packed = TR.pack(scene.positions(t.is_double), scene.faces[b.order], "rotations")
+    rot = t.Float(packed.astype(np.float64 if t.is_double else np.float32).reshape(-1))
+    trav = traversal_triangles(t, rot)
+    out = replace(acc, intersection="watertight_rotated", tri_trav=rot if trav is None else trav)
+    dr.eval(out.tri_trav)
+    return out
 
 
 class _TieBranch:
@@ -145,14 +165,19 @@ def probe(scene_name: str, t, mode: str, width: int, height: int, repeats: int) 
                                               "closest", True, True))
     t_h = np.where(hf, ht, np.inf)
     face = np.where(hf, face, 0).astype(np.int64)
+    so, sd, stmax = T.shadow_rays_host(scene, o, d, t_h, face,
+                                       scene.lights[0].position)
     batches = {"primary": (o, d, True),
+               "shadow": (so, sd, False, stmax),
                "incoherent": T.incoherent_rays_host(scene, n) + (False,),
                "reflection": T.reflection_rays_host(scene, o, d, t_h, face) + (False,)}
     rows = []
-    for bname, (bo, bd, coherent) in batches.items():
+    for bname, (bo, bd, coherent, *btmax) in batches.items():
+        if bname == "shadow" and mode != "loops":
+            continue
         m = len(bo)
-        ray, on, mray = T.upload_batch(t, bo, bd)
-        for q in ("closest", "any"):
+        ray, on, mray = T.upload_batch(t, bo, bd, *btmax)
+        for q in (("any",) if bname == "shadow" else ("closest", "any")):
             fns = {k: (lambda a=a, nb=nb, tb=tb, q=q, ray=ray, on=on:
                         _query(t, accs[a], ray, on, q, nb, tb))
                    for k, (a, nb, tb) in conts.items()}
@@ -183,13 +208,18 @@ def batch_size(text: str) -> tuple[int, int]:
 
 def main(argv=None) -> int:
     ap = probe_parser(__doc__, SCENES)
-    ap.add_argument("--mode", choices=("branches", "leaf", "refill"), default="branches")
+    ap.add_argument("--mode", choices=("branches", "leaf", "refill", "loops"), default="branches")
     ap.add_argument("--size", type=batch_size, default=None,
                     help="batch WxH (default 1920x1080 on CUDA, 160x90 on the CPU)")
     a = ap.parse_args(argv)
     warnings.simplefilter("ignore")
     t = types(a.backend)
     size = a.size or ((1920, 1080) if a.backend == "cuda" else (160, 90))
+    if a.mode == "loops":
+        T_ = __import__("renderer.accel.triangle", fromlist=["x"])
+        T_.ROUTINES["watertight_cyclic"] = T_.watertight_cyclic
+        T_.ROUTINES["watertight_rotated"] = T_.watertight_rotated
+        T_.ROUTINES["watertight_hoisted"] = T_.watertight_hoisted
     if a.mode == "branches":
         bvh_module.masked_step = wide_module.masked_step = _switchable("node")
         traverse_module.masked_step = _switchable("tri")

@@ -100,7 +100,20 @@ def _edges_as_they_are(x0, y0, x1, y1, x2, y2, e0, e1, e2):
     return e0, e1, e2
 
 
-def watertight(o, d, p0, p1, p2, n, t_min=0.0):
+def _rotate(v, zx, zy):
+    """``v`` rotated so that its x (where ``zx``), y (where ``zy``) or else z component
+    comes last: ``(v[kx], v[ky], v[kz])`` with ``kz`` that axis, ``kx = kz + 1``,
+    ``ky = kz + 2`` (mod 3)."""
+    return (dr.select(zx, v.y, dr.select(zy, v.z, v.x)),
+            dr.select(zx, v.z, dr.select(zy, v.x, v.y)),
+            dr.select(zx, v.x, dr.select(zy, v.y, v.z)))
+
+
+def watertight_cyclic(o, d, p0, p1, p2, n, t_min=0.0):
+    return watertight(o, d, p0, p1, p2, n, t_min, cyclic=True)
+
+
+def watertight(o, d, p0, p1, p2, n, t_min=0.0, cyclic=False):
     """Watertight ray/triangle test (Woop, Benthin, Wald 2013; pbrt-v4's
     ``IntersectTriangle``): translate the vertices to the ray origin, permute the axes so
     that the ray's largest direction component is z, shear the ray onto +z, and test the
@@ -123,17 +136,86 @@ def watertight(o, d, p0, p1, p2, n, t_min=0.0):
     UInt32 = dr.uint32_array_t(Float)
     # ---- translate, permute (largest |d| component to z), shear --------------------------
     a0, a1, a2 = p0 - o, p1 - o, p2 - o
+    if cyclic:
+        ad = dr.abs(d)
+        zx = (ad.x > ad.y) & (ad.x > ad.z)
+        zy = ~(ad.x > ad.y) & (ad.y > ad.z)
+        dx, dy, dz = _rotate(d, zx, zy)
+        x0, y0, z0 = _rotate(a0, zx, zy)
+        x1, y1, z1 = _rotate(a1, zx, zy)
+        x2, y2, z2 = _rotate(a2, zx, zy)
+    else:
+        ad = dr.abs(d)
+        kz = dr.select(ad.x > ad.y, dr.select(ad.x > ad.z, UInt32(0), UInt32(2)),
+                       dr.select(ad.y > ad.z, UInt32(1), UInt32(2)))
+        kx = dr.select(kz == 2, UInt32(0), kz + 1)
+        ky = dr.select(kx == 2, UInt32(0), kx + 1)
+        dx, dy, dz = _permute(d, kx, ky, kz)
+        x0, y0, z0 = _permute(a0, kx, ky, kz)
+        x1, y1, z1 = _permute(a1, kx, ky, kz)
+        x2, y2, z2 = _permute(a2, kx, ky, kz)
+    return _watertight_tail(a0, a1, a2, n, d, dx, dy, dz, x0, y0, z0, x1, y1, z1, x2, y2, z2,
+                            double, t_min)
+
+
+def _watertight_bind(o, d):
+    """``watertight_cyclic`` with the ray's axis choice and shear computed once, before
+    the traversal loop."""
+    double = dr.type_v(o) == dr.VarType.Float64
     ad = dr.abs(d)
-    kz = dr.select(ad.x > ad.y, dr.select(ad.x > ad.z, UInt32(0), UInt32(2)),
-                   dr.select(ad.y > ad.z, UInt32(1), UInt32(2)))
-    kx = dr.select(kz == 2, UInt32(0), kz + 1)
-    ky = dr.select(kx == 2, UInt32(0), kx + 1)
-    dx, dy, dz = _permute(d, kx, ky, kz)
-    x0, y0, z0 = _permute(a0, kx, ky, kz)
-    x1, y1, z1 = _permute(a1, kx, ky, kz)
-    x2, y2, z2 = _permute(a2, kx, ky, kz)
+    zx = (ad.x > ad.y) & (ad.x > ad.z)
+    zy = ~(ad.x > ad.y) & (ad.y > ad.z)
+    dx, dy, dz = _rotate(d, zx, zy)
+    shear = _shear(dx, dy, dz)
+
+    def bound(o_, d_, p0, p1, p2, n, t_min=0.0):
+        a0, a1, a2 = p0 - o_, p1 - o_, p2 - o_
+        x0, y0, z0 = _rotate(a0, zx, zy)
+        x1, y1, z1 = _rotate(a1, zx, zy)
+        x2, y2, z2 = _rotate(a2, zx, zy)
+        return _watertight_tail(a0, a1, a2, n, d_, dx, dy, dz, x0, y0, z0, x1, y1, z1,
+                                x2, y2, z2, double, t_min, shear)
+    bound.layout = "vertices"
+    return bound
+
+
+def bind_routine(routine, o, d):
+    """``routine`` for the rays ``(o, d)`` of one traversal: its ``bind(o, d)`` where it
+    has one (per-ray set-up hoisted out of the loop), else itself."""
+    bind = getattr(routine, "bind", None)
+    return routine if bind is None else bind(o, d)
+
+
+def watertight_hoisted(o, d, p0, p1, p2, n, t_min=0.0):
+    return _watertight_bind(o, d)(o, d, p0, p1, p2, n, t_min)
+
+
+watertight_hoisted.bind = _watertight_bind
+
+
+def watertight_rotated(o, d, q0, q1, q2, nq, t_min=0.0):
+    """``watertight`` on triangles stored in the three axis rotations (layout
+    "rotations", ``load`` picks the ray's): only the ray is rotated per test. The same
+    hits up to the rounding order of the plane distance's dot products."""
+    double = dr.type_v(o) == dr.VarType.Float64
+    ad = dr.abs(d)
+    zx = (ad.x > ad.y) & (ad.x > ad.z)
+    zy = ~(ad.x > ad.y) & (ad.y > ad.z)
+    Array3 = type(o)
+    o_, d_ = Array3(*_rotate(o, zx, zy)), Array3(*_rotate(d, zx, zy))
+    a0, a1, a2 = q0 - o_, q1 - o_, q2 - o_
+    return _watertight_tail(a0, a1, a2, nq, d_, d_.x, d_.y, d_.z, a0.x, a0.y, a0.z,
+                            a1.x, a1.y, a1.z, a2.x, a2.y, a2.z, double, t_min)
+
+
+def _shear(dx, dy, dz):
     inv_dz = 1.0 / dz
-    sx, sy = -dx * inv_dz, -dy * inv_dz
+    return -dx * inv_dz, -dy * inv_dz
+
+
+def _watertight_tail(a0, a1, a2, n, d, dx, dy, dz, x0, y0, z0, x1, y1, z1, x2, y2, z2,
+                     double, t_min, shear=None):
+    sx, sy = _shear(dx, dy, dz) if shear is None else shear
     x0, y0 = dr.fma(sx, z0, x0), dr.fma(sy, z0, y0)
     x1, y1 = dr.fma(sx, z1, x1), dr.fma(sy, z1, y1)
     x2, y2 = dr.fma(sx, z2, x2), dr.fma(sy, z2, y2)
@@ -188,9 +270,12 @@ DEFAULT_ROUTINE = "watertight"
 
 moller_trumbore.layout = "edges"
 watertight.layout = "vertices"
+watertight_cyclic.layout = "vertices"
+watertight_rotated.layout = "rotations"
+watertight_hoisted.layout = "vertices"
 
 #: Array3f per triangle of each layout (what ``load`` returns).
-LAYOUT_VECTORS = {"edges": 3, "vertices": 4}
+LAYOUT_VECTORS = {"edges": 3, "vertices": 4, "rotations": 4}
 
 
 def layout_of(routine) -> str:
@@ -217,7 +302,7 @@ def box_reach(scene, routine: str) -> float:
     moves them by up to a few units of roundoff of ``|p - o|``, so the boxes grow by that
     much (pbrt's conservative traversal: the slab test never rejects a ray the triangle test
     would accept)."""
-    if layout_of(routine) != "vertices":
+    if layout_of(routine) == "edges":
         return 0.0
     mags = [float(np.max(np.abs(scene.positions(True)))) if scene.face_count else 0.0]
     mags += [float(np.max(np.abs(c.position))) for c in scene.cameras]
@@ -231,6 +316,10 @@ def pack(vertices: np.ndarray, faces: np.ndarray, layout: str = "edges") -> np.n
     (``layout_of``): "edges" stores ``v0, v1 - v0, v2 - v0`` (the edges are differences of
     float64 vertices, rounded once by that cast); "vertices" stores ``p0, p1, p2`` and the
     unit normal ``normalize((p1 - p0) x (p2 - p0))`` (zero for a degenerate triangle)."""
+    if layout == "rotations":   # three records per triangle: kz = x, y, z (``_rotate``)
+        rows = pack(vertices, faces, "vertices").reshape(-1, 4, 3)
+        return np.concatenate([rows[:, :, [(kz + 1) % 3, (kz + 2) % 3, kz]].reshape(-1, 12)
+                               for kz in range(3)], axis=1).reshape(-1, STRIDE)
     if layout not in ("edges", "vertices"):
         raise ValueError(f"layout: expected 'edges' or 'vertices', got {layout!r}")
     V = np.asarray(vertices).astype(np.float64)
@@ -249,10 +338,16 @@ def pack(vertices: np.ndarray, faces: np.ndarray, layout: str = "edges") -> np.n
     return packed
 
 
-def load(t, data, i, active=True, layout: str = "edges"):
+def load(t, data, i, active=True, layout: str = "edges", d=None):
     """The Array3f of packed triangle(s) ``i`` (UInt32) of ``data`` in ``layout``:
-    ``(v0, e1, e2)`` or ``(p0, p1, p2, n)``."""
+    ``(v0, e1, e2)`` or ``(p0, p1, p2, n)`` (in "rotations": rotated for the ray
+    direction ``d``)."""
     k = LAYOUT_VECTORS[layout]
+    if layout == "rotations":
+        ad = dr.abs(d)
+        zx = (ad.x > ad.y) & (ad.x > ad.z)
+        zy = ~(ad.x > ad.y) & (ad.y > ad.z)
+        i = i * 3 + dr.select(zx, 0, dr.select(zy, 1, 2))
     f = gather_floats(t, data, i, STRIDE, 3 * k, active)
     return tuple(t.Array3f(f[3 * j], f[3 * j + 1], f[3 * j + 2]) for j in range(k))
 
