@@ -20,18 +20,15 @@ from renderer.scene import load_scene
 def variant(delta=True, f64=True, perm=True, tplane=True):
     def wt(o, d, p0, p1, p2, n, t_min=0.0):
         double = dr.type_v(o) == dr.VarType.Float64
-        UInt32 = dr.uint32_array_t(type(o.x))
         a0, a1, a2 = p0 - o, p1 - o, p2 - o
         if perm:
             ad = dr.abs(d)
-            kz = dr.select(ad.x > ad.y, dr.select(ad.x > ad.z, UInt32(0), UInt32(2)),
-                           dr.select(ad.y > ad.z, UInt32(1), UInt32(2)))
-            kx = dr.select(kz == 2, UInt32(0), kz + 1)
-            ky = dr.select(kx == 2, UInt32(0), kx + 1)
-            dx, dy, dz = T._permute(d, kx, ky, kz)
-            x0, y0, z0 = T._permute(a0, kx, ky, kz)
-            x1, y1, z1 = T._permute(a1, kx, ky, kz)
-            x2, y2, z2 = T._permute(a2, kx, ky, kz)
+            zx = (ad.x > ad.y) & (ad.x > ad.z)
+            zy = ~(ad.x > ad.y) & (ad.y > ad.z)
+            dx, dy, dz = T._rotate(d, zx, zy)
+            x0, y0, z0 = T._rotate(a0, zx, zy)
+            x1, y1, z1 = T._rotate(a1, zx, zy)
+            x2, y2, z2 = T._rotate(a2, zx, zy)
         else:
             dx, dy, dz = d.x, d.y, d.z
             x0, y0, z0 = a0.x, a0.y, a0.z

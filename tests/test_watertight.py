@@ -205,3 +205,61 @@ def test_every_accelerator_gives_brute_force_hits(precision):
     for name in ACCELERATORS:
         for x, y in zip(out[name], out["brute"]):
             assert np.array_equal(x, y), name
+
+
+def _indexed_watertight(o, d, p0, p1, p2, n):
+    """Reference for the rotation: the shear and edge functions with the axes chosen by
+    integer indices (``kz`` the largest ``|d|`` component, the first of equal ones in the
+    order x, y, z by pbrt-v4's ``MaxComponentIndex``-style test; ``kx = kz + 1``,
+    ``ky = kz + 2`` mod 3), then the routine's own tail."""
+    UInt32 = dr.uint32_array_t(type(o.x))
+    a0, a1, a2 = p0 - o, p1 - o, p2 - o
+    ad = dr.abs(d)
+    kz = dr.select(ad.x > ad.y, dr.select(ad.x > ad.z, UInt32(0), UInt32(2)),
+                   dr.select(ad.y > ad.z, UInt32(1), UInt32(2)))
+    kx = dr.select(kz == 2, UInt32(0), kz + 1)
+    ky = dr.select(kx == 2, UInt32(0), kx + 1)
+
+    def pick(v, k):
+        return dr.select(k == 0, v.x, dr.select(k == 1, v.y, v.z))
+    dx, dy, dz = pick(d, kx), pick(d, ky), pick(d, kz)
+    sx, sy = -dx * (1.0 / dz), -dy * (1.0 / dz)
+    xy = [(dr.fma(sx, pick(a, kz), pick(a, kx)), dr.fma(sy, pick(a, kz), pick(a, ky)))
+          for a in (a0, a1, a2)]
+    double = dr.type_v(o) == dr.VarType.Float64
+    return triangle._watertight_tail(a0, a1, a2, n, d, *xy[0], *xy[1], *xy[2], double, 0.0)
+
+
+@pytest.mark.parametrize("precision", PRECISIONS)
+def test_bound_rotation_is_the_indexed_permutation(precision):
+    """``watertight`` bound to its rays (``bind_routine``, as every traversal calls it)
+    returns bitwise what the per-lane index permutation returns, on rays whose largest
+    direction component is each axis in turn and on rays with equal components (ties)."""
+    t = types("llvm", precision)
+    rng = np.random.default_rng(11)
+    n = 30000
+    P = rng.normal(size=(n, 3, 3))
+    o = rng.normal(size=(n, 3)) * 3
+    aim = np.einsum("nk,nkj->nj", rng.dirichlet([1, 1, 1], n), P)
+    d = aim - o
+    # a third of the rays with tied components: |dx| = |dy|, |dy| = |dz|, all three
+    tie = rng.integers(0, 4, n)
+    d[tie == 1, 1] = -d[tie == 1, 0]
+    d[tie == 2, 2] = d[tie == 2, 1]
+    d[tie == 3, 1:] = d[tie == 3, :1]
+    fdt = np.float64 if t.is_double else np.float32
+    packed = triangle.pack(P.reshape(-1, 3), np.arange(n * 3).reshape(-1, 3),
+                           "vertices").astype(fdt)
+    vecs = [array3(t, packed[:, 3 * j:3 * j + 3]) for j in range(4)]
+    O, D = array3(t, o), array3(t, d)
+    bound = triangle.bind_routine(triangle.watertight, O, D)
+    assert bound is not triangle.watertight
+    assert triangle.bind_routine(triangle.moller_trumbore, O, D) is triangle.moller_trumbore
+    got = [np.asarray(x.numpy()) for x in bound(O, D, *vecs)]
+    ref = [np.asarray(x.numpy()) for x in _indexed_watertight(O, D, *vecs)]
+    assert ref[3].sum() > n // 4                       # enough hits to compare
+    axes = np.argmax(np.abs(d), axis=1)
+    assert all(np.sum(ref[3] & (axes == k)) > 100 for k in range(3))
+    for g, r in zip(got, ref):
+        assert np.array_equal(g[ref[3]], r[ref[3]]) if g.dtype != bool else \
+            np.array_equal(g, r)

@@ -2,6 +2,7 @@
 
     python -m evaluation.bench.probe_traversal --mode branches [--backend cuda] [--out DIR]
     python -m evaluation.bench.probe_traversal --mode leaf ...    [--size WxH] [--force]
+    python -m evaluation.bench.probe_traversal --mode setup ...
 
 ``branches``: the traversal steps written inline with masked updates (what CUDA ran before
 ``traverse.masked_step`` became a symbolic ``if`` everywhere) against real branches for both
@@ -11,9 +12,12 @@ BVHs whose threads take the next ray when theirs is done (``refill``, rays per t
 ``traverse.refill_traversal``), and the tie-break gather in a branch
 (``traverse.TIE_BRANCH_BACKENDS``), against the binary and 4-wide BVHs. ``leaf``: with the branches,
 leaves of 1, 2, 4 and 8 triangles, the 4-wide BVH from the leaf-2 build, the 8-wide BVH and
-Möller–Trumbore. Batches as the throughput part's (primary, incoherent, reflection;
-closest and any hit), every contender timed in turn (``throughput._timed``), and every
-contender's hits compared with the binary BVH's (t and face where found). Writes
+Möller–Trumbore. ``setup``: the watertight test bound to each traversal's rays (the
+renderer's, ``triangle.bind_routine``) against the same test doing its per-ray set-up at
+every triangle (``+per-test``). Batches as the throughput part's (primary, incoherent,
+reflection; closest and any hit; ``setup`` also the shadow rays), every contender timed in
+turn (``throughput._timed``), and every contender's hits compared with the binary BVH's
+(t and face where found). Writes
 ``OUT/<mode>.json`` and prints one line per query.
 """
 from __future__ import annotations
@@ -28,6 +32,7 @@ import numpy as np
 
 import renderer.accel.bvh as bvh_module
 import renderer.accel.traverse as traverse_module
+import renderer.accel.triangle as TR
 import renderer.accel.wide as wide_module
 from renderer.accel import ACCELERATORS
 from renderer.accel.base import Ray
@@ -65,13 +70,11 @@ def _accelerators(scene, t, mode: str) -> tuple[dict, dict]:
     else:
         for ls in (2, 8):
             accs[f"bvh-leaf{ls}"] = ACCELERATORS["bvh"].build(scene, t, leaf_size=ls)
-    if mode == "loops":
+    if mode == "setup":
         b = build_bvh(scene.vertices, scene.faces)
         accs = {"bvh": ACCELERATORS["bvh"].build(scene, t, binary=b)}
-        accs["bvh+split"] = ACCELERATORS["bvh"].build(scene, t, binary=b, fused=False)
         dr.eval(accs)
-        accs["bvh+cyc"] = replace(accs["bvh"], intersection="watertight_cyclic")
-        accs["bvh+hoist"] = replace(accs["bvh"], intersection="watertight_hoisted")
+        accs["bvh+per-test"] = replace(accs["bvh"], intersection="watertight_per_test")
         return accs, {a: (a, True, True) for a in accs}
     if mode == "refill":
         b = build_bvh(scene.vertices, scene.faces, leaf_size=2)
@@ -97,16 +100,12 @@ def _accelerators(scene, t, mode: str) -> tuple[dict, dict]:
     return accs, conts
 
 
-def rotated(scene, t, acc, b):
-    """``acc`` tracing ``watertight_rotated`` on its triangles in the "rotations" layout."""
-    from renderer.accel import triangle as TR
-    from renderer.accel.base import traversal_triangles
-    packed = TR.pack(scene.positions(t.is_double), scene.faces[b.order], "rotations")
-    rot = t.Float(packed.astype(np.float64 if t.is_double else np.float32).reshape(-1))
-    trav = traversal_triangles(t, rot)
-    out = replace(acc, intersection="watertight_rotated", tri_trav=rot if trav is None else trav)
-    dr.eval(out.tri_trav)
-    return out
+def watertight_per_test(o, d, p0, p1, p2, n, t_min=0.0):
+    """``watertight`` without its ``bind``: the per-ray set-up at every triangle test."""
+    return TR.watertight(o, d, p0, p1, p2, n, t_min)
+
+
+watertight_per_test.layout = "vertices"
 
 
 class _TieBranch:
@@ -173,7 +172,7 @@ def probe(scene_name: str, t, mode: str, width: int, height: int, repeats: int) 
                "reflection": T.reflection_rays_host(scene, o, d, t_h, face) + (False,)}
     rows = []
     for bname, (bo, bd, coherent, *btmax) in batches.items():
-        if bname == "shadow" and mode != "loops":
+        if bname == "shadow" and mode != "setup":
             continue
         m = len(bo)
         ray, on, mray = T.upload_batch(t, bo, bd, *btmax)
@@ -208,18 +207,15 @@ def batch_size(text: str) -> tuple[int, int]:
 
 def main(argv=None) -> int:
     ap = probe_parser(__doc__, SCENES)
-    ap.add_argument("--mode", choices=("branches", "leaf", "refill", "loops"), default="branches")
+    ap.add_argument("--mode", choices=("branches", "leaf", "refill", "setup"), default="branches")
     ap.add_argument("--size", type=batch_size, default=None,
                     help="batch WxH (default 1920x1080 on CUDA, 160x90 on the CPU)")
     a = ap.parse_args(argv)
     warnings.simplefilter("ignore")
     t = types(a.backend)
     size = a.size or ((1920, 1080) if a.backend == "cuda" else (160, 90))
-    if a.mode == "loops":
-        T_ = __import__("renderer.accel.triangle", fromlist=["x"])
-        T_.ROUTINES["watertight_cyclic"] = T_.watertight_cyclic
-        T_.ROUTINES["watertight_rotated"] = T_.watertight_rotated
-        T_.ROUTINES["watertight_hoisted"] = T_.watertight_hoisted
+    if a.mode == "setup":
+        TR.ROUTINES["watertight_per_test"] = watertight_per_test
     if a.mode == "branches":
         bvh_module.masked_step = wide_module.masked_step = _switchable("node")
         traverse_module.masked_step = _switchable("tri")

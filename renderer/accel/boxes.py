@@ -26,7 +26,7 @@ from .traverse import (
     slab,
     traversal_result,
 )
-from .triangle import DEFAULT_ROUTINE, box_reach, triangle_routine, upload_triangles
+from .triangle import DEFAULT_ROUTINE, bind_routine, box_reach, triangle_routine, upload_triangles
 
 
 @dataclass
@@ -114,6 +114,7 @@ class ObjectBoxes(Accelerator):
         n_obj = dr.width(self.ranges) // 2
         t_max = ray.t_max
         o, d, inv, active, n = setup(t, ray, active)
+        routine = bind_routine(routine, o, d)
         active &= n_obj > 0
         obj = dr.zeros(t.UInt32, n)                 # next object to test
         first = dr.zeros(t.UInt32, n)               # pending triangles [first, end)

@@ -9,7 +9,7 @@ import drjit as dr
 from ..device import Types
 from .base import Accelerator, DeviceTriangles, Ray
 from .traverse import Closest, setup, traversal_result, triangle_step
-from .triangle import DEFAULT_ROUTINE, triangle_routine, upload_triangles
+from .triangle import DEFAULT_ROUTINE, bind_routine, triangle_routine, upload_triangles
 
 
 @dataclass
@@ -55,6 +55,7 @@ class BruteForce(Accelerator):
         count = self.tris.count
         t_max = ray.t_max
         o, d, _, active, n = setup(t, ray, active)
+        routine = bind_routine(routine, o, d)
         rec = Closest.empty(t, t_max, n)            # closest hit so far
         i = dr.zeros(t.UInt32, n)                   # next candidate triangle
         while dr.hint(active & (i < count), max_iterations=-1,

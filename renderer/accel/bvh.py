@@ -51,7 +51,6 @@ from .traverse import (
     setup,
     slab,
     traversal_result,
-    triangle_step,
 )
 from .triangle import (
     DEFAULT_ROUTINE,
@@ -64,14 +63,7 @@ from .triangle import (
 
 
 def load_node(t: Types, nodes, children, cur, active=True):
-    """Inner node(s) ``cur``: ``(a_lo, a_hi, b_lo, b_hi, ref_a, ref_b)``; ``children``
-    None: the references are words 12 and 13 of 16-word node records (``fuse_nodes``)."""
-    if children is None:
-        f = gather_floats(t, nodes, cur, 16, 14, active)
-        U = t.UInt32
-        ref_a, ref_b = dr.reinterpret_array(U, f[12]), dr.reinterpret_array(U, f[13])
-        return (t.Array3f(f[0], f[1], f[2]), t.Array3f(f[3], f[4], f[5]),
-                t.Array3f(f[6], f[7], f[8]), t.Array3f(f[9], f[10], f[11]), ref_a, ref_b)
+    """Inner node(s) ``cur``: ``(a_lo, a_hi, b_lo, b_hi, ref_a, ref_b)``."""
     f = gather_floats(t, nodes, cur, 12, 12, active)
     if dr.type_v(children) == dr.VarType.UInt64:
         ref_a, ref_b = gather_pairs(t, children, cur, 2, 2, active)
@@ -83,20 +75,6 @@ def load_node(t: Types, nodes, children, cur, active=True):
         ref_a, ref_b = refs.x, refs.y
     return (t.Array3f(f[0], f[1], f[2]), t.Array3f(f[3], f[4], f[5]),
             t.Array3f(f[6], f[7], f[8]), t.Array3f(f[9], f[10], f[11]), ref_a, ref_b)
-
-
-#: Backends whose float32 node records hold the two child references too (``fuse_nodes``).
-FUSED_NODES = {"cuda": True}
-
-
-def fuse_nodes(boxes: np.ndarray, children: np.ndarray) -> np.ndarray:
-    """float32 (N, 16) node records: the 12 box floats (``boxes`` (N, 12)), the two child
-    references (``children`` (N, 2) UInt32) as float bits, 2 words of padding: one
-    64-byte record per node, aligned, instead of 48 bytes and 8 more in a second array."""
-    rec = np.zeros((boxes.shape[0], 16), np.uint32)
-    rec[:, :12] = np.ascontiguousarray(boxes, np.float32).reshape(-1, 12).view(np.uint32)
-    rec[:, 12:14] = children.reshape(-1, 2)
-    return rec.view(np.float32)
 
 
 def node_step(t: Types, nodes, children, o, inv, t_max, robust, stack, sp, cur, to_pop,
@@ -161,12 +139,11 @@ class BVH(Accelerator):
     info: dict = field(default_factory=dict, repr=False)
     tri_trav: object = None
     refill: int = 0                    # rays per lane of ``traverse.refill_traversal``
-    loop: str = "if-if"                # traversal loop shape (``LOOPS``)
 
     @classmethod
     def build(cls, scene, t: Types, *, intersection: str = DEFAULT_ROUTINE,
               leaf_size: int = LEAF_SIZE, bins: int = BINS, binary: BVHArrays | None = None,
-              fused: bool | None = None, **build_options) -> "BVH":
+              **build_options) -> "BVH":
         """``build_options`` go to ``build_bvh`` (root_bins, all_axes, sah_leaves,
         depth_first, sample); ``binary``: an existing build of ``scene`` to upload instead."""
         triangle_routine(intersection)
@@ -176,11 +153,7 @@ class BVH(Accelerator):
         tri_data, tris = upload_triangles(scene, t, order=a.order, routine=intersection)
         fdt = np.float64 if t.is_double else np.float32
         boxes = traversal_boxes(a, scene, t, intersection).astype(fdt)
-        if fused is None:
-            fused = FUSED_NODES.get(t.backend, False)
-        if fused and not t.is_double:
-            nodes, children = t.Float(fuse_nodes(boxes, a.children).reshape(-1)), None
-        elif uses_pairs(t):
+        if uses_pairs(t):
             nodes, children = as_pairs(t, boxes.view(np.uint32)), as_pairs(t, a.children)
         else:
             nodes, children = t.Float(boxes.reshape(-1)), t.UInt32(a.children.reshape(-1))
@@ -220,8 +193,6 @@ class BVH(Accelerator):
                         t, nodes, children, o, inv, best_t, robust, stack, sp, cur, to_pop,
                         any_hit=any_hit),
                     ray, active, any_hit, n, lanes, "bvh_refill")
-        if self.loop == "while-while":
-            return self._traverse_while(ray, active, any_hit, probe, counting)
         return self._traverse_lanes(ray, active, any_hit, probe, counting)
 
     @dr.syntax
@@ -265,68 +236,10 @@ class BVH(Accelerator):
 
             # ---- triangle step: one pending leaf triangle ---------------------------------
             rec, first = leaf_triangle_step(t, routine, o, d, tri_data, order, first, end,
-                                            t_max, rec, any_hit, probe,
-                                            whole=self.loop == "if-leaf")
+                                            t_max, rec, any_hit, probe)
             if dr.hint(any_hit, mode="scalar"):
                 active &= ~rec.found
 
-            active &= (first < end) | (cur != DONE)
-
-        return traversal_result(rec, any_hit, (n_node, n_tri, n_iter) if counting else None)
-
-    @dr.syntax
-    def _traverse_while(self, ray: Ray, active, any_hit: bool, probe=None,
-                        counting: bool = False):
-        """``loop`` "while-while" (Aila & Laine 2009): an inner loop of node steps until
-        the lane holds a leaf (or is done), then the leaf's triangles, all lanes of a warp
-        together."""
-        t = self.types
-        routine = triangle_routine(self.intersection)
-        robust = robust_scale(t)
-        nodes, children, order = self.nodes, self.children, self.tris.order
-        tri_data = self.tri_data if self.tri_trav is None else self.tri_trav
-        t_max = ray.t_max
-        o, d, inv, active, n = setup(t, ray, active)
-        stack = dr.alloc_local(t.UInt32, STACK_SIZE)
-        sp = dr.zeros(t.UInt32, n)
-        cur = dr.select(active, dr.zeros(t.UInt32, n), DONE)
-        first = dr.zeros(t.UInt32, n)
-        end = dr.zeros(t.UInt32, n)
-        rec = Closest.empty(t, t_max, n)
-        n_node = dr.zeros(t.UInt32, n)
-        n_tri = dr.zeros(t.UInt32, n)
-        n_iter = dr.zeros(t.UInt32, n)
-
-        while dr.hint(active, max_iterations=-1, label="bvh_ww",
-                      exclude=[self, t, routine, robust, any_hit, probe, counting]):
-            descend = active & (first >= end) & (cur != DONE)
-            while dr.hint(descend, max_iterations=-1, label="bvh_ww_nodes",
-                          exclude=[self, t, routine, robust, any_hit, probe, counting]):
-                is_leaf, is_inner, first, end = enter_leaf(cur, first, end)
-                if dr.hint(counting, mode="scalar"):
-                    n_node += dr.select(is_inner, 1, 0)
-                    n_iter += 1
-                cull = cull_t(rec, t_max, probe)
-                sp, cur, to_pop = masked_step(
-                    t, is_inner,
-                    lambda sp, cur, to_pop, on, best_t=cull: node_step(
-                        t, nodes, children, o, inv, best_t, robust, stack, sp, cur, to_pop,
-                        on, probe_pad(probe), any_hit),
-                    (sp, cur, is_leaf | False))
-                sp, cur = pop(stack, sp, cur, to_pop)
-                descend = (first >= end) & (cur != DONE)
-            pending = active & (first < end)
-            while dr.hint(pending, max_iterations=-1, label="bvh_ww_tris",
-                          exclude=[self, t, routine, robust, any_hit, probe, counting]):
-                if dr.hint(counting, mode="scalar"):
-                    n_tri += 1
-                    n_iter += 1
-                rec = triangle_step(t, routine, o, d, tri_data, order, first, t_max, rec,
-                                    any_hit, True, probe)
-                first += 1
-                pending = first < end
-            if dr.hint(any_hit, mode="scalar"):
-                active &= ~rec.found
             active &= (first < end) | (cur != DONE)
 
         return traversal_result(rec, any_hit, (n_node, n_tri, n_iter) if counting else None)

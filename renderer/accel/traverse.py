@@ -142,7 +142,7 @@ def triangle_step(t: Types, routine, o, d, tri_data, order, i, t_max, rec: Close
     triangle ``probe.nearest``, wins, however near; the caller culls boxes by ``t_max``,
     not ``rec.t`` (``cull_t``)."""
     layout = layout_of(routine)
-    tri = load(t, tri_data, i, active, layout, d)
+    tri = load(t, tri_data, i, active, layout)
     th, u, v, h = routine(o, d, *tri)
     if probe is not None:
         e1, e2 = edges_of(tri, layout)
@@ -280,20 +280,17 @@ def pop(stack, sp, cur, where):
 
 
 def leaf_triangle_step(t: Types, routine, o, d, tri_data, order, first, end, t_max,
-                       rec: Closest, any_hit: bool, probe=None, whole: bool = False) -> tuple:
+                       rec: Closest, any_hit: bool, probe=None) -> tuple:
     """The triangle half of a traversal iteration, shared by every accelerator: where a
     leaf triangle is pending (``first < end``), test triangle ``first`` (``triangle_step``)
-    and move on to the next; with ``whole`` also the one after it where the leaf has one.
-    Returns ``(rec, first)``."""
-    def one(rec, first, on):
-        return (triangle_step(t, routine, o, d, tri_data, order, first, t_max, rec, any_hit,
-                              on, probe),
-                first + 1 if on is True else dr.select(on, first + 1, first))
-
-    def two(rec, first, on):
-        rec, first = one(rec, first, on)
-        return masked_step(t, first < end, one, (rec, first))
-    return masked_step(t, first < end, two if whole else one, (rec, first))
+    and move on to the next. Returns ``(rec, first)``."""
+    return masked_step(
+        t, first < end,
+        lambda rec, first, on: (
+            triangle_step(t, routine, o, d, tri_data, order, first, t_max, rec, any_hit,
+                          on, probe),
+            first + 1 if on is True else dr.select(on, first + 1, first)),
+        (rec, first))
 
 
 def traversal_result(rec: Closest, any_hit: bool, counts=None):

@@ -75,7 +75,7 @@ from .traverse import (
     slab,
     traversal_result,
 )
-from .triangle import DEFAULT_ROUTINE, STRIDE, triangle_routine, upload_triangles
+from .triangle import DEFAULT_ROUTINE, STRIDE, bind_routine, triangle_routine, upload_triangles
 
 WIDTHS = (4, 8)
 
@@ -488,6 +488,7 @@ class WideBVH(Accelerator):
         t, W, routine, robust, nodes, refs, order, tri_data = self._loop_inputs()
         t_max = ray.t_max
         o, d, inv, active, n = setup(t, ray, active)
+        routine = bind_routine(routine, o, d)
         stack = dr.alloc_local(t.UInt32, STACK_SIZE)
         sp = dr.zeros(t.UInt32, n)
         cur = dr.select(active, dr.zeros(t.UInt32, n), DONE)
