@@ -97,6 +97,21 @@ def test_pareto_front_and_tables(tiny):
     assert data["meta"]["device"]["device"] in block and block.count("\n- ") == len(lines)
 
 
+def test_load_warning_only_beyond_the_studys_own_threads(tiny):
+    """The README block and study.md call the machine shared only when the load average
+    exceeds what the study's own render threads make (the core count plus half a core)."""
+    import copy
+    _, data = tiny
+    cores = data["meta"]["device"].get("cores") or 1
+    for load, shared in ((cores + 0.1, False), (cores + 2.0, True)):
+        d = copy.deepcopy(data)
+        for p in d["points"].values():
+            p["timing"]["loadavg_1m"] = load
+        block = study.readme_section(d, "results/study/x")
+        assert ("the machine was shared" in block) == shared
+        assert ("Measured under load" in study.markdown(d)) == shared
+
+
 def test_resumed_sweep_equals_uninterrupted(tiny, tmp_path):
     _, full = tiny
     part = study.run_study(SCENES, tmp_path, profile=TINY, max_points=2, show_progress=False,
