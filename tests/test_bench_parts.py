@@ -208,3 +208,22 @@ def test_probe_runner_refuses_bad_input_and_stops_cleanly(tmp_path, monkeypatch,
         return [{"scene": name}]
     assert run_probe(out, True, ["cornell_box", "bunny"], interrupted, {"backend": "x"}) == 130
     assert json.loads(out.read_text()) == {"backend": "x", "rows": [{"scene": "cornell_box"}]}
+
+
+def test_throughput_run_refuses_bad_input_in_one_line(tmp_path, capsys):
+    """``evaluation.bench.throughput_run``: an existing result without --force is one line
+    and exit 2 (the file kept); a bad --size or an unknown scene is argparse's one-line
+    error (exit 2), before anything is measured."""
+    from evaluation.bench import throughput_run
+    (tmp_path / "bench-llvm-throughput.json").write_text("keep")
+    assert throughput_run.main(["--out", str(tmp_path), "--scenes", str(ROOT / "scenes")]) == 2
+    err = capsys.readouterr().err
+    assert "exists (pass --force" in err and "Traceback" not in err
+    assert (tmp_path / "bench-llvm-throughput.json").read_text() == "keep"
+    for bad in (["--size", "64y3"], ["--only", "no_such_scene"]):
+        with pytest.raises(SystemExit) as e:
+            throughput_run.main(bad + ["--out", str(tmp_path / "new"),
+                                       "--scenes", str(ROOT / "scenes")])
+        assert e.value.code == 2
+        assert bad[0] in capsys.readouterr().err
+    assert not (tmp_path / "new").exists()

@@ -12,10 +12,11 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import sys
 import time
 from pathlib import Path
 
-from renderer.outputs import check_output_file
+from renderer.outputs import OutputError, check_output_file
 
 from . import device_info, markdown
 from .part import jsonable, write_atomic
@@ -35,13 +36,28 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     from renderer.device import types
     from renderer.scene import load_scene
-    backend = types(args.backend).backend
-    w, h = (int(x) for x in args.size.lower().split("x"))
+    try:
+        backend = types(args.backend).backend
+    except (ValueError, RuntimeError) as e:
+        ap.error(f"--backend: {e}")
+    try:
+        w, h = (int(x) for x in args.size.lower().split("x"))
+        if w < 1 or h < 1:
+            raise ValueError
+    except ValueError:
+        ap.error(f"--size: expected a positive WxH, got {args.size!r}")
+    names = [n for n in (args.only.split(",") if args.only else SCENES) if n]
+    missing = [n for n in names if not (Path(args.scenes) / f"{n}.toml").exists()]
+    if missing:
+        ap.error(f"--only: no scene {', '.join(missing)} in {args.scenes}/")
     out = Path(args.out)
     stem = out / f"bench-{backend}-throughput"
-    for ext in (".json", ".md"):
-        check_output_file(stem.with_suffix(ext), overwrite=args.force, flag="--force")
-    names = [n for n in (args.only.split(",") if args.only else SCENES) if n]
+    try:
+        for ext in (".json", ".md"):
+            check_output_file(stem.with_suffix(ext), overwrite=args.force, flag="--force")
+    except OutputError as e:
+        print(f"throughput_run: {e}", file=sys.stderr)
+        return 2
     result = {"device": device_info(backend), "quick": False,
               "date": time.strftime("%Y-%m-%d %H:%M:%S"), "throughput": [],
               "note": (f"throughput part alone at {w}x{h}, repeats {args.repeats}"
@@ -53,8 +69,6 @@ def main(argv=None) -> int:
 
     for name in names:
         p = Path(args.scenes) / f"{name}.toml"
-        if not p.exists():
-            continue
         load = os.getloadavg()
         t0 = time.perf_counter()
         r = ray_throughput(load_scene(p), backend=backend, width=w, height=h,
