@@ -5,7 +5,9 @@ triangle as the Array3f its layout holds (the function's ``layout`` attribute, "
 when absent; ``layout_of``), and return
 ``(t, u, v, hit)``: the ray parameter, the barycentrics of ``v1`` and ``v2``, and a Bool
 mask. ``hit`` already includes ``t > t_min``; callers compare ``t`` against their own
-``t_max``. The types follow the inputs, so float64 works unchanged.
+``t_max``. The types follow the inputs, so float64 works unchanged. A routine may have a
+``bind(o, d)`` attribute returning the same test with its per-ray part computed once for the
+rays ``(o, d)``; traversal loops call it through ``bind_routine`` before the loop.
 
 - ``moller_trumbore`` reads the first vertex ``v0`` and the edge vectors ``e1 = v1 - v0``,
   ``e2 = v2 - v0`` (precomputed on the host at load, as in the thesis): layout "edges".
