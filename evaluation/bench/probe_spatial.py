@@ -24,8 +24,8 @@ from renderer.device import types
 from renderer.scene import load_scene
 
 from . import throughput as T
-from .part import probe_parser, run_probe
-from .probe_traversal import batch_size, same_hits
+from .part import batch_size, probe_parser, run_probe
+from .probe_traversal import same_hits
 
 SCENES = ("sponza", "conference")
 

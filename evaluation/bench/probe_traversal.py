@@ -22,7 +22,6 @@ turn (``throughput._timed``), and every contender's hits compared with the binar
 """
 from __future__ import annotations
 
-import argparse
 import warnings
 from dataclasses import replace
 from pathlib import Path
@@ -41,7 +40,7 @@ from renderer.device import array3, types
 from renderer.scene import load_scene
 
 from . import throughput as T
-from .part import probe_parser, run_probe
+from .part import batch_size, probe_parser, run_probe
 
 SCENES = ("cornell_sphere", "platonic_solids", "bunny", "sponza", "conference")
 #: Which steps branch in the ``branches`` mode (set by each contender while it traces).
@@ -193,16 +192,6 @@ def probe(scene_name: str, t, mode: str, width: int, height: int, repeats: int) 
             print(f"{scene_name} {bname} {q} mitsuba {m / base / 1e3:.0f} Mrays/s | "
                   f"x mitsuba: {line}" + (f"  DIFFER: {differ}" if differ else ""), flush=True)
     return rows
-
-
-def batch_size(text: str) -> tuple[int, int]:
-    try:
-        w, h = (int(x) for x in text.lower().split("x"))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected WxH, got {text!r}") from None
-    if w < 1 or h < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive WxH, got {text!r}")
-    return w, h
 
 
 def main(argv=None) -> int:

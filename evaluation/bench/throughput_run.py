@@ -19,13 +19,14 @@ from pathlib import Path
 from renderer.outputs import OutputError, check_output_file
 
 from . import device_info, markdown
-from .part import jsonable, write_atomic
+from .part import batch_size, jsonable, write_atomic
 from .throughput import SCENES, ray_throughput
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--size", default="640x360", help="batch size WxH (pixels of the camera)")
+    ap.add_argument("--size", type=batch_size, default=(640, 360),
+                    help="batch size WxH (pixels of the camera)")
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--backend", default="llvm")
     ap.add_argument("--scenes", default="scenes")
@@ -40,12 +41,7 @@ def main(argv=None) -> int:
         backend = types(args.backend).backend
     except (ValueError, RuntimeError) as e:
         ap.error(f"--backend: {e}")
-    try:
-        w, h = (int(x) for x in args.size.lower().split("x"))
-        if w < 1 or h < 1:
-            raise ValueError
-    except ValueError:
-        ap.error(f"--size: expected a positive WxH, got {args.size!r}")
+    w, h = args.size
     names = [n for n in (args.only.split(",") if args.only else SCENES) if n]
     missing = [n for n in names if not (Path(args.scenes) / f"{n}.toml").exists()]
     if missing:
