@@ -3,22 +3,24 @@
     python -m evaluation.bench.probe_traversal --mode branches [--backend cuda] [--out DIR]
     python -m evaluation.bench.probe_traversal --mode leaf ...    [--size WxH] [--force]
     python -m evaluation.bench.probe_traversal --mode setup ...
+    python -m evaluation.bench.probe_traversal --mode slab ...
 
 ``branches``: the traversal steps written inline with masked updates (what CUDA ran before
 ``traverse.masked_step`` became a symbolic ``if`` everywhere) against real branches for both
-steps (``+br``), for the triangle step only (``+brtri``) or the node step only (``+brnode``);
-also leaves of 2 and 8 triangles and Möller–Trumbore, inline. ``refill``: the binary and 4-wide
-BVHs whose threads take the next ray when theirs is done (``refill``, rays per thread:
-``traverse.refill_traversal``), and the tie-break gather in a branch
-(``traverse.TIE_BRANCH_BACKENDS``), against the binary and 4-wide BVHs. ``leaf``: with the branches,
-leaves of 1, 2, 4 and 8 triangles, the 4-wide BVH from the leaf-2 build, the 8-wide BVH and
-Möller–Trumbore. ``setup``: the watertight test bound to each traversal's rays (the
-renderer's, ``triangle.bind_routine``) against the same test doing its per-ray set-up at
-every triangle (``+per-test``). Batches as the throughput part's (primary, incoherent,
-reflection; closest and any hit; ``setup`` also the shadow rays), every contender timed in
-turn (``throughput._timed``), and every contender's hits compared with the binary BVH's
-(t and face where found). Writes
-``OUT/<mode>.json`` and prints one line per query.
+steps (``+br``), for the triangle step only (``+brtri``) or the node step only
+(``+brnode``); also leaves of 2 and 8 triangles and Möller–Trumbore, inline. ``refill``: the
+binary and 4-wide BVHs whose threads take the next ray when theirs is done (``refill``, rays
+per thread: ``traverse.refill_traversal``), and the tie-break gather in a branch
+(``traverse.TIE_BRANCH_BACKENDS``), against the binary and 4-wide BVHs. ``leaf``: with the
+branches, leaves of 1, 2, 4 and 8 triangles, the 4-wide BVH from the leaf-2 build, the
+8-wide BVH and Möller–Trumbore. ``slab``: the binary and 4-wide BVHs with the slab test's
+one FMA per plane (the renderer's, ``traverse.box_ray``) against the subtraction form
+(``+sub``). ``setup``: the watertight test bound to each traversal's rays (the renderer's,
+``triangle.bind_routine``) against the same test doing its per-ray set-up at every triangle
+(``+per-test``). Batches as the throughput part's (primary, incoherent, reflection; closest
+and any hit; ``setup`` and ``slab`` also the shadow rays), every contender timed in turn
+(``throughput._timed``), and every contender's hits compared with the binary BVH's (t and
+face where found). Writes ``OUT/<mode>.json`` and prints one line per query.
 """
 from __future__ import annotations
 
@@ -75,6 +77,13 @@ def _accelerators(scene, t, mode: str) -> tuple[dict, dict]:
         dr.eval(accs)
         accs["bvh+per-test"] = replace(accs["bvh"], intersection="watertight_per_test")
         return accs, {a: (a, True, True) for a in accs}
+    if mode == "slab":
+        b = build_bvh(scene.vertices, scene.faces)
+        accs = {a: ACCELERATORS[a].build(scene, t, binary=b) for a in ("bvh", "bvh4")}
+        dr.eval(accs)
+        for a in ("bvh", "bvh4"):
+            accs[a + "+sub"] = _SlabSub(accs[a])
+        return accs, {a: (a, True, True) for a in accs}
     if mode == "refill":
         b = build_bvh(scene.vertices, scene.faces, leaf_size=2)
         accs = {"bvh": ACCELERATORS["bvh"].build(scene, t, binary=b),
@@ -128,6 +137,19 @@ class _TieBranch:
         return self._with(self.acc.intersect_p, ray, on)
 
 
+class _SlabSub(_TieBranch):
+    """``acc`` traced with the slab test's subtraction form, ``(lo - o) * inv``, instead of
+    the renderer's one FMA per plane (``traverse.SLAB_FMA_BACKENDS``)."""
+
+    def _with(self, fn, *args):
+        old = traverse_module.SLAB_FMA_BACKENDS
+        traverse_module.SLAB_FMA_BACKENDS = ()
+        try:
+            return fn(*args)
+        finally:
+            traverse_module.SLAB_FMA_BACKENDS = old
+
+
 def _query(t, acc, ray, on, q, node, tri):
     BRANCH["node"], BRANCH["tri"] = node, tri
     try:
@@ -171,7 +193,7 @@ def probe(scene_name: str, t, mode: str, width: int, height: int, repeats: int) 
                "reflection": T.reflection_rays_host(scene, o, d, t_h, face) + (False,)}
     rows = []
     for bname, (bo, bd, coherent, *btmax) in batches.items():
-        if bname == "shadow" and mode != "setup":
+        if bname == "shadow" and mode not in ("setup", "slab"):
             continue
         m = len(bo)
         ray, on, mray = T.upload_batch(t, bo, bd, *btmax)
@@ -196,7 +218,8 @@ def probe(scene_name: str, t, mode: str, width: int, height: int, repeats: int) 
 
 def main(argv=None) -> int:
     ap = probe_parser(__doc__, SCENES)
-    ap.add_argument("--mode", choices=("branches", "leaf", "refill", "setup"), default="branches")
+    ap.add_argument("--mode", choices=("branches", "leaf", "refill", "setup", "slab"),
+                    default="branches")
     ap.add_argument("--size", type=batch_size, default=None,
                     help="batch WxH (default 1920x1080 on CUDA, 160x90 on the CPU)")
     a = ap.parse_args(argv)

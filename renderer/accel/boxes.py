@@ -17,6 +17,7 @@ from .base import Accelerator, DeviceTriangles, Ray, array_type, gather_floats
 from .bvh_build import pad_boxes
 from .traverse import (
     Closest,
+    box_ray,
     cull_t,
     leaf_triangle_step,
     masked_step,
@@ -26,7 +27,14 @@ from .traverse import (
     slab,
     traversal_result,
 )
-from .triangle import DEFAULT_ROUTINE, bind_routine, box_reach, triangle_routine, upload_triangles
+from .triangle import (
+    DEFAULT_ROUTINE,
+    bind_routine,
+    origin_reach,
+    pad_extent,
+    triangle_routine,
+    upload_triangles,
+)
 
 
 @dataclass
@@ -52,6 +60,7 @@ class ObjectBoxes(Accelerator):
     tie_window: float = 0.0            # t window (world units) of tie_break "other"
     tie_slack: float = 0.0             # edge slack (world units) of tie_break "other"
     info: dict = field(default_factory=dict, repr=False)
+    reach: float = 0.0                 # origins the box padding covers (``traverse.box_ray``)
 
     @classmethod
     def build(cls, scene, t: Types, *, intersection: str = DEFAULT_ROUTINE) -> "ObjectBoxes":
@@ -65,10 +74,7 @@ class ObjectBoxes(Accelerator):
         boxes = np.full((max(len(objs), 1), 8), np.inf, fdt)
         ranges = np.zeros((max(len(objs), 1), 2), np.uint32)
         V = scene.positions(t.is_double).astype(fdt)
-        ext = 0.0
-        if F:
-            lo_s, hi_s = scene.bounds()
-            ext = float(np.max(hi_s - lo_s)) + box_reach(scene, intersection)
+        ext = pad_extent(scene, intersection)
         for k, (f0, fc) in enumerate(objs):      # a loop over objects, not triangles
             p = V[scene.faces[f0:f0 + fc].reshape(-1)]
             boxes[k, 0:3], boxes[k, 4:7] = pad_boxes(p.min(axis=0), p.max(axis=0), ext)
@@ -76,7 +82,8 @@ class ObjectBoxes(Accelerator):
         tri_data, tris = upload_triangles(scene, t, routine=intersection)
         out = cls(t.Float(boxes.reshape(-1)), t.UInt32(ranges.reshape(-1)), tri_data, tris,
                   backend=t.backend, precision=t.precision,
-                   intersection=intersection)
+                  intersection=intersection,
+                  reach=origin_reach(scene, intersection))
         dr.eval(out.boxes, out.ranges, out.tri_data, out.tris)
         out.info = {"accel": "boxes", "intersection": intersection,
                     "build_seconds": time.perf_counter() - t0, "triangles": F,
@@ -114,6 +121,7 @@ class ObjectBoxes(Accelerator):
         n_obj = dr.width(self.ranges) // 2
         t_max = ray.t_max
         o, d, inv, active, n = setup(t, ray, active)
+        ob, ib = box_ray(t, o, inv, self.reach)    # the ray as the slab test reads it
         routine = bind_routine(routine, o, d)
         active &= n_obj > 0
         obj = dr.zeros(t.UInt32, n)                 # next object to test
@@ -128,7 +136,7 @@ class ObjectBoxes(Accelerator):
             first, end, obj = masked_step(
                 t, (first >= end) & (obj < n_obj),
                 lambda first, end, obj, on, best_t=cull: self._box_step(
-                    o, inv, best_t, robust, obj, first, end, on, probe_pad(probe)),
+                    ob, ib, best_t, robust, obj, first, end, on, probe_pad(probe)),
                 (first, end, obj))
 
             # ---- triangle step -----------------------------------------------------------

@@ -39,6 +39,7 @@ from .traverse import (
     DONE,
     STACK_SIZE,
     Closest,
+    box_ray,
     cull_t,
     enter_leaf,
     leaf_triangle_step,
@@ -57,6 +58,8 @@ from .triangle import (
     STRIDE,
     bind_routine,
     box_reach,
+    origin_reach,
+    pad_extent,
     triangle_routine,
     upload_triangles,
 )
@@ -105,14 +108,14 @@ def node_step(t: Types, nodes, children, o, inv, t_max, robust, stack, sp, cur, 
 
 def traversal_boxes(a: BVHArrays, scene, t: Types, intersection: str) -> np.ndarray:
     """The node boxes of ``a`` that the traversal of ``intersection`` in precision ``t``
-    needs: the build's float32 boxes, or boxes refitted in float64 for float64 renders and
-    padded by ``box_reach`` for routines that decide on translated vertices (watertight)."""
-    reach = box_reach(scene, intersection)
-    if not (t.is_double or reach > 0):
+    needs: refitted (in float64 for float64 renders) and padded for the ray origins'
+    reach (``pad_extent``); the build's own float32 boxes where no origin lies away from 0
+    (``box_reach`` 0)."""
+    if not (t.is_double or box_reach(scene, intersection) > 0):
         return a.boxes
     fdt = np.float64 if t.is_double else np.float32
-    extent = float(np.max(a.bounds[1] - a.bounds[0])) if scene.face_count else 0.0
-    return refit_boxes(a, scene.positions(t.is_double), scene.faces, fdt, extent + reach)
+    return refit_boxes(a, scene.positions(t.is_double), scene.faces, fdt,
+                       pad_extent(scene, intersection))
 
 
 @dataclass
@@ -139,6 +142,7 @@ class BVH(Accelerator):
     info: dict = field(default_factory=dict, repr=False)
     tri_trav: object = None
     refill: int = 0                    # rays per lane of ``traverse.refill_traversal``
+    reach: float = 0.0                 # origins the box padding covers (``traverse.box_ray``)
 
     @classmethod
     def build(cls, scene, t: Types, *, intersection: str = DEFAULT_ROUTINE,
@@ -170,7 +174,8 @@ class BVH(Accelerator):
             "traversal_triangle_bytes_per_triangle": STRIDE * fsize,
         }
         return cls(nodes, children, tri_data, tris, backend=t.backend, precision=t.precision,
-                   intersection=intersection, info=info, tri_trav=tri_trav)
+                   intersection=intersection, info=info, tri_trav=tri_trav,
+                   reach=origin_reach(scene, intersection))
 
     def counts(self, ray: Ray, active=True, any_hit: bool = False):
         """The instrumented traversal (profiling): ``(node_steps, triangle_steps,
@@ -192,7 +197,7 @@ class BVH(Accelerator):
                     lambda sp, cur, to_pop, best_t, o, inv, stack: node_step(
                         t, nodes, children, o, inv, best_t, robust, stack, sp, cur, to_pop,
                         any_hit=any_hit),
-                    ray, active, any_hit, n, lanes, "bvh_refill")
+                    ray, active, any_hit, n, lanes, "bvh_refill", self.reach)
         return self._traverse_lanes(ray, active, any_hit, probe, counting)
 
     @dr.syntax
@@ -205,6 +210,7 @@ class BVH(Accelerator):
         tri_data = self.tri_data if self.tri_trav is None else self.tri_trav
         t_max = ray.t_max
         o, d, inv, active, n = setup(t, ray, active)
+        ob, ib = box_ray(t, o, inv, self.reach)    # the ray as the slab test reads it
         routine = bind_routine(routine, o, d)
         stack = dr.alloc_local(t.UInt32, STACK_SIZE)
         sp = dr.zeros(t.UInt32, n)                              # stack depth
@@ -229,7 +235,7 @@ class BVH(Accelerator):
             sp, cur, to_pop = masked_step(
                 t, is_inner,
                 lambda sp, cur, to_pop, on, best_t=cull: node_step(
-                    t, nodes, children, o, inv, best_t, robust, stack, sp, cur, to_pop, on,
+                    t, nodes, children, ob, ib, best_t, robust, stack, sp, cur, to_pop, on,
                     probe_pad(probe), any_hit),
                 (sp, cur, is_leaf | False))
             sp, cur = pop(stack, sp, cur, to_pop)

@@ -100,17 +100,51 @@ def setup(t: Types, ray: Ray, active):
     return o, d, safe_inv(t, d), t.Bool(active) & dr.full(t.Bool, True, n), n
 
 
+#: Backends whose slab test is one FMA per plane, ``lo * inv - o * inv`` with ``o * inv``
+#: computed once per ray (``box_ray``), instead of ``(lo - o) * inv`` (a subtraction and
+#: a product). H200: 1.01-1.07x faster traversal, median 1.03x over 35 batches
+#: (``results/h200/throughput/slab.md``). The probes set it to compare both forms.
+SLAB_FMA_BACKENDS: tuple = ("llvm", "cuda")
+
+
+def box_ray(t: Types, o, inv, reach: float):
+    """The ray(s) ``(o, inv)`` as ``slab`` reads them, for boxes padded for origins of
+    coordinates up to ``reach`` in magnitude (the accelerator's ``reach``,
+    ``triangle.pad_extent``): ``(-(o * inv), inv)`` for the FMA form
+    (``SLAB_FMA_BACKENDS``), else ``(o, inv)``.
+
+    The boxes are padded (``bvh_build.pad_boxes``: 32 ``u`` (coordinate + reach), ``u`` the
+    unit roundoff) so that a triangle's computed hit lies inside them although the triangle
+    test rounds in proportion to ``|p - o|``. The FMA form rounds ``o * inv`` once, which
+    moves each slab plane by up to ``u |o_a|`` in world units: a 32nd of that padding where
+    ``|o_a| <= reach``, which the triangle test leaves room for. From farther away the
+    padding covers neither (rays from 10^3-10^5 scene sizes away missed 2-11 of 10^4 boxes
+    they needed, in either form); such rays get ``(0, 0)``, for which every slab value is
+    0, so they enter every box with ``t_near = 0``: brute force's hits at brute force's
+    cost, and no extra work per box for the others. A render's rays start at cameras,
+    lights and surfaces, which lie within the reach (``triangle.box_reach``)."""
+    if t.backend not in SLAB_FMA_BACKENDS:
+        return o, inv
+    mag = dr.maximum(dr.maximum(dr.abs(o.x), dr.abs(o.y)), dr.abs(o.z))
+    far = ~(mag <= reach)
+    return dr.select(far, 0.0, -(o * inv)), dr.select(far, 0.0, inv)
+
+
 def slab(t: Types, o, inv, lo, hi, t_max, robust):
     """Williams et al. ray/box slab test; t_far grown by ``robust_scale`` (pbrt) so that
-    the float test never misses a box the exact ray hits. Returns ``(hit, t_near)``.
+    the float test never misses a box the exact ray hits. ``(o, inv)``: ``box_ray``'s.
+    Returns ``(hit, t_near)``.
 
     On LLVM min/max are written as compare + select: Dr.Jit emits ``dr.minimum`` /
     ``dr.maximum`` as LLVM's NaN-propagating ``llvm.minimum``/``maximum``, which x86 has no
     instruction for; compare + select is two instructions. The values differ only where a
-    slab value is NaN, which needs a NaN ray (``safe_inv`` never returns 0 or inf): the
-    triangle test never hits such a ray, so the hits stay the same."""
-    t0 = (lo - o) * inv
-    t1 = (hi - o) * inv
+    slab value is NaN, which needs a NaN ray (``safe_inv`` never returns 0 or inf) or a
+    box at infinity: the triangle test never hits such a ray, and such a box holds no
+    triangle but the first one, so the hits stay the same."""
+    if t.backend in SLAB_FMA_BACKENDS:
+        t0, t1 = dr.fma(lo, inv, o), dr.fma(hi, inv, o)
+    else:
+        t0, t1 = (lo - o) * inv, (hi - o) * inv
     if t.backend == "llvm":
         c = t0 < t1
         tn = dr.select(c, t0, t1)
@@ -327,18 +361,18 @@ def refill_lanes(n: int, refill: int) -> int:
 
 @dr.syntax
 def refill_traversal(t: Types, routine, tri_data, order, node_fn, ray: Ray, active,
-                     any_hit: bool, n: int, lanes: int, label: str):
+                     any_hit: bool, n: int, lanes: int, label: str, reach: float):
     """A traversal whose ``lanes`` lanes take a new ray when theirs is done: they start on
     the first ``lanes`` rays of the batch; a lane whose ray has finished writes its result
     and takes the next untraced ray from an atomic counter (``dr.scatter_inc``), so a SIMD
     packet (LLVM) or warp (CUDA) stops paying for its slowest ray until the batch runs out
     (Aila & Laine 2009's persistent threads with dynamic fetch). The rays are evaluated
     first and gathered by index, so this is a query for evaluated batches, not for a
-    caller's megakernel. ``node_fn(sp, cur, to_pop, best_t, o, inv, stack)`` is the
+    caller's megakernel. ``node_fn(sp, cur, to_pop, best_t, o, inv, stack)`` (``box_ray``'s) is the
     accelerator's node step under ``masked_step`` (returns ``(sp, cur, to_pop)``); each
     ray's steps are those of the accelerator's own loop, in the same order, so the hits are
-    bitwise the same. Returns what the accelerator's query returns (``found`` for any hit,
-    else a ``ClosestHit``)."""
+    bitwise the same; ``reach``: the accelerator's (``box_ray``). Returns what the
+    accelerator's query returns (``found`` for any hit, else a ``ClosestHit``)."""
     O, D = (v if dr.width(v) == n else v + dr.zeros(t.Array3f, n)
             for v in (t.Array3f(ray.o), t.Array3f(ray.d)))
     TM = t.Float(ray.t_max)
@@ -356,6 +390,7 @@ def refill_traversal(t: Types, routine, tri_data, order, node_fn, ray: Ray, acti
     d = dr.gather(t.Array3f, D, ray_id)
     t_max = dr.gather(t.Float, TM, ray_id)
     inv = safe_inv(t, d)
+    b_o, b_inv = box_ray(t, o, inv, reach)
     stack = dr.alloc_local(t.UInt32, STACK_SIZE)
     sp = dr.zeros(t.UInt32, lanes)
     cur = dr.select(dr.gather(t.Bool, ACT, ray_id), t.UInt32(0), t.UInt32(DONE))
@@ -369,8 +404,8 @@ def refill_traversal(t: Types, routine, tri_data, order, node_fn, ray: Ray, acti
         is_leaf, is_inner, first, end = enter_leaf(cur, first, end)
         sp, cur, to_pop = masked_step(
             t, is_inner,
-            lambda sp, cur, to_pop, on, best_t=rec.t, o=o, inv=inv: node_fn(
-                sp, cur, to_pop, best_t, o, inv, stack),
+            lambda sp, cur, to_pop, on, best_t=rec.t, b_o=b_o, b_inv=b_inv: node_fn(
+                sp, cur, to_pop, best_t, b_o, b_inv, stack),
             (sp, cur, is_leaf | False))
         sp, cur = pop(stack, sp, cur, to_pop)
         rec, first = leaf_triangle_step(t, routine, o, d, tri_data, order, first, end,
@@ -395,6 +430,8 @@ def refill_traversal(t: Types, routine, tri_data, order, node_fn, ray: Ray, acti
         o = dr.select(take, dr.gather(t.Array3f, O, nid, take), o)
         d = dr.select(take, dr.gather(t.Array3f, D, nid, take), d)
         inv = dr.select(take, safe_inv(t, d), inv)
+        n_o, n_inv = box_ray(t, o, inv, reach)
+        b_o, b_inv = dr.select(take, n_o, b_o), dr.select(take, n_inv, b_inv)
         t_max = dr.select(take, dr.gather(t.Float, TM, nid, take), t_max)
         on = dr.gather(t.Bool, ACT, nid, take)
         cur = dr.select(take, dr.select(on, t.UInt32(0), t.UInt32(DONE)), cur)

@@ -246,19 +246,34 @@ def triangle_routine(name: str):
 
 
 def box_reach(scene, routine: str) -> float:
-    """What ``pad_boxes`` adds to the scene's extent for ``routine``: 0 for
-    Möller–Trumbore (its hits lie on the float triangle), and for the watertight test the
-    largest coordinate magnitude a ray origin of ``scene`` has (cameras, lights, the
-    geometry itself): the test decides on vertices translated to the ray origin, which
-    moves them by up to a few units of roundoff of ``|p - o|``, so the boxes grow by that
-    much (pbrt's conservative traversal: the slab test never rejects a ray the triangle test
-    would accept)."""
-    if layout_of(routine) != "vertices":
-        return 0.0
+    """What ``pad_boxes`` adds to the scene's extent: the largest coordinate magnitude a ray
+    origin of ``scene`` has (cameras, lights, the geometry itself), for every ``routine``.
+    The watertight test decides on vertices translated to the ray origin, which moves them
+    by up to a few units of roundoff of ``|p - o|`` (pbrt's conservative traversal: the
+    slab test never rejects a ray the triangle test would accept); and the slab test's FMA
+    form moves its planes by up to a unit of roundoff of ``|o|`` (``traverse.box_ray``,
+    where origins beyond the reach enter every box). Möller–Trumbore's hits lie on the float
+    triangle, so before the FMA form its boxes needed no reach."""
     mags = [float(np.max(np.abs(scene.positions(True)))) if scene.face_count else 0.0]
     mags += [float(np.max(np.abs(c.position))) for c in scene.cameras]
     mags += [float(np.max(np.abs(li.position))) for li in scene.lights]
     return max(mags)
+
+
+def pad_extent(scene, routine: str) -> float:
+    """The extent the accelerators pad their boxes with (``bvh_build.pad_boxes``): the
+    scene's size plus ``box_reach`` (0 without triangles)."""
+    if not scene.face_count:
+        return 0.0
+    lo, hi = scene.bounds()
+    return float(np.max(hi - lo)) + box_reach(scene, routine)
+
+
+def origin_reach(scene, routine: str) -> float:
+    """An accelerator's ``reach``: ray origins of coordinates up to it in magnitude are
+    covered by its boxes' padding (``pad_extent``); from farther away rays enter every box
+    (``traverse.box_ray``). Infinite without triangles: there is nothing to miss."""
+    return pad_extent(scene, routine) if scene.face_count else float("inf")
 
 
 def pack(vertices: np.ndarray, faces: np.ndarray, layout: str = "edges") -> np.ndarray:

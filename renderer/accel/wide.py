@@ -62,6 +62,7 @@ from .traverse import (
     LEAF_BIT,
     STACK_SIZE,
     Closest,
+    box_ray,
     cull_t,
     enter_leaf,
     leaf_triangle_step,
@@ -75,7 +76,14 @@ from .traverse import (
     slab,
     traversal_result,
 )
-from .triangle import DEFAULT_ROUTINE, STRIDE, bind_routine, triangle_routine, upload_triangles
+from .triangle import (
+    DEFAULT_ROUTINE,
+    STRIDE,
+    bind_routine,
+    origin_reach,
+    triangle_routine,
+    upload_triangles,
+)
 
 WIDTHS = (4, 8)
 
@@ -401,6 +409,7 @@ class WideBVH(Accelerator):
     info: dict = field(default_factory=dict, repr=False)
     tri_trav: object = None
     refill: int = 0
+    reach: float = 0.0                 # origins the box padding covers (``traverse.box_ray``)
 
     @classmethod
     def build(cls, scene, t: Types, *, width: int = 4, quantized: bool | None = None,
@@ -452,7 +461,7 @@ class WideBVH(Accelerator):
         }
         return cls(nodes, refs, tri_data, tris, width=width, backend=t.backend,
                    precision=t.precision, intersection=intersection, info=info,
-                   tri_trav=tri_trav)
+                   tri_trav=tri_trav, reach=origin_reach(scene, intersection))
 
     def counts(self, ray: Ray, active=True, any_hit: bool = False):
         """The instrumented traversal (profiling): ``(node_steps, triangle_steps,
@@ -479,7 +488,7 @@ class WideBVH(Accelerator):
                     lambda sp, cur, to_pop, best_t, o, inv, stack: wide_node_step(
                         t, W, nodes, refs, o, inv, best_t, robust, stack, sp, cur, to_pop,
                         any_hit, True),
-                    ray, active, any_hit, n, lanes, f"bvh{W}_refill")
+                    ray, active, any_hit, n, lanes, f"bvh{W}_refill", self.reach)
         return self._traverse_lanes(ray, active, any_hit, probe, counting)
 
     @dr.syntax
@@ -488,6 +497,7 @@ class WideBVH(Accelerator):
         t, W, routine, robust, nodes, refs, order, tri_data = self._loop_inputs()
         t_max = ray.t_max
         o, d, inv, active, n = setup(t, ray, active)
+        ob, ib = box_ray(t, o, inv, self.reach)    # the ray as the slab test reads it
         routine = bind_routine(routine, o, d)
         stack = dr.alloc_local(t.UInt32, STACK_SIZE)
         sp = dr.zeros(t.UInt32, n)
@@ -510,7 +520,7 @@ class WideBVH(Accelerator):
             sp, cur, to_pop = masked_step(
                 t, is_inner,
                 lambda sp, cur, to_pop, on, best_t=cull: wide_node_step(
-                    t, W, nodes, refs, o, inv, best_t, robust, stack, sp, cur, to_pop,
+                    t, W, nodes, refs, ob, ib, best_t, robust, stack, sp, cur, to_pop,
                     any_hit, on, probe_pad(probe)),
                 (sp, cur, is_leaf | False))
             sp, cur = pop(stack, sp, cur, to_pop)
