@@ -84,6 +84,18 @@ def _accelerators(scene, t, mode: str) -> tuple[dict, dict]:
         for a in ("bvh", "bvh4"):
             accs[a + "+sub"] = _SlabSub(accs[a])
         return accs, {a: (a, True, True) for a in accs}
+    if mode == "optimize":
+        from renderer.accel.optimize import reinsert
+        b = build_bvh(scene.vertices, scene.faces, optimize=0)
+        r = reinsert(b)
+        r0 = reinsert(b, grow=0)
+        accs = {f"{a}{tag}": ACCELERATORS[a].build(scene, t, binary=arrays)
+                for tag, arrays in (("", b), ("+reinsert", r), ("+reinsert-flat", r0))
+                for a in ("bvh", "bvh4")}
+        dr.eval(accs)
+        print(f"SAH cost {b.sah_cost:.2f} -> {r.sah_cost:.2f} (flat {r0.sah_cost:.2f}), "
+              f"levels {b.levels} -> {r.levels} (flat {r0.levels})", flush=True)
+        return accs, {a: (a, True, True) for a in accs}
     if mode == "refill":
         b = build_bvh(scene.vertices, scene.faces, leaf_size=2)
         accs = {"bvh": ACCELERATORS["bvh"].build(scene, t, binary=b),
@@ -193,7 +205,7 @@ def probe(scene_name: str, t, mode: str, width: int, height: int, repeats: int) 
                "reflection": T.reflection_rays_host(scene, o, d, t_h, face) + (False,)}
     rows = []
     for bname, (bo, bd, coherent, *btmax) in batches.items():
-        if bname == "shadow" and mode not in ("setup", "slab"):
+        if bname == "shadow" and mode not in ("setup", "slab", "optimize"):
             continue
         m = len(bo)
         ray, on, mray = T.upload_batch(t, bo, bd, *btmax)
@@ -218,7 +230,7 @@ def probe(scene_name: str, t, mode: str, width: int, height: int, repeats: int) 
 
 def main(argv=None) -> int:
     ap = probe_parser(__doc__, SCENES)
-    ap.add_argument("--mode", choices=("branches", "leaf", "refill", "setup", "slab"),
+    ap.add_argument("--mode", choices=("branches", "leaf", "refill", "setup", "slab", "optimize"),
                     default="branches")
     ap.add_argument("--size", type=batch_size, default=None,
                     help="batch WxH (default 1920x1080 on CUDA, 160x90 on the CPU)")
