@@ -4,6 +4,7 @@
     python -m evaluation.bench.probe_traversal --mode leaf ...    [--size WxH] [--force]
     python -m evaluation.bench.probe_traversal --mode setup ...
     python -m evaluation.bench.probe_traversal --mode slab ...
+    python -m evaluation.bench.probe_traversal --mode optimize ...
 
 ``branches``: the traversal steps written inline with masked updates (what CUDA ran before
 ``traverse.masked_step`` became a symbolic ``if`` everywhere) against real branches for both
@@ -15,10 +16,12 @@ per thread: ``traverse.refill_traversal``), and the tie-break gather in a branch
 branches, leaves of 1, 2, 4 and 8 triangles, the 4-wide BVH from the leaf-2 build, the
 8-wide BVH and Möller–Trumbore. ``slab``: the binary and 4-wide BVHs with the slab test's
 one FMA per plane (the renderer's, ``traverse.box_ray``) against the subtraction form
-(``+sub``). ``setup``: the watertight test bound to each traversal's rays (the renderer's,
-``triangle.bind_routine``) against the same test doing its per-ray set-up at every triangle
-(``+per-test``). Batches as the throughput part's (primary, incoherent, reflection; closest
-and any hit; ``setup`` and ``slab`` also the shadow rays), every contender timed in turn
+(``+sub``). ``optimize``: the binary and 4-wide BVHs built without and with the insertion-
+based optimisation (``+reinsert``, ``renderer.accel.optimize``). ``setup``: the watertight
+test bound to each traversal's rays (the renderer's, ``triangle.bind_routine``) against the
+same test doing its per-ray set-up at every triangle (``+per-test``). Batches as the
+throughput part's (primary, incoherent, reflection; closest and any hit; ``setup``, ``slab``
+and ``optimize`` also the shadow rays), every contender timed in turn
 (``throughput._timed``), and every contender's hits compared with the binary BVH's (t and
 face where found). Writes ``OUT/<mode>.json`` and prints one line per query.
 """
@@ -88,13 +91,11 @@ def _accelerators(scene, t, mode: str) -> tuple[dict, dict]:
         from renderer.accel.optimize import reinsert
         b = build_bvh(scene.vertices, scene.faces, optimize=0)
         r = reinsert(b)
-        r0 = reinsert(b, grow=0)
         accs = {f"{a}{tag}": ACCELERATORS[a].build(scene, t, binary=arrays)
-                for tag, arrays in (("", b), ("+reinsert", r), ("+reinsert-flat", r0))
-                for a in ("bvh", "bvh4")}
+                for tag, arrays in (("", b), ("+reinsert", r)) for a in ("bvh", "bvh4")}
         dr.eval(accs)
-        print(f"SAH cost {b.sah_cost:.2f} -> {r.sah_cost:.2f} (flat {r0.sah_cost:.2f}), "
-              f"levels {b.levels} -> {r.levels} (flat {r0.levels})", flush=True)
+        print(f"SAH cost {b.sah_cost:.2f} -> {r.sah_cost:.2f}, levels {b.levels} -> "
+              f"{r.levels}", flush=True)
         return accs, {a: (a, True, True) for a in accs}
     if mode == "refill":
         b = build_bvh(scene.vertices, scene.faces, leaf_size=2)

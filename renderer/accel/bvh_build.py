@@ -53,7 +53,7 @@ SPATIAL_DEPTH = 12
 #: same build without it: 0.93-1.58x, median 1.02x, any-hit rays up to 1.58x, Conference's
 #: closest-hit rays 1.05-1.14x (``results/h200/throughput/optimize.md``); hits bitwise the
 #: same. It adds about 1.5x the build's own time on this 2-core CPU.
-OPTIMIZE = 6
+OPTIMIZE = 4
 BIG_NODE = 1024              # nodes larger than this (level average) get root_bins bins
 AXES_MIN = 1024              # three-axis SAH only in levels whose nodes average more triangles
 BIN_DIV = 4                  # bins per node: at most (triangles per node, rounded up to
@@ -85,6 +85,7 @@ class BVHArrays:
     cells: None, or with spatial splits ``(lo, hi)`` float64 (F', 3) per leaf position: the
         cell its reference was cut to (``renderer.accel.spatial``); ``order`` then holds a
         face once per reference.
+    optimize_seconds: the part of build_seconds spent in ``renderer.accel.optimize``.
     """
 
     boxes: np.ndarray
@@ -96,6 +97,7 @@ class BVHArrays:
     build_seconds: float
     bounds: tuple = (np.zeros(3), np.zeros(3))
     cells: tuple | None = None
+    optimize_seconds: float = 0.0
 
     @property
     def node_count(self) -> int:

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import heapq
 import time
+from dataclasses import replace
 
 import numpy as np
 
@@ -27,9 +28,9 @@ from .bvh_build import LEAF_BIT, MAX_LEVELS, BVHArrays, _sah_cost
 #: Default rounds of ``reinsert`` (``build_bvh(optimize=...)``); each moves the
 #: ``FRACTION`` of nodes that cost most for their size. Rounds stop early once one lowers the
 #: SAH cost by less than ``MIN_GAIN`` of it.
-ROUNDS = 6
+ROUNDS = 4
 FRACTION = 0.01
-MIN_GAIN = 0.002
+MIN_GAIN = 0.005
 
 
 def _area(b) -> float:
@@ -174,8 +175,7 @@ class _Tree:
         boxes = box[kids].reshape(self.N, 12).astype(np.float32)
         ref = np.array(self.ref, np.int64)
         children = np.where(kids >= self.N, ref[kids], index[kids]).astype(np.uint32)
-        out = BVHArrays(boxes, children, a.order, self.height[0], a.leaf_count, 0.0,
-                        a.build_seconds, a.bounds, a.cells)
+        out = replace(a, boxes=boxes, children=children, levels=self.height[0])
         out.sah_cost = _sah_cost(out)
         return out
 
@@ -192,22 +192,25 @@ def _levels(ids: np.ndarray, leaf: np.ndarray) -> list:
 
 
 def reinsert(a: BVHArrays, rounds: int = ROUNDS, fraction: float = FRACTION,
-             min_gain: float = MIN_GAIN, grow: int | None = None) -> BVHArrays:
+             min_gain: float = MIN_GAIN, max_levels: int = MAX_LEVELS) -> BVHArrays:
     """``a`` optimised by up to ``rounds`` rounds of reinsertion (see the module
     docstring), each of the ``fraction`` of nodes that cost most for their size; stops once a
-    round saves less than ``min_gain`` of the cost. Returns new arrays (``a`` unchanged);
-    ``build_seconds`` grows by the time taken."""
+    round saves less than ``min_gain`` of the inner nodes' cost. No move makes the tree
+    deeper than ``max_levels`` inner levels (``MAX_LEVELS`` at most; a tree already deeper
+    keeps its depth). Returns new arrays (``a`` unchanged); ``build_seconds`` and
+    ``optimize_seconds`` grow by the time taken."""
     if a.node_count < 3 or rounds <= 0:
         return a
     t0 = time.perf_counter()
     tree = _Tree(a)
-    if grow is not None:
-        tree.max_levels = min(MAX_LEVELS, tree.height[0] + grow)
+    tree.max_levels = max(min(max_levels, MAX_LEVELS), tree.height[0])
     for _ in range(rounds):
         total = tree.cost()
         saved = sum(tree.reinsert(n) for n in tree.worst(fraction))
         if saved < min_gain * total:
             break
     out = tree.arrays(a)
-    out.build_seconds = a.build_seconds + time.perf_counter() - t0
+    dt = time.perf_counter() - t0
+    out.build_seconds = a.build_seconds + dt
+    out.optimize_seconds = a.optimize_seconds + dt
     return out
