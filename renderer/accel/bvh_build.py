@@ -7,12 +7,16 @@ needs) and two child references (an inner-node index or a packed leaf, see
 ``renderer.accel.traverse``). Triangles are reordered so that each leaf is a contiguous
 range; ``BVHArrays.order`` maps positions back to original face indices.
 
-Boxes are computed in float32 from the float32 vertices and padded by ``pad_boxes``; a
-float64 traversal, or one whose triangle routine needs wider boxes (the watertight test),
-recomputes them over the same tree with ``refit_boxes`` (float64 from the float64
-vertices, padded for the routine). The number of inner-node levels is bounded by
-``MAX_LEVELS`` (= the traversal's ``STACK_SIZE``, switching to median splits near the
-limit), so the traversal stack cannot overflow.
+After the build, ``renderer.accel.optimize.reinsert`` moves the costliest nodes to where
+the SAH cost grows least (``build_bvh(optimize=...)``, on by default); leaves stay as built.
+
+Boxes are computed in float32 from the float32 vertices and padded by ``pad_boxes``; the
+traversal recomputes them over the same tree with ``refit_boxes`` (float64 from the float64
+vertices for float64 renders), padded for the reach of the scene's ray origins
+(``triangle.pad_extent``: the watertight test and the slab test's FMA form need it). The
+number of inner-node levels is bounded by ``MAX_LEVELS`` (= the traversal's ``STACK_SIZE``,
+switching to median splits near the limit; the optimisation keeps the bound), so the
+traversal stack cannot overflow.
 """
 from __future__ import annotations
 
@@ -50,9 +54,10 @@ SPATIAL_DEPTH = 12
 #: Rounds of insertion-based optimisation after the build (``renderer.accel.optimize``): each
 #: moves the 1 % of nodes that cost most for their size to where the SAH cost grows least.
 #: SAH cost 6-14 % lower on the bench scenes (Conference 35.4 -> 31.5); H200, against the
-#: same build without it: 0.93-1.58x, median 1.02x, any-hit rays up to 1.58x, Conference's
-#: closest-hit rays 1.05-1.14x (``results/h200/throughput/optimize.md``); hits bitwise the
-#: same. It adds about 1.5x the build's own time on this 2-core CPU.
+#: same build without it, binary BVH: 0.93-1.54x, median 1.04x; any-hit rays median 1.24x,
+#: Conference's closest-hit rays 1.05-1.14x, the small scenes' closest hit down to 0.93x
+#: (``results/h200/throughput/optimize.md``); hits bitwise the same. It adds 1-2x the
+#: build's own time (Conference 1.7 of 3.4 s, the 1.1M bunny 7.5 of 11.6 s).
 OPTIMIZE = 4
 BIG_NODE = 1024              # nodes larger than this (level average) get root_bins bins
 AXES_MIN = 1024              # three-axis SAH only in levels whose nodes average more triangles
@@ -79,7 +84,9 @@ class BVHArrays:
         (grown by ``pad_boxes``, so the triangle test never hits outside its box).
     children: uint32 (N, 2) child references (inner index or packed leaf).
     order: int64 (F,) original face index of each reordered triangle.
-    levels: number of inner-node levels (<= MAX_LEVELS); leaf_count; sah_cost (relative to
+    levels: number of inner-node levels (<= MAX_LEVELS; the level-wise build counts the
+        levels it made room for, ``optimize.reinsert`` the tree's height); leaf_count;
+        sah_cost (relative to
         the root's surface area, C_trav = C_tri = 1); build_seconds;
     bounds: float64 (3,) lo, hi of all triangles.
     cells: None, or with spatial splits ``(lo, hi)`` float64 (F', 3) per leaf position: the

@@ -102,8 +102,8 @@ def setup(t: Types, ray: Ray, active):
 
 #: Backends whose slab test is one FMA per plane, ``lo * inv - o * inv`` with ``o * inv``
 #: computed once per ray (``box_ray``), instead of ``(lo - o) * inv`` (a subtraction and
-#: a product). H200: 1.01-1.07x faster traversal, median 1.03x over 35 batches
-#: (``results/h200/throughput/slab.md``). The probes set it to compare both forms.
+#: a product). H200: 0.99-1.05x faster traversal, median 1.02x over 35 batches, bitwise the
+#: same hits (``results/h200/throughput/slab.md``). The probes set it to compare both forms.
 SLAB_FMA_BACKENDS: tuple = ("llvm", "cuda")
 
 
