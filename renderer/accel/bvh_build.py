@@ -56,9 +56,9 @@ SPATIAL_DEPTH = 12
 #: SAH cost 6-14 % lower on the bench scenes (Conference 35.4 -> 31.5); H200, against the
 #: same build without it, binary BVH: 0.93-1.54x, median 1.04x; any-hit rays median 1.24x,
 #: Conference's closest-hit rays 1.05-1.14x, the small scenes' closest hit down to 0.93x
-#: (``results/h200/throughput/optimize.md``); hits bitwise the same. It added 1-2x the
-#: build's own time in the bench runs (Conference 1.7 of 3.4 s, the 1.1M bunny 7.5 of
-#: 11.6 s on the H200's host), before its search became 1.3-2x faster (same trees).
+#: (``results/h200/throughput/optimize.md``); hits bitwise the same. It adds 0.4-1x the
+#: build's own time (the H200's host: Conference 1.0 of 2.8 s, the 1.1M bunny 4.8 of 9.7 s,
+#: ``results/h200/throughput/bench-cuda.md``).
 OPTIMIZE = 4
 BIG_NODE = 1024              # nodes larger than this (level average) get root_bins bins
 AXES_MIN = 1024              # three-axis SAH only in levels whose nodes average more triangles
