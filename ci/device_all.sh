@@ -19,7 +19,7 @@ for s in "$@"; do
   case "$s" in
     tests) step tests 180 bash ci/device.sh tests ;;
     hard)  step hard 240 bash ci/device.sh run hard-cases --backend cuda \
-             --cases closed_mesh,reintersect --rays 100000000 --chunk 16777216 \
+             --cases closed_mesh,reintersect,far_origin --rays 100000000 --chunk 16777216 \
              --out "$out/hard" --overwrite ;;
     bench) step bench 300 env OUT="$out/bench" bash ci/device.sh bench --parts throughput ;;
     peer)  step peer 280 env OUT="$out/peer" bash ci/device.sh bench --parts peer ;;
