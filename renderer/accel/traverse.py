@@ -118,8 +118,8 @@ def box_ray(t: Types, o, inv, reach: float):
     test rounds in proportion to ``|p - o|``. The FMA form rounds ``o * inv`` once, which
     moves each slab plane by up to ``u |o_a|`` in world units: a 32nd of that padding where
     ``|o_a| <= reach``, which the triangle test leaves room for. From farther away the
-    padding covers neither (rays from 10^3-10^5 scene sizes away missed 2-11 of 10^4 boxes
-    they needed, in either form); such rays get ``(0, 0)``, for which every slab value is
+    padding covers neither (of 2 10^4 rays from 10^3-10^5 scene sizes away, 2-11 lost their
+    hit in float32, in either form); such rays get ``(0, 0)``, for which every slab value is
     0, so they enter every box with ``t_near = 0``: brute force's hits at brute force's
     cost, and no extra work per box for the others. A render's rays start at cameras,
     lights and surfaces, which lie within the reach (``triangle.box_reach``)."""
@@ -368,11 +368,12 @@ def refill_traversal(t: Types, routine, tri_data, order, node_fn, ray: Ray, acti
     packet (LLVM) or warp (CUDA) stops paying for its slowest ray until the batch runs out
     (Aila & Laine 2009's persistent threads with dynamic fetch). The rays are evaluated
     first and gathered by index, so this is a query for evaluated batches, not for a
-    caller's megakernel. ``node_fn(sp, cur, to_pop, best_t, o, inv, stack)`` (``box_ray``'s) is the
-    accelerator's node step under ``masked_step`` (returns ``(sp, cur, to_pop)``); each
-    ray's steps are those of the accelerator's own loop, in the same order, so the hits are
-    bitwise the same; ``reach``: the accelerator's (``box_ray``). Returns what the
-    accelerator's query returns (``found`` for any hit, else a ``ClosestHit``)."""
+    caller's megakernel. ``node_fn(sp, cur, to_pop, best_t, o, inv, stack)`` is the
+    accelerator's node step (``o``, ``inv``: ``box_ray``'s, for the accelerator's
+    ``reach``) under ``masked_step`` (returns ``(sp, cur, to_pop)``); each ray's steps are
+    those of the accelerator's own loop, in the same order, so the hits are bitwise the
+    same. Returns what the accelerator's query returns (``found`` for any hit, else a
+    ``ClosestHit``)."""
     O, D = (v if dr.width(v) == n else v + dr.zeros(t.Array3f, n)
             for v in (t.Array3f(ray.o), t.Array3f(ray.d)))
     TM = t.Float(ray.t_max)
