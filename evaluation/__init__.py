@@ -23,3 +23,19 @@ def write_result(path, text: str) -> None:
 
     Path(path).parent.mkdir(parents=True, exist_ok=True)
     write_text(path, text, overwrite=True)
+
+
+def wxh(text: str) -> tuple[int, int]:
+    """``argparse`` type of every ``--size`` (the CLI's and the evaluation scripts'):
+    ``"WIDTHxHEIGHT"`` -> (width, height), both > 0; bad input is argparse's one-line error,
+    exit 2. Here, in the package's light top module, so that ``whitted`` reaches it without
+    importing the bench."""
+    import argparse
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+        if w <= 0 or h <= 0:
+            raise ValueError
+        return w, h
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected WIDTHxHEIGHT with positive integers, got {text!r}") from None

@@ -14,7 +14,7 @@ from pathlib import Path
 import drjit as dr
 import numpy as np
 
-from evaluation.bench.part import batch_size
+from evaluation import wxh
 from evaluation.bench.throughput import incoherent_rays_host, primary_rays_host
 from renderer.accel import ROUTINES, Ray, build_accelerator
 from renderer.device import array3, types
@@ -69,7 +69,7 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m evaluation.routine_cost")
     p.add_argument("--backend", default="auto")
     p.add_argument("--out", type=Path, required=True)
-    p.add_argument("--size", type=batch_size, default=(1920, 1080), help="batch WxH")
+    p.add_argument("--size", type=wxh, default=(1920, 1080), help="batch WxH")
     p.add_argument("--repeats", type=int, default=10)
     p.add_argument("--scenes", default=",".join(SCENES))
     a = p.parse_args(argv)

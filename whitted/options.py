@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 
+from evaluation import wxh
 from evaluation.verdict import EXIT_CODES
 from renderer.accel import ACCELERATORS, DEFAULT_ACCELS, DEFAULT_ROUTINE, ROUTINES
 from renderer.device import BACKENDS, PRECISIONS
@@ -51,18 +52,6 @@ class CliError(Exception):
         self.code = code
 
 
-def size(text: str) -> tuple[int, int]:
-    """``argparse`` type of ``--size``: ``"WIDTHxHEIGHT"`` -> (width, height), both > 0."""
-    try:
-        w, h = (int(v) for v in text.lower().split("x"))
-        if w <= 0 or h <= 0:
-            raise ValueError
-        return w, h
-    except ValueError:
-        raise argparse.ArgumentTypeError(
-            f"expected WIDTHxHEIGHT with positive integers, got {text!r}") from None
-
-
 def add_backend_option(p: argparse.ArgumentParser) -> None:
     """``--backend``, one of ``renderer.device.BACKENDS`` (default auto)."""
     p.add_argument("--backend", default="auto", choices=BACKENDS)
@@ -73,7 +62,7 @@ def add_scene_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("scene", type=scene_arg,
                    help="scene file (.toml), or a bundled scene's name (whitted data)")
     p.add_argument("--view", default="0", help="view index, view name, or 'all' (default 0)")
-    p.add_argument("--size", type=size, help="override the resolution, e.g. 512x512")
+    p.add_argument("--size", type=wxh, help="override the resolution, e.g. 512x512")
     p.add_argument("--shading", choices=SHADING_MODES, help="override the shading mode")
     p.add_argument("--spp", type=int,
                    help="samples per pixel (a perfect square; implies converged mode)")

@@ -104,22 +104,6 @@ def table(title: str, columns: list[str], align: str, rows: list[list[str]]) -> 
     return lines + [""]
 
 
-def batch_size(text: str) -> tuple[int, int]:
-    """``argparse`` type of the evaluation scripts' ``--size``: ``"WIDTHxHEIGHT"`` ->
-    (width, height), both > 0 (bad input: argparse's one-line error, exit 2). The same rule
-    as ``whitted.options.size``, which the CLI keeps so that it does not import the
-    bench (the layers: ``evaluation`` may not import ``whitted``)."""
-    import argparse
-    try:
-        w, h = (int(v) for v in text.lower().split("x"))
-        if w <= 0 or h <= 0:
-            raise ValueError
-        return w, h
-    except ValueError:
-        raise argparse.ArgumentTypeError(
-            f"expected WIDTHxHEIGHT with positive integers, got {text!r}") from None
-
-
 def probe_parser(doc: str, scenes, backend: str = "cuda"):
     """The command line every probe (``evaluation.bench.probe_*``) shares: ``--backend``,
     ``--scenes`` (comma-separated, default ``scenes``), ``--out`` (default ``$OUT`` or

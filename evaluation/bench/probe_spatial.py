@@ -23,8 +23,9 @@ from renderer.accel.bvh_build import SPATIAL, build_bvh
 from renderer.device import types
 from renderer.scene import load_scene
 
+from .. import wxh
 from . import throughput as T
-from .part import batch_size, probe_parser, run_probe
+from .part import probe_parser, run_probe
 from .probe_traversal import same_hits
 
 SCENES = ("sponza", "conference")
@@ -82,7 +83,7 @@ def probe(name: str, t, width: int, height: int, repeats: int) -> list:
 
 def main(argv=None) -> int:
     ap = probe_parser(__doc__, SCENES, backend='llvm')
-    ap.add_argument("--size", type=batch_size, default=(640, 360), help="batch WxH")
+    ap.add_argument("--size", type=wxh, default=(640, 360), help="batch WxH")
     ap.add_argument("--repeats", type=int, default=5)
     a = ap.parse_args(argv)
     if a.repeats < 1:

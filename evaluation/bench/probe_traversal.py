@@ -44,8 +44,9 @@ from renderer.accel.bvh_build import build_bvh
 from renderer.device import array3, types
 from renderer.scene import load_scene
 
+from .. import wxh
 from . import throughput as T
-from .part import batch_size, probe_parser, run_probe
+from .part import probe_parser, run_probe
 
 SCENES = ("cornell_sphere", "platonic_solids", "bunny", "sponza", "conference")
 #: Which steps branch in the ``branches`` mode (set by each contender while it traces).
@@ -233,7 +234,7 @@ def main(argv=None) -> int:
     ap = probe_parser(__doc__, SCENES)
     ap.add_argument("--mode", choices=("branches", "leaf", "refill", "setup", "slab", "optimize"),
                     default="branches")
-    ap.add_argument("--size", type=batch_size, default=None,
+    ap.add_argument("--size", type=wxh, default=None,
                     help="batch WxH (default 1920x1080 on CUDA, 160x90 on the CPU)")
     a = ap.parse_args(argv)
     warnings.simplefilter("ignore")

@@ -18,14 +18,15 @@ from pathlib import Path
 
 from renderer.outputs import OutputError, check_output_file
 
+from .. import wxh
 from . import device_info, markdown
-from .part import batch_size, jsonable, write_atomic
+from .part import jsonable, write_atomic
 from .throughput import SCENES, ray_throughput
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--size", type=batch_size, default=(640, 360),
+    ap.add_argument("--size", type=wxh, default=(640, 360),
                     help="batch size WxH (pixels of the camera)")
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--backend", default="llvm")
