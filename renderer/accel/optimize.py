@@ -27,7 +27,7 @@ from .bvh_build import LEAF_BIT, MAX_LEVELS, BVHArrays, _sah_cost
 
 #: Default rounds of ``reinsert`` (``build_bvh(optimize=...)``); each moves the
 #: ``FRACTION`` of nodes that cost most for their size. Rounds stop early once one lowers the
-#: SAH cost by less than ``MIN_GAIN`` of it.
+#: inner nodes' cost (their summed surface area) by less than ``MIN_GAIN`` of it.
 ROUNDS = 4
 FRACTION = 0.01
 MIN_GAIN = 0.005
@@ -79,8 +79,6 @@ class _Tree:
         self.parent, self.ref = parent.tolist(), ref.tolist()
         self.box = [tuple(r) for r in box.tolist()]
         self.area = [_area(b) for b in self.box]
-        #: never-hit children (a box at infinity: the second child of a single-leaf root)
-        self.dead = set(np.flatnonzero(~np.all(np.isfinite(box), axis=1)).tolist())
         height = np.zeros(M, np.int64)
         for nodes in reversed(_levels(ids, leaf)):
             height[nodes] = 1 + np.maximum(height[ids[nodes, 0]], height[ids[nodes, 1]])
