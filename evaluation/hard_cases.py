@@ -181,6 +181,12 @@ def _unit(rng, n):
     return v / np.linalg.norm(v, axis=1, keepdims=True)
 
 
+def _edges(F):
+    """The distinct edges (int (E, 2), sorted vertex pairs) of the triangles ``F``."""
+    return np.unique(np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]),
+                             axis=1), axis=0)
+
+
 def _ball(rng, n):
     return _unit(rng, n) * rng.uniform(0, 1, size=(n, 1)) ** (1 / 3)
 
@@ -213,8 +219,7 @@ def case_closed_mesh(cfg: Config, spec: dict) -> list[Row]:
     scene = mesh_scene([(V, F, 0), (PV, PF, 0)], [material(kd=0.5)])
     n_rays = int(cfg.rays or spec["rays"])
     rows = []
-    edges = np.unique(np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]),
-                              axis=1), axis=0)
+    edges = _edges(F)
     zero_dirs = []
     for axis in range(3):
         for sign in (1.0, -1.0):
@@ -815,84 +820,6 @@ def case_degenerate(cfg: Config, spec: dict) -> list[Row]:
     return rows
 
 
-# ---- case 15: far origins ----------------------------------------------------------------
-def case_far_origin(cfg: Config, spec: dict) -> list[Row]:
-    """Rays from far outside the scene's reach (``distances``: 10^3..10^6 sphere radii away,
-    beyond every camera, light and vertex of the scene), aimed at the vertices and edge
-    midpoints of an icosphere (the faces of its leaf boxes) and at random points of it:
-    every accelerator must give brute force's hits, closest (found, face, and t bitwise
-    where found) and any. Boxes are padded for the origins within the scene's reach; rays
-    from farther away enter every box (``renderer.accel.traverse.box_ray``). Counted per
-    (accel, routine, precision): rays whose answer differs from brute force's; the
-    criterion applies to the default routine, the others are reported (as in case 1).
-    Measured on an H200: 0 for both routines in float32 and for watertight in float64;
-    Möller–Trumbore in float64 differs from brute force at 4-5 of the 642 vertex rays in
-    the BVHs (not on the CPU), not yet explained."""
-    c = np.asarray(spec["center"], np.float64)
-    r = float(spec["radius"])
-    V, F = shapes.make_shape("sphere", subdivisions=int(spec["subdivisions"]))
-    V = V * r + c
-    scene = mesh_scene([(V, F, 0)], [material(kd=0.5)],
-                       camera=camera(c + [0, 0, 4 * r], c))
-    rng = np.random.default_rng(cfg.seed)
-    edges = np.unique(np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]),
-                              axis=1), axis=0)
-    k = int(spec["random_rays"])
-    u, w = rng.uniform(size=(2, k))
-    tri = F[rng.integers(0, len(F), k)]
-    su = np.sqrt(u)[:, None]
-    surf = (V[tri[:, 0]] * (1 - su) + V[tri[:, 1]] * (su * (1 - w[:, None]))
-            + V[tri[:, 2]] * (su * w[:, None]))
-    groups = {"at vertices": V, "at edge midpoints": 0.5 * (V[edges[:, 0]] + V[edges[:, 1]]),
-              "random": surf}
-    lo, hi = (math.log10(x) for x in spec["distances"])
-    rays = {}
-    for g, targets in groups.items():
-        dist = r * 10.0 ** rng.uniform(lo, hi, (len(targets), 1))
-        o = targets + _unit(rng, len(targets)) * dist
-        rays[g] = (o, targets - o)
-    rows = []
-    for prec in cfg.precisions:
-        t = types(cfg.backend, prec)
-        for routine in cfg.routines:
-            ref = {g: _answers(build_accelerator("brute", scene, t, intersection=routine),
-                               t, o, d) for g, (o, d) in rays.items()}
-            for accel in cfg.accels:
-                if accel == "brute":
-                    continue
-                acc = build_accelerator(accel, scene, t, intersection=routine)
-                info = {}
-                for g, (o, d) in rays.items():
-                    got, want = _answers(acc, t, o, d), ref[g]
-                    f = want[0]
-                    bad = ((got[0] != f) | (got[3] != want[3])
-                           | (f & ((got[1] != want[1]) | (got[2] != want[2]))))
-                    info[g] = {"differ": int(bad.sum()), "rays": len(o), "hits": int(f.sum())}
-                differ = sum(v["differ"] for v in info.values())
-                total = sum(v["rays"] for v in info.values())
-                default = routine == DEFAULT_ROUTINE
-                rows.append(Row(
-                    case="15 far origins", variant=f"{accel}/{routine}/{prec}",
-                    criterion=("= brute force: 0 rays differ" if default
-                               else "rays that differ reported (not default)"),
-                    measured=(f"{differ} of {total} rays differ from brute force ("
-                              + ", ".join(f"{g}: {v['differ']}/{v['rays']}"
-                                          for g, v in info.items()) + ")"),
-                    passed=differ == 0 if default else True, value=float(differ),
-                    info=info))
-                _progress(cfg, rows[-1])
-    return rows
-
-
-def _answers(acc, t, o, d):
-    """``(found, face, t, any_hit)`` numpy arrays of the host rays ``o``, ``d``."""
-    found, face, th = _closest(acc, t, o, d)
-    n = len(o)
-    p = acc.intersect_p(Ray(o=array3(t, o), d=array3(t, d), t_max=t.Float(np.full(n, np.inf))),
-                        dr.full(t.Bool, True, n))
-    return found, face, th, p.numpy()
-
-
 # ---- case 12: robust scenes --------------------------------------------------------------
 def robust_scenes() -> dict:
     """The case-12 scenes by name."""
@@ -1057,8 +984,7 @@ def case_mitsuba_parity(cfg: Config, spec: dict) -> list[Row]:
     closed = load_cases()["closed_mesh"]
     V, F, c, r, sc = _closed_mesh_scene(closed)
     V32 = V.astype(np.float32).astype(np.float64)
-    edges = np.unique(np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]),
-                              axis=1), axis=0)
+    edges = _edges(F)
     rng = np.random.default_rng(cfg.seed)
 
     def interior(k):
@@ -1134,6 +1060,84 @@ def _progress(cfg: Config, row: Row) -> None:
 
 # ---- the suite -------------------------------------------------------------------------------
 #: Case functions by their table name in ``tests/hard/cases.toml``.
+# ---- case 15: far origins ----------------------------------------------------------------
+def case_far_origin(cfg: Config, spec: dict) -> list[Row]:
+    """Rays from far away (``distances``: 10^3..10^6 sphere radii; about three quarters of
+    them start beyond the scene's reach, the largest coordinate of its camera, lights and
+    vertices plus its size, the rest within it), aimed at the vertices and edge midpoints of
+    an icosphere far from the origin (the faces of its leaf boxes) and at random points of it:
+    every accelerator must give brute force's hits, closest (found, face, and t bitwise
+    where found) and any. Boxes are padded for the origins within the scene's reach; rays
+    from farther away enter every box (``renderer.accel.traverse.box_ray``). Counted per
+    (accel, routine, precision): rays whose answer differs from brute force's; the
+    criterion applies to the default routine, the others are reported (as in case 1).
+    Measured on an H200: 0 for both routines in float32 and for watertight in float64;
+    Möller–Trumbore in float64 differs from brute force at 4-5 of the 642 vertex rays in
+    the BVHs (not on the CPU), not yet explained."""
+    c = np.asarray(spec["center"], np.float64)
+    r = float(spec["radius"])
+    V, F = shapes.make_shape("sphere", subdivisions=int(spec["subdivisions"]))
+    V = V * r + c
+    scene = mesh_scene([(V, F, 0)], [material(kd=0.5)],
+                       camera=camera(c + [0, 0, 4 * r], c))
+    rng = np.random.default_rng(cfg.seed)
+    edges = _edges(F)
+    k = int(spec["random_rays"])
+    u, w = rng.uniform(size=(2, k))
+    tri = F[rng.integers(0, len(F), k)]
+    su = np.sqrt(u)[:, None]
+    surf = (V[tri[:, 0]] * (1 - su) + V[tri[:, 1]] * (su * (1 - w[:, None]))
+            + V[tri[:, 2]] * (su * w[:, None]))
+    groups = {"at vertices": V, "at edge midpoints": 0.5 * (V[edges[:, 0]] + V[edges[:, 1]]),
+              "random": surf}
+    lo, hi = (math.log10(x) for x in spec["distances"])
+    rays = {}
+    for g, targets in groups.items():
+        dist = r * 10.0 ** rng.uniform(lo, hi, (len(targets), 1))
+        o = targets + _unit(rng, len(targets)) * dist
+        rays[g] = (o, targets - o)
+    rows = []
+    for prec in cfg.precisions:
+        t = types(cfg.backend, prec)
+        for routine in cfg.routines:
+            ref = {g: _answers(build_accelerator("brute", scene, t, intersection=routine),
+                               t, o, d) for g, (o, d) in rays.items()}
+            for accel in cfg.accels:
+                if accel == "brute":
+                    continue
+                acc = build_accelerator(accel, scene, t, intersection=routine)
+                info = {}
+                for g, (o, d) in rays.items():
+                    got, want = _answers(acc, t, o, d), ref[g]
+                    f = want[0]
+                    bad = ((got[0] != f) | (got[3] != want[3])
+                           | (f & ((got[1] != want[1]) | (got[2] != want[2]))))
+                    info[g] = {"differ": int(bad.sum()), "rays": len(o), "hits": int(f.sum())}
+                differ = sum(v["differ"] for v in info.values())
+                total = sum(v["rays"] for v in info.values())
+                default = routine == DEFAULT_ROUTINE
+                rows.append(Row(
+                    case="15 far origins", variant=f"{accel}/{routine}/{prec}",
+                    criterion=("= brute force: 0 rays differ" if default
+                               else "rays that differ reported (not default)"),
+                    measured=(f"{differ} of {total} rays differ from brute force ("
+                              + ", ".join(f"{g}: {v['differ']}/{v['rays']}"
+                                          for g, v in info.items()) + ")"),
+                    passed=differ == 0 if default else True, value=float(differ),
+                    info=info))
+                _progress(cfg, rows[-1])
+    return rows
+
+
+def _answers(acc, t, o, d):
+    """``(found, face, t, any_hit)`` numpy arrays of the host rays ``o``, ``d``."""
+    found, face, th = _closest(acc, t, o, d)
+    n = len(o)
+    p = acc.intersect_p(Ray(o=array3(t, o), d=array3(t, d), t_max=t.Float(np.full(n, np.inf))),
+                        dr.full(t.Bool, True, n))
+    return found, face, th, p.numpy()
+
+
 CASES = {"closed_mesh": case_closed_mesh, "reintersect": case_reintersect,
          "terminator": case_terminator, "tir": case_tir,
          "index_matched": case_index_matched, "phong": case_phong,
