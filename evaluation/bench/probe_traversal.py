@@ -86,7 +86,8 @@ def _accelerators(scene, t, mode: str) -> tuple[dict, dict]:
         accs = {a: ACCELERATORS[a].build(scene, t, binary=b) for a in ("bvh", "bvh4")}
         dr.eval(accs)
         for a in ("bvh", "bvh4"):
-            accs[a + "+sub"] = _SlabSub(accs[a])
+            # the slab test's subtraction form, (lo - o) * inv, instead of one FMA per plane
+            accs[a + "+sub"] = _Traced(accs[a], "SLAB_FMA_BACKENDS", ())
         return accs, {a: (a, True, True) for a in accs}
     if mode == "optimize":
         from renderer.accel.optimize import reinsert
@@ -103,7 +104,8 @@ def _accelerators(scene, t, mode: str) -> tuple[dict, dict]:
         accs = {"bvh": ACCELERATORS["bvh"].build(scene, t, binary=b),
                 "bvh4": ACCELERATORS["bvh4"].build(scene, t, binary=b)}
         dr.eval(accs)
-        accs["bvh+tiebranch"] = _TieBranch(accs["bvh"])
+        # the tie-break gather in a symbolic branch on every backend
+        accs["bvh+tiebranch"] = _Traced(accs["bvh"], "TIE_BRANCH_BACKENDS", ("llvm", "cuda"))
         for r in (2, 4, 8, 16):
             accs[f"bvh+refill{r}"] = replace(accs["bvh"], refill=r)
         for r in (4, 8):
@@ -130,38 +132,26 @@ def watertight_per_test(o, d, p0, p1, p2, n, t_min=0.0):
 watertight_per_test.layout = "vertices"
 
 
-class _TieBranch:
-    """``acc`` traced with the tie-break gather in a symbolic branch on every backend."""
+class _Traced:
+    """``acc`` traced with ``renderer.accel.traverse``'s setting ``name`` set to ``value``
+    (the probes' variants of a module-level switch, read when a query is traced)."""
 
-    def __init__(self, acc):
-        self.acc, self.tris = acc, acc.tris
+    def __init__(self, acc, name: str, value):
+        self.acc, self.tris, self.name, self.value = acc, acc.tris, name, value
 
     def _with(self, fn, *args):
-        old = traverse_module.TIE_BRANCH_BACKENDS
-        traverse_module.TIE_BRANCH_BACKENDS = ("llvm", "cuda")
+        old = getattr(traverse_module, self.name)
+        setattr(traverse_module, self.name, self.value)
         try:
             return fn(*args)
         finally:
-            traverse_module.TIE_BRANCH_BACKENDS = old
+            setattr(traverse_module, self.name, old)
 
     def intersect(self, ray, on):
         return self._with(self.acc.intersect, ray, on)
 
     def intersect_p(self, ray, on):
         return self._with(self.acc.intersect_p, ray, on)
-
-
-class _SlabSub(_TieBranch):
-    """``acc`` traced with the slab test's subtraction form, ``(lo - o) * inv``, instead of
-    the renderer's one FMA per plane (``traverse.SLAB_FMA_BACKENDS``)."""
-
-    def _with(self, fn, *args):
-        old = traverse_module.SLAB_FMA_BACKENDS
-        traverse_module.SLAB_FMA_BACKENDS = ()
-        try:
-            return fn(*args)
-        finally:
-            traverse_module.SLAB_FMA_BACKENDS = old
 
 
 def _query(t, acc, ray, on, q, node, tri):
