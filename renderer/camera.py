@@ -34,7 +34,7 @@ from dataclasses import dataclass
 import drjit as dr
 import numpy as np
 
-from .device import Types
+from .device import Types, normalize
 from .scene import Camera, SceneError, validate_settings
 
 #: Dr.Jit's (and the original PCG32's) default stream, ``PCG32(initseq=...)``.
@@ -172,6 +172,6 @@ def primary_rays(cam: CameraArrays, width: int, height: int, t: Types, *,
         py = t.Float(y) + (t.Float(s // k) + xi2) * inv_k
     sx = dr.fma(px, 2.0 / width, -1.0) * cam.tan_x
     sy = dr.fma(py, -2.0 / height, 1.0) * cam.tan_y
-    d = dr.normalize(cam.forward + sx * cam.right + sy * cam.up)
+    d = normalize(cam.forward + sx * cam.right + sy * cam.up)
     o = t.Array3f(cam.position)
     return o, d

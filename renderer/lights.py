@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import drjit as dr
 
-from .device import Types, array3
+from .device import Types, array3, rcp, rsqrt
 from .scene import Scene
 
 
@@ -70,11 +70,11 @@ def sample_light(lights: DeviceLights, i, p, t: Types, *,
     intensity = dr.gather(A3, lights.intensity, i)
     to_light = lp - p
     dist2 = dr.squared_norm(to_light)
-    inv_dist = dr.rsqrt(dist2)
+    inv_dist = rsqrt(dist2)
     if dr.hint(all_inverse_square, mode="scalar"):
-        falloff = dr.rcp(dist2)
+        falloff = rcp(dist2)
     else:
         inverse_square = dr.gather(t.Bool, lights.inverse_square, i)
-        falloff = dr.select(inverse_square, dr.rcp(dist2), 1.0)
+        falloff = dr.select(inverse_square, rcp(dist2), 1.0)
     return LightSample(wi=to_light * inv_dist, dist=dist2 * inv_dist, Li=intensity * falloff,
                        p=lp)

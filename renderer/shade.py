@@ -18,7 +18,7 @@ import numpy as np
 from .accel import ClosestHit, Ray
 from .accel.triangle import layout_of, unit_roundoff
 from .accel.triangle import load as load_triangle
-from .device import Types, array3
+from .device import Types, array3, normalize, rcp
 from .effects import EffectSet
 from .lights import DeviceLights, sample_light
 from .scene import Scene, validate_settings
@@ -111,7 +111,7 @@ def fresnel(cos_theta_i, eta):
     reflection), signed cosine of the transmitted direction, and the relative indices.
     """
     outside = cos_theta_i >= 0
-    rcp_eta = dr.rcp(eta)
+    rcp_eta = rcp(eta)
     eta_it = dr.select(outside, eta, rcp_eta)
     eta_ti = dr.select(outside, rcp_eta, eta)
     cos_t_sqr = dr.fma(-dr.fma(-cos_theta_i, cos_theta_i, 1.0), eta_ti * eta_ti, 1.0)
@@ -246,7 +246,7 @@ def surface_point(accel, ray: Ray, hit: ClosestHit, t: Types, fx: EffectSet,
         normals = tuple(dr.gather(A3, nk, hit.prim, m & sm)
                         for nk in (tris.n0, tris.n1, tris.n2))
         n_i = normals[0] * w0 + normals[1] * hit.u + normals[2] * hit.v
-        ns = dr.select(sm, dr.normalize(n_i), ng)
+        ns = dr.select(sm, normalize(n_i), ng)
         if dr.hint(terminator == "hanika" and fx.shadows, mode="scalar"):
             p_s, p_s_err = terminator_point(accel, hit, p, p_err, normals, m & sm, t)
     mat = dr.gather(UInt32, tris.material, hit.prim, m)
@@ -496,12 +496,12 @@ def specular_branches(sp: SurfacePoint, d, mats: DeviceMaterials, t: Types, fx: 
     k_refr = dr.gather(A3, mats.k_refr, mat, active)
     ior = dr.gather(t.Float, mats.ior, mat, active)
     entering = cos_s > 0
-    eta = dr.select(entering, dr.rcp(ior), ior)
+    eta = dr.select(entering, rcp(ior), ior)
     cos_i = dr.abs(cos_s)
     sin2_t = eta * eta * dr.fma(-cos_i, cos_i, 1.0)
     tir = sin2_t > 1.0
     cos_t = dr.safe_sqrt(1.0 - sin2_t)
-    T = dr.normalize(dr.fma(N, eta * cos_i - cos_t, eta * d))
+    T = normalize(dr.fma(N, eta * cos_i - cos_t, eta * d))
     transmissive = dr.max(k_refr) > 0
     # constant weights (thesis eq. 14); TIR sends the refracted share along R
     w_refl = dr.select(tir, k_refl + k_refr, k_refl)

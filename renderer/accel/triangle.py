@@ -26,7 +26,7 @@ from __future__ import annotations
 import drjit as dr
 import numpy as np
 
-from ..device import Types, array3
+from ..device import Types, array3, rcp
 from .base import DeviceTriangles, gather_floats
 
 #: Floats per packed triangle.
@@ -56,7 +56,7 @@ def moller_trumbore(o, d, v0, e1, e2, t_min=0.0):
     slack = edge_slack(dr.type_v(o) == dr.VarType.Float64)
     p = dr.cross(d, e2)
     det = dr.dot(e1, p)
-    inv_det = dr.rcp(det)
+    inv_det = rcp(det)
     s = o - v0
     u = dr.dot(s, p) * inv_det
     q = dr.cross(s, e1)

@@ -64,8 +64,9 @@ def test_far_origins_get_brute_force_hits():
     """Rays from 10^3..10^6 radii away at an icosphere's vertices, edge midpoints and random
     points (three quarters from beyond the reach its boxes are padded for): every
     accelerator and routine gives brute force's answers, closest and any hit, here (LLVM,
-    float32; the case's criterion holds the default routine to it, and Möller–Trumbore in
-    float64 on CUDA differed at 4-5 vertex rays: ``results/h200/hard-cases/``)."""
+    float32) and on the H200 in both precisions (``results/h200/hard-cases/``; Möller–Trumbore
+    in float64 differed there at 4-5 vertex rays while CUDA's float64 reciprocal was
+    approximate, ``renderer.device.rcp``)."""
     rows = rows_of("far_origin")
     assert_green(rows)
     assert {r.variant.split("/")[1] for r in rows} == set(triangle.ROUTINES)
