@@ -5,25 +5,29 @@
     python -m evaluation.bench.probe_traversal --mode setup ...
     python -m evaluation.bench.probe_traversal --mode slab ...
     python -m evaluation.bench.probe_traversal --mode optimize ...
+    python -m evaluation.bench.probe_traversal --mode refill-count ...
 
 ``branches``: the traversal steps written inline with masked updates (what CUDA ran before
 ``traverse.masked_step`` became a symbolic ``if`` everywhere) against real branches for both
 steps (``+br``), for the triangle step only (``+brtri``) or the node step only
 (``+brnode``); also leaves of 2 and 8 triangles and Möller–Trumbore, inline. ``refill``: the
 binary and 4-wide BVHs whose threads take the next ray when theirs is done (``refill``, rays
-per thread: ``traverse.refill_traversal``), and the tie-break gather in a branch
-(``traverse.TIE_BRANCH_BACKENDS``), against the binary and 4-wide BVHs. ``leaf``: with the
-branches, leaves of 1, 2, 4 and 8 triangles, the 4-wide BVH from the leaf-2 build, the
-8-wide BVH and Möller–Trumbore. ``slab``: the binary and 4-wide BVHs with the slab test's
-one FMA per plane (the renderer's, ``traverse.box_ray``) against the subtraction form
-(``+sub``). ``optimize``: the binary and 4-wide BVHs built without and with the insertion-
-based optimisation (``+reinsert``, ``renderer.accel.optimize``). ``setup``: the watertight
-test bound to each traversal's rays (the renderer's, ``triangle.bind_routine``) against the
-same test doing its per-ray set-up at every triangle (``+per-test``). Batches as the
-throughput part's (primary, incoherent, reflection; closest and any hit; ``setup``, ``slab``
-and ``optimize`` also the shadow rays), every contender timed in turn
-(``throughput._timed``), and every contender's hits compared with the binary BVH's (t and
-face where found). Writes ``OUT/<mode>.json`` and prints one line per query.
+per thread: ``traverse.refill_traversal``), and the tie-break's gather on every nearer hit
+(``+tiegather``; ``traverse.TIE_BRANCH_BACKENDS``), against the binary and 4-wide BVHs.
+``leaf``: with the branches, leaves of 1, 2, 4 and 8 triangles, the 4-wide BVH from the
+leaf-2 build, the 8-wide BVH and Möller–Trumbore. ``slab``: the binary and 4-wide BVHs with
+the slab test's one FMA per plane (the renderer's, ``traverse.box_ray``) against the
+subtraction form (``+sub``). ``optimize``: the binary and 4-wide BVHs built without and with
+the insertion-based optimisation (``+reinsert``, ``renderer.accel.optimize``).
+``refill-count``: the 4-wide BVH with 8, 16 and 32 rays per thread (``+refillN``), each also
+with the tie-break's gather on every nearer hit instead of in a branch (``+tiegather``), as
+the binary and 4-wide BVHs. ``setup``: the watertight test bound to each traversal's rays
+(the renderer's, ``triangle.bind_routine``) against the same test doing its per-ray set-up
+at every triangle (``+per-test``). Batches as the throughput part's (primary, incoherent,
+reflection; closest and any hit; ``setup``, ``slab`` and ``optimize`` also the shadow rays),
+every contender timed in turn (``throughput._timed``), and every contender's hits compared
+with the binary BVH's (t and face where found). Writes ``OUT/<mode>.json`` and prints one
+line per query.
 """
 from __future__ import annotations
 
@@ -104,12 +108,23 @@ def _accelerators(scene, t, mode: str) -> tuple[dict, dict]:
         accs = {"bvh": ACCELERATORS["bvh"].build(scene, t, binary=b),
                 "bvh4": ACCELERATORS["bvh4"].build(scene, t, binary=b)}
         dr.eval(accs)
-        # the tie-break gather in a symbolic branch on every backend
-        accs["bvh+tiebranch"] = _Traced(accs["bvh"], "TIE_BRANCH_BACKENDS", ("llvm", "cuda"))
+        # the tie-break's gather on every nearer hit (CUDA's path before 2026-12-02)
+        accs["bvh+tiegather"] = _Traced(accs["bvh"], "TIE_BRANCH_BACKENDS", ())
         for r in (2, 4, 8, 16):
             accs[f"bvh+refill{r}"] = replace(accs["bvh"], refill=r)
         for r in (4, 8):
             accs[f"bvh4+refill{r}"] = replace(accs["bvh4"], refill=r)
+        return accs, {a: (a, True, True) for a in accs}
+    if mode == "refill-count":
+        b = build_bvh(scene.vertices, scene.faces)
+        accs = {a: ACCELERATORS[a].build(scene, t, binary=b) for a in ("bvh", "bvh4")}
+        dr.eval(accs)
+        tie = ("TIE_BRANCH_BACKENDS", ())     # the tie-break's gather on every nearer hit
+        for a in ("bvh", "bvh4"):
+            accs[a + "+tiegather"] = _Traced(accs[a], *tie)
+        for r in (8, 16, 32):
+            accs[f"bvh4+refill{r}"] = replace(accs["bvh4"], refill=r)
+            accs[f"bvh4+refill{r}+tiegather"] = _Traced(accs[f"bvh4+refill{r}"], *tie)
         return accs, {a: (a, True, True) for a in accs}
     accs["bvh-mt"] = ACCELERATORS["bvh"].build(scene, t, binary=binary,
                                                intersection="moller_trumbore")
@@ -222,7 +237,8 @@ def probe(scene_name: str, t, mode: str, width: int, height: int, repeats: int) 
 
 def main(argv=None) -> int:
     ap = probe_parser(__doc__, SCENES)
-    ap.add_argument("--mode", choices=("branches", "leaf", "refill", "setup", "slab", "optimize"),
+    ap.add_argument("--mode", choices=("branches", "leaf", "refill", "refill-count", "setup",
+                                       "slab", "optimize"),
                     default="branches")
     ap.add_argument("--size", type=wxh, default=None,
                     help="batch WxH (default 1920x1080 on CUDA, 160x90 on the CPU)")

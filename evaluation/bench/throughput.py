@@ -59,7 +59,9 @@ VARIANT_BATCHES = {"sort": ("incoherent", "reflection"),
 EAGER = ("sort", "refill")            # kinds that launch kernels while tracing
 #: Variants shown beside the contenders but never "best": the renderer does not build them.
 NOT_CONTENDERS = ("bvh-nosplit",)
-REFILL = {"llvm": 32, "cuda": 8}
+#: Rays per lane of the refill variant: on an H200 16 per thread beat 8 on every incoherent
+#: batch (1.04-1.10x; ``results/h200/throughput/refill-count.md``).
+REFILL = {"llvm": 32, "cuda": 16}
 SEED = 12                           # the incoherent batch's random generator
 #: Offset of the host-side reflection batch's origins (fraction of the scene diagonal): both
 #: renderers get the same rays, so any offset that clears the surface will do.
