@@ -4,7 +4,8 @@ Every kernel module takes its types from a ``Types`` bundle instead of hard-codi
 ``drjit.cuda`` or ``drjit.llvm``: ``types()`` gives ``drjit.auto``'s choice (CUDA when a GPU
 is present, LLVM otherwise); ``types("llvm")`` forces the CPU backend. ``precision`` selects
 float32 (default) or float64 for every floating-point array, so the same code renders in
-double precision.
+double precision. The renderer takes its reciprocals from here (``rcp``, ``rsqrt``,
+``normalize``): Dr.Jit's own are float32-accurate for float64 arrays on CUDA.
 """
 from __future__ import annotations
 
