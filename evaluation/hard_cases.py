@@ -1058,8 +1058,6 @@ def _progress(cfg: Config, row: Row) -> None:
               flush=True)
 
 
-# ---- the suite -------------------------------------------------------------------------------
-#: Case functions by their table name in ``tests/hard/cases.toml``.
 # ---- case 15: far origins ----------------------------------------------------------------
 def case_far_origin(cfg: Config, spec: dict) -> list[Row]:
     """Rays from far away (``distances``: 10^3..10^6 sphere radii; about three quarters of
@@ -1137,6 +1135,8 @@ def _answers(acc, t, o, d):
     return found, face, th, p.numpy()
 
 
+# ---- the suite -------------------------------------------------------------------------------
+#: Case functions by their table name in ``tests/hard/cases.toml``.
 CASES = {"closed_mesh": case_closed_mesh, "reintersect": case_reintersect,
          "terminator": case_terminator, "tir": case_tir,
          "index_matched": case_index_matched, "phong": case_phong,

@@ -28,7 +28,7 @@ hard-case suite (``whitted hard-cases``; LLVM on this shared 2-core AMD EPYC,
 - cost per closest-hit ray (512² primary rays, best of 7, interleaved): BVH 1.24x on the
   Cornell box (134 → 167 ns float32), 0.99x on the bunny (276 → 273 ns); the test alone
   (brute force) 1.38x float32, 1.60x float64. The paper claims the same speed, Blender
-  measured ~10 %; on the H200 the watertight test keeps 0.76–0.87x of Möller–Trumbore's
+  measured ~10 %; on the H200 the watertight test keeps 0.73–0.85x of Möller–Trumbore's
   closest-hit throughput (``results/h200/routine/``). float64 costs 1.08–1.21x float32
   (Möller–Trumbore), 1.17–1.40x (watertight).
 
