@@ -76,16 +76,14 @@ def load_scene(path, *, shading: str | None = None, camera: str | None = None,
 def auto_camera(scene: Scene, size: tuple[int, int] = AUTO_SIZE, fov_y: float = AUTO_FOV,
                 name: str = "auto") -> Camera:
     """A view of the whole scene: looking along -z (from +z) or +z (from -z) at the centre
-    of the bounding box, y up, far enough that the bounding sphere fits the smaller field
-    of view with 10% margin. The side is the one that sees more front-facing triangle
-    area (an open box is seen through its opening); +z on a tie."""
+    of the bounding box, y up, as close as lets every corner of the bounding box lie in the
+    image with a 5% margin. The side is the one that sees more front-facing triangle area
+    (an open box is seen through its opening); +z on a tie."""
     lo, hi = scene.bounds()
     centre = (lo + hi) / 2
-    radius = max(float(np.linalg.norm(hi - lo)) / 2, 1e-6)
     w, h = size
-    half = math.radians(fov_y) / 2
-    half_x = math.atan(math.tan(half) * w / h)
-    dist = 1.1 * radius / math.sin(min(half, half_x))
+    tan_y = math.tan(math.radians(fov_y) / 2) / 1.05
+    tan_x = tan_y * w / h
     side = 1.0
     if scene.face_count:
         v = scene.vertices.astype(np.float64)
@@ -93,6 +91,13 @@ def auto_camera(scene: Scene, size: tuple[int, int] = AUTO_SIZE, fov_y: float = 
         cross = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
         toward_plus, toward_minus = cross[:, 2].clip(0).sum(), (-cross[:, 2]).clip(0).sum()
         side = -1.0 if toward_minus > toward_plus * (1 + 1e-9) else 1.0
+    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
+                        for z in (lo[2], hi[2])]) - centre
+    near = side * corners[:, 2]              # how far each corner sits towards the camera
+    dist = float(np.max(np.maximum(np.abs(corners[:, 0]) / tan_x,
+                                   np.abs(corners[:, 1]) / tan_y) + near))
+    dist = max(dist, float(np.max(near)) * 1.01, 1e-6 * max(float(np.abs(hi - lo).max()),
+                                                             1e-30))
     position = centre + np.array([0.0, 0.0, side * dist])
     return Camera(position=position, target=centre, up=np.array([0.0, 1.0, 0.0]),
                   fov_y=fov_y, width=int(w), height=int(h), name=name)

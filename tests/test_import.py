@@ -1,0 +1,279 @@
+"""Scenes from other tools: the Cornell box OBJ + MTL as shipped (Intel's Embree copy), an MTL
+with every ``illum`` model, OBJ ``vn`` normals and smoothing groups, PLY normals and colours,
+and Mitsuba XML written the way its tutorials write it, rendered by stock Mitsuba from the
+same file and compared with ours under the exact rule."""
+from __future__ import annotations
+
+import struct
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from renderer.scene import SceneError, load_scene
+from renderer.scene.objmtl import ILLUM, read_mtl
+
+MESHES = Path("/work/shared/data/meshes")
+CORNELL = MESHES / "cornell_box" / "cornell_box.obj"
+TEAPOT = MESHES / "utah_teapot" / "teapot.obj"
+DATA = Path(__file__).resolve().parent / "data" / "imports"
+
+
+def _load(path, **kw):
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        scene = load_scene(path, **kw)
+    return scene, [str(w.message) for w in caught]
+
+
+# ---- OBJ + MTL -------------------------------------------------------------------------------
+def test_cornell_box_obj_gets_its_mtl_materials_object_names_camera_and_light():
+    scene, notes = _load(CORNELL)
+    names = [o.name for o in scene.objects]
+    assert names == ["floor", "light", "ceiling", "back_wall", "green_wall", "red_wall",
+                     "short_block", "tall_block"]       # front_wall's faces are commented out
+    mats = {m.name: m for m in scene.materials}
+    assert set(mats) == {"white", "red", "green", "blue", "light"}
+    np.testing.assert_array_equal(mats["red"].kd, [1, 0, 0])
+    np.testing.assert_array_equal(mats["light"].ka, [20, 20, 20])
+    assert scene.materials[scene.objects[names.index("green_wall")].material].name == "green"
+    assert scene.face_count == 36 and not any(o.smooth for o in scene.objects)
+    assert sorted(scene.source_files) == sorted([CORNELL.resolve(),
+                                                 CORNELL.with_suffix(".mtl").resolve()])
+    # the box is open towards -z: the framed camera looks in through the opening
+    cam = scene.cameras[0]
+    lo, hi = scene.bounds()
+    assert cam.position[2] < lo[2] and np.allclose(cam.target, (lo + hi) / 2)
+    assert len(scene.lights) == 1 and np.allclose(scene.lights[0].position, cam.position)
+    assert any("no camera" in n for n in notes) and any("no light" in n for n in notes)
+
+
+def test_cornell_box_obj_renders_its_wall_colours():
+    from renderer.render import render
+    scene = load_scene(CORNELL).with_size(48, 48)
+    img = render(scene).image
+    red = (img[..., 0] > 5 * img[..., 1]) & (img[..., 0] > 0.05)
+    green = (img[..., 1] > 5 * img[..., 0]) & (img[..., 1] > 0.05)
+    # seen from -z through the opening: the red wall on the left, the green one on the right
+    assert red[:, :16].sum() > 40 and red[:, 32:].sum() == 0
+    assert green[:, 32:].sum() > 40 and green[:, :16].sum() == 0
+    assert img[24, 24].min() > 0.1                                  # the white back wall
+    assert (img.max(-1) > 0).mean() > 0.9          # framed: the box fills the image
+
+
+MTL_ALL = """# one material per illum model
+newmtl m0\nillum 0\nKd 0.5 0.5 0.5
+newmtl m1\nillum 1\nKa 0.1 0.1 0.1\nKd 0.5 0.4 0.3\nKs 0.9 0.9 0.9
+newmtl m2\nillum 2\nKd 0.5 0.4 0.3\nKs 0.2 0.2 0.2\nNs 50
+newmtl m3\nillum 3\nKd 0.1 0.1 0.1\nKs 0.8 0.8 0.8
+newmtl m4\nillum 4\nKs 0.1 0.1 0.1\nTf 0.9 0.9 0.9\nNi 1.33
+newmtl m5\nillum 5\nKs 0.7 0.7 0.7
+newmtl m6\nillum 6\nKs 0.1 0.1 0.1\nd 0.25\nNi 1.5
+newmtl m7\nillum 7\nKs 1 1 1\nNi 1.6
+newmtl m8\nillum 8\nKs 0.5 0.5 0.5
+newmtl m9\nillum 9\nKs 0.2 0.2 0.2\nNi 1.4
+newmtl none\nKd 0.2 0.3 0.4\nmap_Kd wood.png
+"""
+
+
+def test_every_illum_model_maps_as_the_table_says(tmp_path):
+    p = tmp_path / "all.mtl"
+    p.write_text(MTL_ALL)
+    mats, notes = read_mtl(p)
+    m = {k: (v.kd.tolist(), v.ks.tolist(), v.k_refl.tolist(), v.k_refr.tolist(), v.ior,
+             v.combination) for k, v in mats.items()}
+    assert m["m0"] == ([0.5] * 3, [0] * 3, [0] * 3, [0] * 3, 1.5, "constant")
+    assert m["m1"][1] == [0] * 3 and mats["m1"].ka.tolist() == [0.1] * 3    # no highlight
+    assert m["m2"][:2] == ([0.5, 0.4, 0.3], [0.2] * 3) and mats["m2"].n == 50
+    assert m["m3"][2] == [0.8] * 3 and m["m3"][3] == [0] * 3
+    assert m["m4"][2:] == ([0.1] * 3, [0.9] * 3, 1.33, "constant")
+    assert m["m5"][2] == [0.7] * 3 and m["m5"][3] == [0] * 3
+    assert m["m6"][3] == [0.75] * 3                       # 1 - d without Tf
+    assert m["m7"][2:] == ([1] * 3, [1] * 3, 1.6, "fresnel")
+    assert m["m8"][2] == [0.5] * 3 and m["m9"][3] == [1] * 3
+    assert m["none"][1] == [0] * 3                        # no illum, no Ks: illum 1
+    approximated = {n.split("'")[1] for n in notes if "approximated" in n}
+    assert approximated == {f"m{k}" for k, (what, _) in ILLUM.items()
+                            if what == "approximates"}
+    line = MTL_ALL.splitlines().index("map_Kd wood.png") + 1
+    assert any(f"{p}:{line}: 'map_Kd' ignored" in n for n in notes), notes
+
+
+def test_illum_10_is_refused_with_file_and_line(tmp_path):
+    p = tmp_path / "bad.mtl"
+    p.write_text("newmtl ok\nKd 1 1 1\nnewmtl ghost\nKd 1 1 1\nillum 10\n")
+    with pytest.raises(Exception, match=r"bad\.mtl:5: material 'ghost': illum 10"):
+        read_mtl(p)
+
+
+@pytest.mark.parametrize("mtl, where", [
+    ("newmtl a\nKd 1 x 1\n", ":2:"),
+    ("Kd 1 1 1\n", ":1:"),
+    ("newmtl a\nNs\n", ":2:"),
+    ("newmtl a\nKd -1 0 0\n", ":2:"),
+    ("newmtl a\nillum 2.5\n", ":2:"),
+])
+def test_malformed_mtl_lines_name_file_and_line(tmp_path, mtl, where):
+    (tmp_path / "m.mtl").write_text(mtl)
+    obj = tmp_path / "m.obj"
+    obj.write_text("mtllib m.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nusemtl a\nf 1 2 3\n")
+    with pytest.raises(SceneError, match=rf"m\.mtl{where}"):
+        load_scene(obj)
+
+
+def test_missing_mtllib_names_the_obj_line(tmp_path):
+    obj = tmp_path / "m.obj"
+    obj.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nmtllib gone.mtl\nf 1 2 3\n")
+    with pytest.raises(SceneError, match=r"m\.obj:4: mtllib gone\.mtl: file not found"):
+        load_scene(obj)
+
+
+def test_obj_vn_normals_and_smoothing_groups_are_honoured(tmp_path):
+    obj = tmp_path / "n.obj"
+    obj.write_text("v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\n"
+                   "vn 0 0 2\nvn 0.6 0 0.8\n"
+                   "o with_vn\nf 1//1 2//2 3//2\n"
+                   "o smooth\ns 1\nf 1 2 3\ns off\no flat\nf 1 3 4\n")
+    scene, _ = _load(obj)
+    by = {o.name: o for o in scene.objects}
+    assert by["with_vn"].smooth and by["smooth"].smooth and not by["flat"].smooth
+    o = by["with_vn"]
+    n = scene.normals64[o.first_vertex:o.first_vertex + o.vertex_count]
+    v = scene.vertices64[o.first_vertex:o.first_vertex + o.vertex_count]
+    for p, expect in (([0, 0, 0], [0, 0, 1]), ([1, 0, 0], [0.6, 0, 0.8])):
+        k = int(np.argwhere(np.all(v == p, axis=1))[0, 0])
+        np.testing.assert_allclose(n[k], expect, atol=1e-12)
+
+
+def test_ignored_obj_statements_are_one_warning_each_with_the_line(tmp_path):
+    obj = tmp_path / "w.obj"
+    obj.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nvt 1 0\nl 1 2\nf 1 2 3\nbogus 1\n")
+    _, notes = _load(obj)
+    assert any(f"{obj}:4: 'vt' ignored (and 1 more)" in n for n in notes), notes
+    assert any(f"{obj}:6: 'l' ignored" in n for n in notes)
+    assert any(f"{obj}:8: 'bogus' ignored" in n for n in notes)
+
+
+# ---- PLY -------------------------------------------------------------------------------------
+def _ply_with_normals_and_colours(path: Path) -> None:
+    head = ("ply\nformat binary_little_endian 1.0\nelement vertex 3\n"
+            "property float x\nproperty float y\nproperty float z\n"
+            "property float nx\nproperty float ny\nproperty float nz\n"
+            "property uchar red\nproperty uchar green\nproperty uchar blue\n"
+            "element face 1\nproperty list uchar int vertex_indices\nend_header\n")
+    rows = [(0, 0, 0, 0, 0, 1, 255, 0, 0), (1, 0, 0, 0, 0.6, 0.8, 255, 0, 0),
+            (0, 1, 0, 0, 0, 3, 0, 0, 255)]
+    body = b"".join(struct.pack("<6f3B", *r) for r in rows) + struct.pack("<B3i", 3, 0, 1, 2)
+    path.write_bytes(head.encode() + body)
+
+
+def test_ply_normals_are_used_and_colours_averaged(tmp_path):
+    p = tmp_path / "tri.ply"
+    _ply_with_normals_and_colours(p)
+    scene, notes = _load(p)
+    assert scene.objects[0].smooth
+    np.testing.assert_allclose(scene.normals64, [[0, 0, 1], [0, 0.6, 0.8], [0, 0, 1]],
+                               atol=1e-7)
+    np.testing.assert_allclose(scene.materials[0].kd, [2 / 3, 0, 1 / 3])
+    assert any("vertex colours averaged" in n for n in notes)
+
+
+# ---- Mitsuba XML -----------------------------------------------------------------------------
+def test_tutorial_xml_matches_stock_mitsuba_on_the_same_file_under_the_exact_rule():
+    """The teapot scene as Mitsuba's tutorials write it (direct integrator, one point light,
+    diffuse BSDFs, an OBJ, a rectangle and a cube with to_world transforms, ref ids,
+    $parameters): stock Mitsuba's render of the same file, one ray per pixel centre,
+    against ours with Mitsuba's spawn rule."""
+    pytest.importorskip("mitsuba")
+    from evaluation.rules import EXACT_THRESHOLDS, check_exact
+    from reference.stock import render_file_exact
+    from renderer.render import render
+    xml = DATA / "teapot_direct.xml"
+    defines = {"teapot": str(TEAPOT), "res": "40"}
+    scene, _ = _load(xml, defines=defines)
+    assert scene.settings.shading == "physical" and scene.settings.max_depth == 0
+    assert [o.name for o in scene.objects] == ["teapot", "floor", "box"]
+    assert (scene.cameras[0].width, scene.cameras[0].height) == (40, 40)
+    ours = render(scene.with_settings(spawn="mitsuba")).image
+    ref = render_file_exact(xml, defines)
+    res = check_exact(ours, ref, {k: (t.value,) for k, t in EXACT_THRESHOLDS.items()})
+    assert ref.mean() > 0.02 and res["ok"], {k: res[k] for k in ("mean_rel", "max_rel")}
+
+
+def test_xml_fov_axes_and_matrix_sensor_agree_with_lookat(tmp_path):
+    base = (DATA / "teapot_direct.xml").read_text()
+    scene_y = _load(DATA / "teapot_direct.xml", defines={"teapot": str(TEAPOT)})[0]
+    cam = scene_y.cameras[0]
+    # fov 35 on x of a square film is fov_y 35
+    assert cam.fov_y == pytest.approx(35.0)
+    diag = tmp_path / "d.xml"
+    diag.write_text(base.replace('value="x"', 'value="diagonal"').replace(
+        "../../../../shared/data/meshes/utah_teapot/teapot.obj", str(TEAPOT)))
+    d = _load(diag)[0].cameras[0]
+    assert np.tan(np.radians(d.fov_y) / 2) == pytest.approx(np.tan(np.radians(35) / 2)
+                                                            / np.sqrt(2))
+
+
+@pytest.mark.parametrize("edit, message", [
+    (("<integrator type=\"direct\"/>", "<integrator type=\"direct\">"), "XML syntax error"),
+    (("$teapot", "nope.obj"), "filename: file not found"),
+    (("value=\"$res\"", "value=\"$resolution\""), "$resolution: parameter has no value"),
+    (("<ref id=\"clay\"/>\n    </shape>", "<ref id=\"loop\"/>\n    </shape>\n"
+      "    <bsdf type=\"twosided\" id=\"loop\"><ref id=\"loop2\"/></bsdf>\n"
+      "    <bsdf type=\"twosided\" id=\"loop2\"><ref id=\"loop\"/></bsdf>"),
+     "a cycle of references"),
+    (("<emitter type=\"point\">", "<emitter type=\"area\">"),
+     "area lights are not supported yet"),
+    (("<integrator type=\"direct\"/>", "<integrator type=\"path\"/>"),
+     "refused (with --approximate"),
+    (("<rgb name=\"reflectance\" value=\"0.8\"/>",
+      "<texture type=\"bitmap\" name=\"reflectance\"/>"), "textures are not supported"),
+    (("<ref id=\"clay\"/>", "<ref id=\"clai\"/>"), "no object with that id"),
+])
+def test_bad_xml_is_one_line_with_file_and_line(tmp_path, edit, message):
+    text = (DATA / "teapot_direct.xml").read_text().replace(
+        "../../../../shared/data/meshes/utah_teapot/teapot.obj", str(TEAPOT))
+    assert edit[0] in text
+    bad = tmp_path / "bad.xml"
+    bad.write_text(text.replace(edit[0], edit[1], 1))
+    with pytest.raises(SceneError) as e:
+        _load(bad)
+    line = str(e.value)
+    assert line.startswith(f"{bad}:") and line.split(":")[1].isdigit(), line
+    assert message in line and "\n" not in line
+
+
+def test_path_integrator_renders_as_an_approximation_on_request(tmp_path):
+    text = (DATA / "teapot_direct.xml").read_text().replace(
+        "<integrator type=\"direct\"/>",
+        "<integrator type=\"path\"><integer name=\"max_depth\" value=\"4\"/></integrator>")
+    p = tmp_path / "path.xml"
+    p.write_text(text)
+    scene, notes = _load(p, defines={"teapot": str(TEAPOT)}, approximate=True)
+    assert scene.settings.max_depth == 2
+    line = next(k for k, t in enumerate(text.splitlines(), 1) if "type=\"path\"" in t)
+    assert any(f"{p}:{line}: <integrator type=\"path\"> approximated" in n
+               for n in notes), notes
+
+
+# ---- every format: one entry point, goldens keyed by every file ------------------------------
+def test_camera_auto_frames_any_scene():
+    scene = load_scene("scenes/bunny.toml", camera="auto")
+    assert [c.name for c in scene.cameras] == ["auto"]
+    lo, hi = scene.bounds()
+    assert np.allclose(scene.cameras[0].target, (lo + hi) / 2)
+
+
+def test_golden_key_of_an_imported_scene_covers_its_mtl(tmp_path):
+    from reference.golden import content_key, golden_inputs
+    obj, mtl = tmp_path / "box.obj", tmp_path / "cornell_box.mtl"
+    obj.write_text(CORNELL.read_text())
+    mtl.write_text(CORNELL.with_suffix(".mtl").read_text())
+    scene, _ = _load(obj)
+    key = content_key(golden_inputs(scene, view=0, shading="classic", mode="exact"))
+    mtl.write_text(mtl.read_text().replace("Kd 1 0 0", "Kd 0.9 0 0"))
+    scene2, _ = _load(obj)
+    inputs = golden_inputs(scene2, view=0, shading="classic", mode="exact")
+    assert content_key(inputs) != key
+    assert "renderer/scene/objmtl.py" in inputs["code"]
