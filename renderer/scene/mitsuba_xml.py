@@ -8,8 +8,8 @@ is an error) and builds a ``Scene`` in physical shading:
 
 - ``sensor`` ``perspective``: ``to_world`` (``lookat``, ``matrix``, ``translate``,
   ``rotate``, ``scale``), ``fov`` + ``fov_axis`` (x, y, diagonal, smaller, larger), the
-  ``hdrfilm`` size; ``sampler`` and ``rfilter`` are ignored (one warning): exact and
-  converged sampling are the renderer's settings;
+  ``hdrfilm`` size; ``sampler`` and ``rfilter`` are not read: exact and
+  converged sampling are the renderer's settings (a non-box filter gets a warning);
 - ``emitter`` ``point`` (``position`` or ``to_world``, ``intensity``): a point light,
   inverse-square, W/sr; other emitter types are refused (``EMITTERS``);
 - ``bsdf``: ``diffuse``, ``twosided``, ``conductor`` (``material = "none"``), ``dielectric``
@@ -693,10 +693,10 @@ def _sensor(ctx: _Ctx, node: Node, i: int) -> Camera:
             fr.rest()
             for sub in fr.p.objects:
                 if sub.tag == "rfilter" and sub.attrs.get("type") != "box":
-                    ctx.warn(sub, "rfilter ignored: converged renders use a box filter")
+                    ctx.warn(sub, f"<rfilter type=\"{sub.attrs.get('type')}\"> ignored: "
+                                  "converged renders use a box filter")
         elif target.tag == "sampler":
-            ctx.warn(target, "sampler ignored: exact mode traces one ray through each pixel "
-                             "centre; --spp renders stratified samples")
+            pass        # sampling is the renderer's (exact: pixel centres; --spp: strata)
         else:
             raise ctx.error(obj, f"<{target.tag}> inside a sensor is not supported")
     aspect = width / height
