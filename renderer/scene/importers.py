@@ -161,15 +161,20 @@ def assemble(path: Path, parts: list, normals: list, *, cameras, settings, light
                              "zero-area or empty)")
     scene = loader._assemble(r, parts, cameras, settings, lights, materials, ambient,
                              sources)
-    n64 = scene.normals64.copy()
+    n64, n32 = scene.normals64.copy(), scene.normals.copy()
     for obj, fn in zip(scene.objects, normals):
         if fn is None:
             continue
         length = np.linalg.norm(fn, axis=1, keepdims=True)
         sl = slice(obj.first_vertex, obj.first_vertex + obj.vertex_count)
         ok = (length[:, 0] > 1e-12) & np.all(np.isfinite(fn), axis=1)
-        n64[sl][ok] = fn[ok] / length[ok]
-    return replace(scene, normals=n64.astype(np.float32), normals64=n64)
+        unit = fn / np.where(length > 1e-12, length, 1.0)
+        n64[sl][ok] = unit[ok]
+        # A float32 file normal that is unit to float32 precision is kept as it is (an
+        # exported scene read back keeps its normals bit for bit).
+        exact = ok & (np.abs(length[:, 0] - 1) < 1e-6) & (fn.astype(np.float32) == fn).all(1)
+        n32[sl][ok] = np.where(exact[ok, None], fn[ok], unit[ok]).astype(np.float32)
+    return replace(scene, normals=n32, normals64=n64)
 
 
 def world_normals(n: np.ndarray, m: np.ndarray) -> np.ndarray:
