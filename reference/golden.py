@@ -48,6 +48,7 @@ import numpy as np
 from renderer.film import read_exr_layers, write_exr
 from renderer.outputs import OutputError, check_output_dir, write_text
 from renderer.scene import SHADING_MODES, Scene, load_scene
+from renderer.scene.importers import IMPORT_KINDS
 
 from . import MODES
 
@@ -244,13 +245,13 @@ def golden_inputs(scene: Scene, *, view: int, shading: str, mode: str,
     if scene.path is None:
         raise GoldenError(f"scene {scene.name!r} has no file; goldens exist only for files")
     files = [Path(f) for f in scene.source_files] or [Path(scene.path)]
+    imported = is_imported(scene.path) or any(o.kind in IMPORT_KINDS for o in scene.objects)
     return {
         "scene": scene_content_hash(scene.path),
         "meshes": [file_hash(f) for f in files[1:]],
         "view": view, "view_name": scene.cameras[view].name,
         "shading": shading, "mode": mode,
-        "code": {**harness_hashes(),
-                 **(import_hashes() if is_imported(scene.path) else {})},
+        "code": {**harness_hashes(), **(import_hashes() if imported else {})},
         "mitsuba_version": mitsuba or mitsuba_version(),
     }
 

@@ -277,3 +277,58 @@ def test_golden_key_of_an_imported_scene_covers_its_mtl(tmp_path):
     inputs = golden_inputs(scene2, view=0, shading="classic", mode="exact")
     assert content_key(inputs) != key
     assert "renderer/scene/objmtl.py" in inputs["code"]
+
+
+# ---- scene files naming other tools' files ---------------------------------------------------
+def test_scene_file_names_an_obj_with_its_mtl_and_a_ply_with_its_normals(tmp_path):
+    for f in ("cornell_box.obj", "cornell_box.mtl"):
+        (tmp_path / f).write_bytes((CORNELL.parent / f).read_bytes())
+    _ply_with_normals_and_colours(tmp_path / "tri.ply")
+    toml = tmp_path / "mixed.toml"
+    toml.write_text("""
+[camera]
+position = [278, 273, -800]
+target = [278, 273, 0]
+[[lights]]
+position = [278, 500, 200]
+intensity = 1.0
+[materials.grey]
+kd = 0.5
+[[objects]]
+name = "box"
+mesh = "cornell_box.obj"
+materials = "mtl"
+[[objects]]
+name = "tri"
+mesh = "tri.ply"
+material = "grey"
+normals = "file"
+translate = [278, 100, 200]
+""")
+    scene, _ = _load(toml)
+    direct, _ = _load(tmp_path / "cornell_box.obj")
+    box = [o for o in scene.objects if o.name.startswith("box.")]
+    assert [o.name for o in box] == [f"box.{o.name}" for o in direct.objects]
+    assert [scene.materials[o.material].name for o in box] == \
+        [direct.materials[o.material].name for o in direct.objects]
+    n = len(direct.vertices)
+    np.testing.assert_array_equal(scene.vertices[:n], direct.vertices)
+    tri = scene.objects[-1]
+    assert tri.name == "tri" and tri.smooth
+    np.testing.assert_allclose(scene.normals64[-3:], [[0, 0, 1], [0, 0.6, 0.8], [0, 0, 1]],
+                               atol=1e-7)
+    assert (tmp_path / "cornell_box.mtl").resolve() in scene.source_files
+    averaged = toml.read_text().replace('normals = "file"', 'normals = "averaged"')
+    toml.write_text(averaged)
+    flat = _load(toml)[0]
+    np.testing.assert_allclose(flat.normals64[-3:], [[0, 0, 1]] * 3, atol=1e-12)
+
+
+def test_normals_from_a_file_without_normals_is_one_clear_error(tmp_path):
+    (tmp_path / "m.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    toml = tmp_path / "s.toml"
+    toml.write_text('[camera]\nposition = [0, 0, 3]\ntarget = [0, 0, 0]\n'
+                    '[materials.a]\nkd = 1\n[[objects]]\nmesh = "m.obj"\nmaterial = "a"\n'
+                    'normals = "file"\n')
+    with pytest.raises(SceneError, match=r"s\.toml: objects\[0\]\.normals: .*'vn'"):
+        load_scene(toml)

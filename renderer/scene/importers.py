@@ -21,7 +21,15 @@ from pathlib import Path
 import numpy as np
 
 from . import loader, meshio, objmtl
-from .model import Camera, Material, PointLight, Scene, SceneError, Settings
+from .model import (
+    Camera,
+    Material,
+    PointLight,
+    Scene,
+    SceneError,
+    Settings,
+    validate_image_size,
+)
 
 __all__ = ["SCENE_FORMATS", "DEFAULT_MATERIAL", "auto_camera", "default_light",
            "load_scene", "obj_parts", "load_obj_scene", "load_ply_scene"]
@@ -55,7 +63,7 @@ def load_scene(path, *, shading: str | None = None, camera: str | None = None,
         raise SceneError(f"{path}: -D {next(iter(defines))}=...: parameters are for Mitsuba "
                          "XML scenes only")
     if suffix == ".toml":
-        scene = loader.load_scene(path, shading=shading)
+        scene = load_toml(path, shading=shading)
     elif suffix == ".obj":
         scene = load_obj_scene(path, shading=shading)
     elif suffix == ".ply":
@@ -70,6 +78,145 @@ def load_scene(path, *, shading: str | None = None, camera: str | None = None,
     if camera == "auto":
         scene = replace(scene, cameras=[auto_camera(scene)])
     return scene
+
+
+# ---- TOML objects that read more of a mesh file ----------------------------------------------
+#: ``[[objects]]`` keys read here rather than by ``loader``: ``materials = "mtl"`` (an OBJ's
+#: groups with their MTL materials) and ``normals = "file" | "averaged"`` (a mesh's own
+#: vertex normals, or the averaged ones: the default).
+OBJECT_IMPORT_KEYS = ("materials", "normals")
+NORMAL_SOURCES = ("averaged", "file")
+#: Object kinds of parts built from those keys (goldens of such scenes are keyed by the
+#: importers' code too: ``reference.golden``).
+IMPORT_KINDS = ("obj+mtl", "obj+normals", "ply+normals")
+
+
+def load_toml(path, *, shading: str | None = None) -> Scene:
+    """``loader.load_scene``; for a file whose objects use ``OBJECT_IMPORT_KEYS``, the same
+    reading (the loader's table readers, in its order) with those objects built here
+    (``_import_object``)."""
+    path = Path(path)
+    data = loader._read_toml(path)
+    objs = data.get("objects")
+    if not isinstance(objs, list) or not any(
+            isinstance(o, dict) and set(o) & set(OBJECT_IMPORT_KEYS) for o in objs):
+        return loader.load_scene(path, shading=shading)
+    r = loader._Reader(path)
+    r.keys(data, loader._TOP_KEYS, "")
+    if "description" in data:
+        r.string(data["description"], "description")
+    settings = loader._read_render(r, data, shading)
+    look = loader._read_physical(r, data, settings)
+    settings = replace(settings, background=look.background)
+    cameras = loader._read_views(r, data)
+    for i, cam in enumerate(cameras):
+        try:
+            validate_image_size(cam.width, cam.height, settings.spp,
+                                f"views[{i}]" if "views" in data else "camera")
+        except SceneError as e:
+            raise SceneError(f"{r.path}: {e}", field=e.field) from None
+    lights = loader._read_lights(r, data, settings.shading, look.light_scale)
+    materials = loader._read_materials(r, data)
+    index = {m.name: i for i, m in enumerate(materials)}
+    # The import objects stand in as plain mesh objects of a placeholder material, so the
+    # loader checks their common keys (name, mesh, transform, smooth) and names them.
+    placeholder = len(materials)
+    plain = []
+    for ot in objs:
+        if isinstance(ot, dict) and set(ot) & set(OBJECT_IMPORT_KEYS):
+            ot = {k: v for k, v in ot.items() if k not in OBJECT_IMPORT_KEYS}
+            ot.setdefault("material", _PLACEHOLDER)
+        plain.append(ot)
+    parts, sources = loader._read_objects(r, {"objects": plain},
+                                          {**index, _PLACEHOLDER: placeholder})
+    check = loader._read_check(r, data)
+    out, normals, names = [], [], {p.name for p in parts}
+    for i, (ot, part) in enumerate(zip(objs, parts)):
+        if isinstance(ot, dict) and set(ot) & set(OBJECT_IMPORT_KEYS):
+            more, fns, files = _import_object(r, ot, f"objects[{i}]", part, materials,
+                                              index, names)
+            out += more
+            normals += fns
+            sources += [f for f in files if f not in sources]
+        else:
+            out.append(part)
+            normals.append(None)
+    scene = assemble(path, out, normals, cameras=cameras, settings=settings, lights=lights,
+                     materials=materials, ambient=look.ambient,
+                     sources=[path.resolve(), *sources])
+    return replace(scene, check=check)
+
+
+_PLACEHOLDER = "\x00import"
+
+
+def _import_object(r, ot: dict, where: str, part, materials: list[Material], index: dict,
+                   names: set):
+    """The parts of one ``[[objects]]`` entry with ``materials = "mtl"`` and/or ``normals``
+    (``part`` is the loader's reading of it as a plain mesh object: its name, world-space
+    positions and smooth flag). Returns (parts, file normals per part, files read)."""
+    source = r.string(ot.get("normals", "averaged"), f"{where}.normals", NORMAL_SOURCES)
+    if "mesh" not in ot:
+        raise r.error(f"{where}.{'materials' if 'materials' in ot else 'normals'}",
+                      "needs a mesh file (mesh = \"...\")")
+    mesh = r.path.parent / ot["mesh"]
+    suffix = mesh.suffix.lower()
+    m = loader._transform(r, ot, where)
+    flip = (np.linalg.det(m[:3, :3]) < 0) != bool(ot.get("flip_normals", False))
+    if "subdivide" in ot and (source == "file" or "materials" in ot):
+        raise r.error(f"{where}.subdivide", "not available with materials = \"mtl\" or "
+                                            "normals = \"file\"")
+    try:
+        if "materials" in ot:
+            r.string(ot["materials"], f"{where}.materials", ("mtl",))
+            if "material" in ot:
+                raise r.error(f"{where}.materials", "give either 'material' or materials = "
+                                                    "\"mtl\", not both")
+            if suffix != ".obj":
+                raise r.error(f"{where}.materials", "materials = \"mtl\" needs an .obj mesh")
+            smooth = ot.get("smooth")
+            names.discard(part.name)
+            parts, fns, files = obj_parts(mesh, materials, m, normals=source,
+                                          smooth=smooth, taken=names, kind="obj+mtl",
+                                          prefix=part.name)
+            index.update({mt.name: k for k, mt in enumerate(materials)})
+        elif suffix == ".ply":
+            p, fn, ply = ply_part(mesh, m, material=part.material, normals=source,
+                                  name=part.name)
+            if source == "file" and ply.normals is None:
+                raise r.error(f"{where}.normals", f"{mesh} has no vertex normals (nx, ny, "
+                                                  "nz); use normals = \"averaged\"")
+            p.kind, p.smooth = "ply+normals", bool(ot.get("smooth", fn is not None))
+            parts, fns, files = [p], [fn], []
+        else:
+            mats: list[Material] = []
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")     # its MTL is not asked for
+                groups, gfns, _ = obj_parts(mesh, mats, m, normals=source, taken=set())
+            if source == "file" and any(fn is None for fn in gfns):
+                raise r.error(f"{where}.normals", f"{mesh}: not every face vertex has a "
+                                                  "'vn' normal; use normals = \"averaged\"")
+            parts, fns, files = _merge(groups, gfns, part, "obj+normals")
+            parts[0].smooth = bool(ot.get("smooth", fns[0] is not None or part.smooth))
+    except meshio.MeshError as e:
+        raise r.error(f"{where}.mesh", str(e)) from None
+    except SceneError as e:
+        if str(e).startswith(str(r.path)):
+            raise
+        raise r.error(f"{where}.mesh", str(e)) from None
+    if flip != (np.linalg.det(m[:3, :3]) < 0):          # flip_normals on top of a mirror
+        for p in parts:
+            p.faces = p.faces[:, [0, 2, 1]]
+    return parts, fns, files
+
+
+def _merge(groups, normals, part, kind):
+    """One part (the loader's name and material) of an OBJ's groups."""
+    world = np.concatenate([g.world for g in groups])
+    offsets = np.cumsum([0] + [len(g.world) for g in groups])
+    faces = np.concatenate([g.faces + o for g, o in zip(groups, offsets)])
+    fn = np.concatenate(normals) if all(n is not None for n in normals) else None
+    return [loader._Part(part.name, kind, part.material, part.smooth, world, faces)], [fn], []
 
 
 # ---- framing ---------------------------------------------------------------------------------
@@ -190,7 +337,7 @@ def _transform(m: np.ndarray, verts: np.ndarray) -> np.ndarray:
 # ---- OBJ + MTL -------------------------------------------------------------------------------
 def obj_parts(path: Path, materials: list[Material], m: np.ndarray | None = None, *,
               normals: str = "file", smooth: bool | None = None, taken: set | None = None,
-              kind: str = "obj", flat: bool = False):
+              kind: str = "obj", flat: bool = False, prefix: str | None = None):
     """The parts of an OBJ file: one per group (``objmtl.read_obj``), its MTL materials
     appended to ``materials`` (faces without ``usemtl`` get ``DEFAULT_MATERIAL``; a name
     already in ``materials`` is reused).
@@ -198,7 +345,8 @@ def obj_parts(path: Path, materials: list[Material], m: np.ndarray | None = None
     m: 4x4 object-to-world transform (default identity). normals: "file" (``vn`` where
     every face vertex of a group has one) or "averaged". smooth: force smooth shading on
     (True) or off (False); None: smooth where the group has ``vn`` normals or a smoothing
-    group (``s`` != 0). flat: every group flat (Mitsuba's ``face_normals``).
+    group (``s`` != 0). flat: every group flat (Mitsuba's ``face_normals``). prefix:
+    object names are ``<prefix>.<group name>`` (a scene file's object name).
     Returns (parts, file normals per part, files read: the OBJ and its MTLs). Warnings name
     file and line for everything ignored. Raises MeshError / SceneError."""
     m = np.eye(4) if m is None else m
@@ -245,7 +393,8 @@ def obj_parts(path: Path, materials: list[Material], m: np.ndarray | None = None
         is_smooth = (has_vn or g.smoothing != 0) if smooth is None else smooth
         if flat:
             is_smooth = False
-        name = _unique_name(g.name or Path(path).stem, g, taken)
+        base = g.name or Path(path).stem
+        name = _unique_name(base if prefix is None else f"{prefix}.{base}", g, taken)
         world, faces, fn = _clean(path, name, _transform(m, verts), faces, fn)
         if mirror:
             faces = faces[:, [0, 2, 1]]
