@@ -378,12 +378,15 @@ def test_export_then_import_renders_the_bundled_scene_bit_for_bit(tmp_path, name
     assert a.max() > 0 and np.array_equal(a, b)
 
 
-@pytest.mark.parametrize("source", ["cornell", "xml"])
+@pytest.mark.parametrize("source", ["cornell", "xml", "ply"])
 def test_convert_writes_a_toml_that_renders_the_same(tmp_path, capsys, source):
     from renderer.render import render
     from whitted.cli import main
     if source == "cornell":
         src, extra = CORNELL, []
+    elif source == "ply":
+        src, extra = tmp_path / "tri.ply", []
+        _ply_with_normals_and_colours(src)
     else:
         src, extra = DATA / "teapot_direct.xml", ["-D", f"teapot={TEAPOT}", "-D", "res=24"]
     out = tmp_path / "conv.toml"
