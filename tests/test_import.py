@@ -156,13 +156,17 @@ def test_ignored_obj_statements_are_one_warning_each_with_the_line(tmp_path):
 
 
 # ---- PLY -------------------------------------------------------------------------------------
+#: A float32 unit normal that normalising in float64 and rounding would move by one ulp.
+KEPT = (-0.7905711531639099, 0.5492416620254517, 0.27079683542251587)
+
+
 def _ply_with_normals_and_colours(path: Path) -> None:
     head = ("ply\nformat binary_little_endian 1.0\nelement vertex 3\n"
             "property float x\nproperty float y\nproperty float z\n"
             "property float nx\nproperty float ny\nproperty float nz\n"
             "property uchar red\nproperty uchar green\nproperty uchar blue\n"
             "element face 1\nproperty list uchar int vertex_indices\nend_header\n")
-    rows = [(0, 0, 0, 0, 0, 1, 255, 0, 0), (1, 0, 0, 0, 0.6, 0.8, 255, 0, 0),
+    rows = [(0, 0, 0, 0, 0, 1, 255, 0, 0), (1, 0, 0, *KEPT, 255, 0, 0),
             (0, 1, 0, 0, 0, 3, 0, 0, 255)]
     body = b"".join(struct.pack("<6f3B", *r) for r in rows) + struct.pack("<B3i", 3, 0, 1, 2)
     path.write_bytes(head.encode() + body)
@@ -173,8 +177,10 @@ def test_ply_normals_are_used_and_colours_averaged(tmp_path):
     _ply_with_normals_and_colours(p)
     scene, notes = _load(p)
     assert scene.objects[0].smooth
-    np.testing.assert_allclose(scene.normals64, [[0, 0, 1], [0, 0.6, 0.8], [0, 0, 1]],
-                               atol=1e-7)
+    np.testing.assert_allclose(scene.normals_of(True), [[0, 0, 1], KEPT, [0, 0, 1]], atol=1e-7)
+    # a file normal that is unit in float32 keeps its bits (an export read back renders
+    # the same image)
+    assert scene.normals[1].tolist() == list(KEPT)
     np.testing.assert_allclose(scene.materials[0].kd, [2 / 3, 0, 1 / 3])
     assert any("vertex colours averaged" in n for n in notes)
 
@@ -213,6 +219,22 @@ def test_xml_fov_axes_and_matrix_sensor_agree_with_lookat(tmp_path):
     d = _load(diag)[0].cameras[0]
     assert np.tan(np.radians(d.fov_y) / 2) == pytest.approx(np.tan(np.radians(35) / 2)
                                                             / np.sqrt(2))
+    # the same view as Mitsuba's look-at matrix (columns left, up, dir, origin)
+    left = np.cross([0, 1, 0], cam.target - cam.position)
+    m = np.eye(4)
+    m[:3, 0] = left / np.linalg.norm(left)
+    m[:3, 2] = (cam.target - cam.position) / np.linalg.norm(cam.target - cam.position)
+    m[:3, 1], m[:3, 3] = np.cross(m[:3, 2], m[:3, 0]), cam.position
+    matrix = tmp_path / "m.xml"
+    matrix.write_text(diag.read_text().replace('value="diagonal"', 'value="x"').replace(
+        '<lookat origin="1, 5, 11" target="0.2, 1.3, 0" up="0, 1, 0"/>',
+        f'<matrix value="{" ".join(map(repr, m.reshape(-1).tolist()))}"/>'))
+    mc = _load(matrix)[0].cameras[0]
+    np.testing.assert_allclose(mc.position, cam.position)
+    d0 = (cam.target - cam.position) / np.linalg.norm(cam.target - cam.position)
+    np.testing.assert_allclose(mc.target - mc.position, d0, atol=1e-12)
+    np.testing.assert_allclose(np.cross(mc.up, d0), np.cross(cam.up, d0) /
+                               np.linalg.norm(np.cross(cam.up, d0)), atol=1e-12)
 
 
 @pytest.mark.parametrize("edit, message", [
@@ -315,7 +337,7 @@ translate = [278, 100, 200]
     np.testing.assert_array_equal(scene.vertices[:n], direct.vertices)
     tri = scene.objects[-1]
     assert tri.name == "tri" and tri.smooth
-    np.testing.assert_allclose(scene.normals64[-3:], [[0, 0, 1], [0, 0.6, 0.8], [0, 0, 1]],
+    np.testing.assert_allclose(scene.normals_of(True)[-3:], [[0, 0, 1], KEPT, [0, 0, 1]],
                                atol=1e-7)
     assert (tmp_path / "cornell_box.mtl").resolve() in scene.source_files
     averaged = toml.read_text().replace('normals = "file"', 'normals = "averaged"')
