@@ -13,7 +13,9 @@ PAGE = r"""<!doctype html>
           user-select: none; }
  #frame { display: block; image-rendering: pixelated; }
  #overlay { position: absolute; left: 6px; top: 6px; background: rgba(0,0,0,.6);
-            padding: 4px 6px; font: 12px monospace; white-space: pre; pointer-events: none; }
+            padding: 4px 6px; font: 12px monospace; white-space: pre-wrap; pointer-events: none;
+            max-width: calc(100% - 24px); }
+ #sbs-img { display: block; width: 100%; max-width: 1024px; image-rendering: pixelated; }
  #side { width: 300px; padding: 8px; background: #2a2a2a; min-height: 100vh; }
  #side label { display: block; margin: 4px 0; }
  #side select { width: 100%; }
@@ -109,11 +111,12 @@ ws.onmessage = (ev) => {
   else if (m.t === "frame") {
     const img = $("frame"), o = m.overlay;
     img.src = "data:image/jpeg;base64," + m.img;
-    if (opts) img.style.width = opts.size[0] * Math.max(1, Math.floor(640 / opts.size[0])) + "px";
+    if (opts) img.style.width = opts.size[0] * Math.max(1, Math.floor(512 / opts.size[0])) + "px";
     img.dataset.seq = o.seq; img.dataset.width = o.size[0]; img.dataset.moving = o.moving;
     $("overlay").textContent =
       "frame " + fmt(o.frame_ms, 1) + " ms (render " + fmt(o.render_ms, 1) + ", encode " +
       fmt(o.encode_ms, 1) + ")  " + o.size[0] + "x" + o.size[1] + (o.moving ? " moving" : "") +
+      (o.recorded ? " (recorded the kernels)" : "") +
       "\nmessage->sent " + fmt(o.latency_ms, 1) + " ms  " + (o.rays_per_s / 1e6).toFixed(2) +
       " Mrays/s\n" + o.effects;
     $("overlay").dataset.effects = o.effects;
