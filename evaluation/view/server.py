@@ -20,12 +20,14 @@ The session's Dr.Jit work runs in one worker thread, one frame at a time; input 
 arrives meanwhile is applied at once and the next frame shows all of it. While input keeps
 coming (within ``STILL_SECONDS``) frames are rendered at the moving size; then one frame at
 full size follows. Every frame's time from the first camera message it answers to the image
-sent is measured server-side (``latency_ms`` in the next overlay).
+sent is measured server-side (``latency_ms`` in the next overlay; ``ViewServer.records``
+keeps each frame's: message to sent, render, encode (JPEG, base64, JSON), send).
 """
 from __future__ import annotations
 
 import asyncio
 import base64
+import collections
 import json
 import sys
 import time
@@ -59,7 +61,10 @@ class ViewServer:
         self.sbs_on = False
         self.sbs_dirty = False
         self.frames = 0
-        self.last_full = False
+        self.rendering = False
+        self.pending_cause = "input"
+        #: The last frames' server-side timings (``frame_record``), newest last.
+        self.records: collections.deque = collections.deque(maxlen=10000)
 
     # ---- aiohttp --------------------------------------------------------------------------
     def app(self):
@@ -112,6 +117,7 @@ class ViewServer:
             self.last_input = now
         if self.pending_since is None:
             self.pending_since = now
+            self.pending_cause = "input"
         self.sbs_dirty = self.sbs_on
         self.dirty.set()
 
@@ -171,8 +177,9 @@ class ViewServer:
         self.touch(still=True)
 
     # ---- output ---------------------------------------------------------------------------
-    async def broadcast(self, obj: dict) -> None:
-        text = json.dumps(obj)
+    async def broadcast(self, obj) -> None:
+        """Send ``obj`` (a dict, or its JSON text) to every page."""
+        text = obj if isinstance(obj, str) else json.dumps(obj)
         for ws in list(self.sockets):
             try:
                 await ws.send_str(text)
@@ -195,13 +202,16 @@ class ViewServer:
             if self.session.needs_compile(moving):
                 w, h = self.session._size(moving)
                 await self.say(f"recording the frame's kernels for {w}x{h} (once)")
-            since = self.pending_since
+            since, cause = self.pending_since, self.pending_cause
             self.pending_since = None
+            self.rendering = True
             try:
                 f = await self.run_in_worker(self.session.frame, moving)
             except Exception as e:  # noqa: BLE001 - the viewer keeps running
                 await self.say(f"error: frame: {one_line(e)}")
                 continue
+            finally:
+                self.rendering = False
             self.frames += 1
             cam = self.session.camera.as_dict()
             overlay = {
@@ -210,20 +220,34 @@ class ViewServer:
                 "latency_ms": self.last_latency_ms, "effects": f.effects,
                 "size": [f.width, f.height], "moving": f.moving, "recorded": f.recorded,
                 "seq": self.frames}
-            await self.broadcast({"t": "frame", "img": base64.b64encode(f.jpeg).decode(),
-                                  "overlay": overlay, "camera": cam})
+            t0 = time.perf_counter()
+            text = json.dumps({"t": "frame", "img": base64.b64encode(f.jpeg).decode(),
+                               "overlay": overlay, "camera": cam})
+            t1 = time.perf_counter()
+            await self.broadcast(text)
+            t2 = time.perf_counter()
             if since is not None:
-                self.last_latency_ms = (time.perf_counter() - since) * 1e3
+                self.last_latency_ms = (t2 - since) * 1e3
+                self.records.append({
+                    "cause": cause, "latency_ms": self.last_latency_ms,
+                    "render_ms": f.render_ms, "encode_ms": f.encode_ms + (t1 - t0) * 1e3,
+                    "send_ms": (t2 - t1) * 1e3, "width": f.width, "height": f.height,
+                    "moving": f.moving, "recorded": f.recorded, "bytes": len(f.jpeg)})
             if f.moving:
-                loop.call_later(STILL_SECONDS, self._maybe_still)
+                loop.call_later(STILL_SECONDS, self._maybe_still, self.frames)
             elif self.sbs_on and self.sbs_dirty and not self.dirty.is_set():
                 self.sbs_dirty = False
                 await self.side_by_side()
 
-    def _maybe_still(self) -> None:
+    def _maybe_still(self, seq: int) -> None:
+        """After a moving frame ``seq``: when no frame came after it and no input for
+        ``STILL_SECONDS``, the full-size frame is due."""
+        if self.rendering or self.frames != seq or self.dirty.is_set():
+            return
         if time.perf_counter() - self.last_input >= STILL_SECONDS - 1e-3:
             if self.pending_since is None:
                 self.pending_since = time.perf_counter()
+                self.pending_cause = "still"
             self.dirty.set()
 
     async def side_by_side(self) -> None:
@@ -246,12 +270,14 @@ class ViewServer:
 
 
 async def serve(session: ViewSession, *, host: str, port: int, out: Path, stop,
-                on_ready=None, log=print) -> None:
+                on_ready=None, log=print, server: ViewServer | None = None) -> None:
     """Serve ``session`` on ``host:port`` until ``stop()`` is true (checked every 0.1 s).
     Raises OSError when the port cannot be bound. ``on_ready(port)`` is called once the
-    socket listens (the port actually bound, for ``port`` 0)."""
+    socket listens (the port actually bound, for ``port`` 0). ``server``: the
+    ``ViewServer`` to run (default: a new one; a benchmark passes its own to read its
+    ``records``)."""
     from aiohttp import web
-    server = ViewServer(session, out, log=log)
+    server = server or ViewServer(session, out, log=log)
     runner = web.AppRunner(server.app(), handle_signals=False, access_log=None)
     await runner.setup()
     try:

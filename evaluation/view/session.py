@@ -1,13 +1,15 @@
 """The viewer's state and work, apart from any transport: camera, settings, frames, the
 side-by-side comparison with Mitsuba.
 
-``ViewSession`` holds one scene and the camera the user moves (``CameraState``). It renders
-with ``renderer.render.Renderer(..., freeze=True)``: a Renderer per combination of settings
-(render mode, effects, accelerator, triangle routine, precision, spawn rule, spp, shading),
-built once and kept, whose frozen frame function records once per image size and then only
-replays with a new ``CameraArrays``, so moving the camera never re-traces Python.
-``frame(moving)`` renders at ``moving_size`` while the camera moves and at ``size`` when it
-is still, and encodes the image as JPEG (``Frame``). ``needs_compile`` says beforehand
+``ViewSession`` holds one scene and the camera the user moves (``CameraState``). It keeps a
+``renderer.render.Renderer`` per combination of settings (render mode, effects,
+accelerator, triangle routine, precision, spawn rule, spp, shading), built once, and beside
+it one ``dr.freeze`` function of the Renderer's frame function followed by the 8-bit sRGB
+encoding (``srgb8_frame``: on the device, so the read-back is a quarter of the float
+image's bytes); it records once per image size and then only replays with a new
+``CameraArrays``, so moving the camera never re-traces Python. ``frame(moving)`` renders at
+``moving_size`` while the camera moves and at ``size`` when it is still, and encodes the
+image as JPEG (``Frame``). ``needs_compile`` says beforehand
 whether the next frame records (a new setting or size), so the caller can say so.
 
 ``side_by_side()`` renders the current camera in exact mode with the golden's spawn rule
@@ -59,6 +61,21 @@ STEP_FRACTION = 0.02
 TURN_DEGREES = 3.0
 DRAG_DEGREES = 0.3
 JPEG_QUALITY = 88
+
+
+def srgb8_frame(frame_fn, t):
+    """``dr.freeze`` of ``frame_fn`` (``renderer.render.make_frame_fn``'s function) followed
+    by ``film.srgb_encode``'s mapping on the device: ``f(cam, arrays, width, height)`` ->
+    UInt8 of ``height·width·3`` sRGB values, row-major (within one level of
+    ``srgb_encode`` of the float image: float32 rounding)."""
+    UInt8 = getattr(dr, t.backend).UInt8
+
+    def frame(cam, arrays, width: int, height: int):
+        v = frame_fn(cam, arrays, width, height).array
+        v = dr.clip(dr.select(dr.isnan(v), 0.0, v), 0.0, 1.0)
+        y = dr.select(v <= 0.0031308, 12.92 * v, 1.055 * dr.power(v, 1 / 2.4) - 0.055)
+        return UInt8(dr.round(y * 255.0))
+    return dr.freeze(frame)
 
 
 class MitsubaMissing(RuntimeError):
@@ -124,9 +141,10 @@ def _rotate(v: np.ndarray, axis: np.ndarray, degrees: float) -> np.ndarray:
 
 @dataclass
 class Frame:
-    """One encoded frame: jpeg (bytes), width, height; render_ms (frame function and
-    read-back), encode_ms (sRGB and JPEG); rays (camera rays traced); effects (the set's
-    text); moving (rendered at the moving size); recorded (this frame recorded kernels)."""
+    """One encoded frame: jpeg (bytes), width, height; render_ms (the frozen frame with
+    its sRGB encoding, and the read-back), encode_ms (JPEG); rays (camera rays traced);
+    effects (the set's text); moving (rendered at the moving size); recorded (this frame
+    recorded kernels); image: uint8 (H, W, 3) sRGB."""
 
     jpeg: bytes
     width: int
@@ -200,8 +218,8 @@ class ViewSession:
         self.camera = CameraState.of(cam0)
         self._scenes: dict[str, Scene] = {s.shading: self.base}
         self._renderers: dict[tuple, Renderer] = {}
+        self._frozen: dict[tuple, object] = {}
         self._recorded: set[tuple] = set()
-        self.last_image: np.ndarray | None = None
         self.saved = 0
         self.renderer()      # fail now (bad backend, no GPU) rather than in the first frame
 
@@ -240,10 +258,11 @@ class ViewSession:
         key = st.key()
         if key not in self._renderers:
             scene = self.scene_for(st)
-            self._renderers[key] = Renderer(
-                scene, backend=self.backend, precision=st.precision, accel=st.accel,
-                intersection=st.intersection, effects=self.effects_for(scene, st),
-                freeze=True)
+            r = Renderer(scene, backend=self.backend, precision=st.precision,
+                         accel=st.accel, intersection=st.intersection,
+                         effects=self.effects_for(scene, st))
+            self._frozen[key] = srgb8_frame(r.frame_fn, r.t)
+            self._renderers[key] = r
         return self._renderers[key]
 
     def scene_effects(self) -> EffectSet:
@@ -377,18 +396,19 @@ class ViewSession:
         """Render the current camera (at ``moving_size`` when ``moving``) and encode it."""
         w, h = self._size(moving)
         r = self.renderer()
+        fn = self._frozen[self.settings.key()]
         ca = r.camera(self.camera.camera(w, h))
         dr.sync_thread()
         t0 = time.perf_counter()
-        img = np.asarray(r.frame(ca, w, h).numpy(), dtype=np.float32)
+        u8 = fn(ca, r.arrays, w, h)
+        dr.eval(u8)
+        img = np.asarray(u8.numpy()).reshape(h, w, 3)
         t1 = time.perf_counter()
-        jpeg = encode_jpeg(srgb_encode(img))
+        jpeg = encode_jpeg(img)
         t2 = time.perf_counter()
         k = (self.settings.key(), (w, h))
         recorded = k not in self._recorded
         self._recorded.add(k)
-        if not moving:
-            self.last_image = img
         return Frame(jpeg=jpeg, width=w, height=h, render_ms=(t1 - t0) * 1e3,
                      encode_ms=(t2 - t1) * 1e3, rays=w * h * r.spp, effects=str(r.effects),
                      moving=moving, recorded=recorded, image=img)
@@ -400,7 +420,10 @@ class ViewSession:
         writes, nothing replaced). Returns both paths."""
         out = Path(out_dir)
         out.mkdir(parents=True, exist_ok=True)
-        img = self.frame(moving=False).image
+        w, h = self.size
+        r = self.renderer()
+        img = np.asarray(r.frame(r.camera(self.camera.camera(w, h)), w, h).numpy(),
+                         np.float32)
         n = self.saved + 1
         while (out / f"{self.base.name}_view{n}.exr").exists() or \
                 (out / f"{self.base.name}_view{n}.png").exists():
