@@ -8,7 +8,7 @@ leaves when the previous frame has arrived, so frames never merge), with the mov
 equal to ``--size`` so every frame is rendered at that size. The server records, per frame,
 the time from the camera message's arrival to the image sent (``ViewServer.records``):
 render (frozen frame and read-back), encode (sRGB, JPEG, base64, JSON) and send. The first
-frame (recording the kernels) and ``--warmup`` more are left out. Writes
+frame (the connection's, recording the kernels) and ``--warmup`` more are left out. Writes
 ``viewer-<backend>.json`` and ``.md`` (the device named, frames per second = 1000 / median
 message-to-sent ms, the encode's share of it) and never replaces them without ``--force``.
 """
@@ -83,7 +83,8 @@ def bench_scene(path, *, backend: str, size, frames: int = 60, warmup: int = 3,
     session = ViewSession(path, backend=backend, size=size, moving_size=size, scene=scene)
     upload_s = time.perf_counter() - t0
     load = os.getloadavg()
-    recs = asyncio.run(_drive(session, frames + warmup + 1, step_px, timeout))
+    # records[0]: the frame of the connection (it records the kernels); then one per message
+    recs = asyncio.run(_drive(session, frames + warmup, step_px, timeout))
     first, timed = recs[0], recs[warmup + 1:]
     if not timed:
         raise RuntimeError(f"{scene.name}: no frame answered a camera message")
