@@ -75,7 +75,7 @@ function init(m) {
   opts = m; filling = true;
   $("title").textContent = "whitted view: " + m.scene + " (" + m.backend + ")";
   const v = m.values;
-  if (!$("preset").options.length) fill("preset", m.presets);
+  if (!$("preset").options.length) fill("preset", m.presets, m.view);
   fill("mode", m.modes, v.mode); fill("accel", m.accels, v.accel);
   fill("intersection", m.routines, v.intersection); fill("precision", m.precisions, v.precision);
   fill("spawn", m.spawns, v.spawn); fill("spp", m.spps, v.spp);

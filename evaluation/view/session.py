@@ -216,6 +216,7 @@ class ViewSession:
         self.moving_size = tuple(moving_size) if moving_size else (
             max(1, self.size[0] // 2), max(1, self.size[1] // 2))
         self.camera = CameraState.of(cam0)
+        self.view_name = cam0.name
         self._scenes: dict[str, Scene] = {s.shading: self.base}
         self._renderers: dict[tuple, Renderer] = {}
         self._frozen: dict[tuple, object] = {}
@@ -281,7 +282,7 @@ class ViewSession:
             "accels": list(ACCELERATORS), "routines": list(ROUTINES),
             "precisions": list(PRECISIONS), "spawns": list(SPAWN_RULES),
             "spps": list(SPP_CHOICES), "shadings": list(SHADING_MODES),
-            "presets": self.presets,
+            "presets": self.presets, "view": self.view_name,
             "values": {"mode": st.mode, "accel": st.accel or default_accel(r.t.backend),
                        "intersection": st.intersection, "precision": st.precision,
                        "spawn": st.spawn, "spp": st.spp, "shading": st.shading,
@@ -383,6 +384,7 @@ class ViewSession:
         names = self.presets
         i = names.index(name_or_index) if name_or_index in names else int(name_or_index)
         self.camera = CameraState.of(self.base.cameras[i])
+        self.view_name = names[i]
 
     # ---- frames -------------------------------------------------------------------------
     def _size(self, moving: bool) -> tuple[int, int]:
