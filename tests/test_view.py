@@ -98,6 +98,21 @@ def test_render_mode_primary_only(session):
     assert session.settings.mode == "full"
 
 
+def test_menus_accelerator_and_routine(session):
+    session.preset(0)
+    base = session.frame().image
+    try:
+        session.set_option("accel", "brute")          # every accelerator: the same pixels
+        brute = session.frame()
+        assert brute.recorded and np.array_equal(brute.image, base)
+        session.set_option("intersection", "moller_trumbore")
+        mt = session.frame()
+        assert mt.recorded and np.abs(mt.image.astype(int) - base).mean() < 0.5
+    finally:
+        session.set_option("accel", "bvh4")
+        session.set_option("intersection", "watertight")
+
+
 def test_saved_view_and_view_table_read_back(session, tmp_path):
     session.preset(1)
     session.orbit(-30, 5)
