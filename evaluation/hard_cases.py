@@ -971,11 +971,11 @@ def case_mitsuba_parity(cfg: Config, spec: dict) -> list[Row]:
     reported (it is not watertight). Renders: ``parity_scenes``, ours with ``spawn =
     "mitsuba"`` (so both trace the same rays) against Mitsuba's exact-mode ``whitted``
     render in each Embree mode; pixels over 1e-3 apart are counted and those not explained
-    as ties on shared edges (``evaluation.agreement.edge_mask``) must number 0 against robust
+    as ties on shared edges (``evaluation.gate.agreement.edge_mask``) must number 0 against robust
     Embree, but in ``PARITY_TIES_BY_DESIGN`` (reported)."""
     if cfg.backend != "llvm" or "float32" not in cfg.precisions:
         return []
-    from evaluation.agreement import TOL, edge_mask
+    from evaluation.gate.agreement import TOL, edge_mask
     from reference import mitsuba_variant
     from reference.robust import closest_t, render_exact_mode
     from renderer.render import render

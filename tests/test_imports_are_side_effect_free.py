@@ -18,7 +18,8 @@ def _python(code: str) -> str:
 def test_evaluation_and_reference_import_without_mitsuba():
     out = _python(
         "import sys\n"
-        "import evaluation, evaluation.metrics, evaluation.rules, evaluation.report\n"
+        "import evaluation, evaluation.gate.metrics, evaluation.gate.rules\n"
+        "import evaluation.gate.report, evaluation.gate.verdict\n"
         "import evaluation.bench\n"
         "import reference, reference.golden, reference.mitsuba_scene\n"
         "print(sorted(m for m in sys.modules if m.split('.')[0] == 'mitsuba'))\n")

@@ -9,7 +9,7 @@ import numpy as np
 
 from evaluation.bench.peer import deepest, peer_compiles, peer_note, plan, whitted_frame_peer
 from evaluation.bench.peer import markdown as peer_markdown
-from evaluation.rules import EXACT_THRESHOLDS, check_exact
+from evaluation.gate.rules import EXACT_THRESHOLDS, check_exact
 from reference import mitsuba_variant
 from reference.mitsuba_scene import render_exact
 from reference.peer import load_peer

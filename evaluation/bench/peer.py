@@ -44,9 +44,10 @@ from pathlib import Path
 
 import numpy as np
 
+from evaluation.gate.metrics import image_difference
+from evaluation.gate.rules import EXACT_THRESHOLDS, check_exact, tie_probe
+
 from .. import SEED_SCENES
-from ..metrics import image_difference
-from ..rules import EXACT_THRESHOLDS, check_exact, tie_probe
 from .frames import frozen_frame_ms
 from .part import Context, Part, table
 
@@ -142,7 +143,7 @@ def peer_frame_ms(scene, *, backend: str, frames: int = 20, warmup: int = 3) -> 
 def agreement(ours: np.ndarray, peer: np.ndarray, ties: np.ndarray | None = None) -> dict:
     """Peer vs ours: the bench's image difference, the fraction of pixels whose channels all
     agree within 1e-3 (absolute), and the harness's exact-mode rule (``check_exact``, the
-    peer in the golden's place; ``ties``: our tie mask, ``evaluation.rules.tie_probe``,
+    peer in the golden's place; ``ties``: our tie mask, ``evaluation.gate.rules.tie_probe``,
     without which no pixel is excused)."""
     d = image_difference(ours, peer)
     err = np.abs(np.asarray(ours, np.float64) - np.asarray(peer, np.float64)).max(-1)
@@ -155,7 +156,7 @@ def agreement(ours: np.ndarray, peer: np.ndarray, ties: np.ndarray | None = None
 
 
 def tie_mask(scene, backend: str, accel: str | None) -> np.ndarray:
-    """Our tie mask of ``scene``'s first view (``evaluation.rules.tie_probe``; untimed)."""
+    """Our tie mask of ``scene``'s first view (``evaluation.gate.rules.tie_probe``; untimed)."""
     return tie_probe(scene, 0, backend=backend, accel=accel)[1]
 
 

@@ -1,8 +1,8 @@
 """How many pixels the exact rule excuses, per golden case: before (the image-space rule of
 issue 9: a 3x3 neighbourhood range +- 0.02 plus a 0.5 % pixel budget) and now (the tie
-probe: ``evaluation.rules.tie_probe``, no neighbourhood, no budget).
+probe: ``evaluation.gate.rules.tie_probe``, no neighbourhood, no budget).
 
-    python -m evaluation.tie_count [--cases SUBSTR ...] [--out results/rules/exact_ties.json]
+    python -m evaluation.meta.tie_count [--cases SUBSTR ...] [--out results/rules/exact_ties.json]
                                    [--slack F] [--ray-epsilon E]
 
 ``--slack`` tries another tie-probe distance (fraction of the diagonal); ``--ray-epsilon``
@@ -24,8 +24,8 @@ from pathlib import Path
 
 import numpy as np
 
-from . import write_result
-from .rules import EXACT_THRESHOLDS, ROOT, cases, check_exact, matching, tie_probe
+from evaluation import write_result
+from evaluation.gate.rules import EXACT_THRESHOLDS, ROOT, cases, check_exact, matching, tie_probe
 
 
 def old_edge_rule(ours: np.ndarray, ref: np.ndarray) -> np.ndarray:
@@ -51,7 +51,7 @@ def main(argv=None) -> int:
     from reference.golden import load_golden
     from renderer.scene import load_scene
 
-    ap = argparse.ArgumentParser(prog="python -m evaluation.tie_count",
+    ap = argparse.ArgumentParser(prog="python -m evaluation.meta.tie_count",
                                  description=__doc__.split("\n\n")[0])
     ap.add_argument("--cases", nargs="*", default=[])
     ap.add_argument("--out", default=str(ROOT / "results/rules/exact_ties.json"))

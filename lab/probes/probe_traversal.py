@@ -1,11 +1,11 @@
 """Probe: traversal variants against Mitsuba on the GPU (``results/h200/throughput/branches.md``).
 
-    python -m evaluation.bench.probe_traversal --mode branches [--backend cuda] [--out DIR]
-    python -m evaluation.bench.probe_traversal --mode leaf ...    [--size WxH] [--force]
-    python -m evaluation.bench.probe_traversal --mode setup ...
-    python -m evaluation.bench.probe_traversal --mode slab ...
-    python -m evaluation.bench.probe_traversal --mode optimize ...
-    python -m evaluation.bench.probe_traversal --mode refill-count ...
+    python -m lab.probes.probe_traversal --mode branches [--backend cuda] [--out DIR]
+    python -m lab.probes.probe_traversal --mode leaf ...    [--size WxH] [--force]
+    python -m lab.probes.probe_traversal --mode setup ...
+    python -m lab.probes.probe_traversal --mode slab ...
+    python -m lab.probes.probe_traversal --mode optimize ...
+    python -m lab.probes.probe_traversal --mode refill-count ...
 
 ``branches``: the traversal steps written inline with masked updates (what CUDA ran before
 ``traverse.masked_step`` became a symbolic ``if`` everywhere) against real branches for both
@@ -42,15 +42,14 @@ import renderer.accel.bvh as bvh_module
 import renderer.accel.traverse as traverse_module
 import renderer.accel.triangle as TR
 import renderer.accel.wide as wide_module
+from evaluation import wxh
+from evaluation.bench import throughput as T
+from lab.probes.common import probe_parser, run_probe
 from renderer.accel import ACCELERATORS
 from renderer.accel.base import Ray
 from renderer.accel.bvh_build import build_bvh
 from renderer.device import array3, types
 from renderer.scene import load_scene
-
-from .. import wxh
-from . import throughput as T
-from .part import probe_parser, run_probe
 
 SCENES = ("cornell_sphere", "platonic_solids", "bunny", "sponza", "conference")
 #: Which steps branch in the ``branches`` mode (set by each contender while it traces).

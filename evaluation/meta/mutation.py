@@ -1,9 +1,9 @@
 """Mutation check of the rules: plant one realistic bug at a time, run the tests that guard
 it, and count the mutants the tests catch.
 
-    python -m evaluation.mutation                 # every mutant, a table and the score
-    python -m evaluation.mutation NAME ...        # some mutants (names: --list)
-    python -m evaluation.mutation --json out.json # also write the results (atomically)
+    python -m evaluation.meta.mutation                 # every mutant, a table and the score
+    python -m evaluation.meta.mutation NAME ...        # some mutants (names: --list)
+    python -m evaluation.meta.mutation --json out.json # also write the results (atomically)
 
 Each mutant is a source patch of one renderer module (``old`` must occur exactly once in
 the file, so a refactor that moves the code makes the mutant *invalid*, said, not silently
@@ -34,9 +34,9 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from . import write_result
+from evaluation import write_result
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 
 #: pytest selections the mutants share.
 GOLDEN_EXACT = ["tests/test_golden_regression.py", "-k", "exact_matches"]
@@ -226,7 +226,7 @@ def run_one(name: str, extra: list[str]) -> int:
     os.chdir(ROOT)
     # --assert=plain: pytest's assertion-rewriting import hook goes first in sys.meta_path
     # and claims every module of a distribution that provides a pytest11 plugin (ours:
-    # evaluation.pytest_plugin), so with it renderer.* would be imported unpatched (measured:
+    # evaluation.gate.pytest_plugin), so with it renderer.* would be imported unpatched (measured:
     # every mutant survived)
     return int(pytest.main(["-x", "-q", "-p", "no:cacheprovider", "--assert=plain", *m.tests,
                             *extra]))
@@ -249,7 +249,8 @@ def run(names, *, timeout: float = 1800.0, progress=print) -> list[dict]:
             progress(f"[{i + 1}/{len(names)}] {name}: invalid ({e})")
             continue
         try:
-            p = subprocess.run([sys.executable, "-m", "evaluation.mutation", "--run-one", name],
+            p = subprocess.run([sys.executable, "-m", "evaluation.meta.mutation",
+                                "--run-one", name],
                                cwd=ROOT, capture_output=True, text=True, timeout=timeout)
             status = {0: "survived", 1: "caught"}.get(p.returncode, "invalid")
             tail = "\n".join((p.stdout + p.stderr).strip().splitlines()[-6:])
@@ -272,7 +273,7 @@ def score(results: list[dict]) -> dict:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m evaluation.mutation",
+    ap = argparse.ArgumentParser(prog="python -m evaluation.meta.mutation",
                                  description=__doc__.split("\n\n")[0])
     ap.add_argument("names", nargs="*", help="mutants to run (default: all)")
     ap.add_argument("--list", action="store_true", help="list the mutants and exit")

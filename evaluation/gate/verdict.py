@@ -6,7 +6,7 @@ style of OpenImageIO's ``idiff`` (the overall code of a run is the largest):
 ====  =========  ==========================================================================
 code  status     meaning
 ====  =========  ==========================================================================
-0     PASS       the rule of the mode passed (``evaluation.rules``)
+0     PASS       the rule of the mode passed (``evaluation.gate.rules``)
 1     WARN       it passed, but a ``[check.warn]`` level of the scene file was exceeded
 2     FAIL       the rule failed: our image differs from the golden
 3     SIZE       our image and the golden differ in size
@@ -18,12 +18,12 @@ code  status     meaning
 Each verdict carries the reason in one line, the pixels each rule excused (the exact rule
 excuses only pixels our tie probe shows to depend on a geometric tie, and lists each), the
 rule's numbers and the thresholds used (with their source: the defaults of
-``evaluation.rules`` or the scene file's ``[check]`` table). ``check_scenes`` runs them;
+``evaluation.gate.rules`` or the scene file's ``[check]`` table). ``check_scenes`` runs them;
 ``format_line``, ``to_json`` and ``write_junit`` present them.
 
-What is compared: exact mode, our image and its tie mask (``evaluation.rules.tie_probe``'s
+What is compared: exact mode, our image and its tie mask (``evaluation.gate.rules.tie_probe``'s
 two renders, here through the cached renderers); converged mode, ``batches`` independent
-renders of ours at the golden's ``batch_spp`` (``evaluation.rules.render_batches``: our own
+renders of ours at the golden's ``batch_spp`` (``evaluation.gate.rules.render_batches``: our own
 variance) against the golden's mean and variance.
 """
 from __future__ import annotations
@@ -112,7 +112,7 @@ def _unknown(scene, where: str, name: str, valid) -> SceneError:
 
 
 def thresholds_for(scene, mode: str) -> dict[str, Threshold]:
-    """The thresholds of ``mode`` for ``scene``: ``evaluation.rules.THRESHOLDS[mode]`` with the
+    """The thresholds of ``mode`` for ``scene``: ``evaluation.gate.rules.THRESHOLDS[mode]`` with the
     scene file's ``[check.<mode>]`` values in place of the defaults they name. Raises
     ``SceneError`` (file and field) for a name the rule does not have."""
     out = dict(THRESHOLDS[mode])
@@ -182,8 +182,8 @@ def explain(mode: str, res: dict, th: dict) -> tuple[str, dict[str, int]]:
 def judge(ours, golden, mode: str, th: dict, warn: dict | None = None,
           scene=None, ties: np.ndarray | None = None) -> tuple[str, str, dict, dict]:
     """Apply the rule of ``mode`` to ours and a ``reference.golden.Golden``: exact, our
-    image and ``ties``, its tie mask (``evaluation.rules.tie_probe``; None excuses
-    nothing); converged, our ``evaluation.rules.Batches`` at the golden's ``batch_spp``.
+    image and ``ties``, its tie mask (``evaluation.gate.rules.tie_probe``; None excuses
+    nothing); converged, our ``evaluation.gate.rules.Batches`` at the golden's ``batch_spp``.
 
     Returns (status, reason, excused, result): SIZE when the shapes differ, else PASS / FAIL
     from the rule, PASS turned WARN when a ``warn`` level (name -> value of the rule's
@@ -227,10 +227,10 @@ def plan_for(scene, modes=None, shadings=None) -> tuple[tuple, tuple]:
 def _ours(renderers: dict, scene, view: int, mode: str, golden, opts: dict, th: dict,
           render=None):
     """Ours for ``scene.cameras[view]`` at the golden's size and sampling: exact, ``(image,
-    ties)`` (``evaluation.rules.tie_probe``'s two renders: the renderer's and the one with
+    ties)`` (``evaluation.gate.rules.tie_probe``'s two renders: the renderer's and the one with
     ``tie_break="other"`` at ``tie_slack`` x the scene's diagonal); converged,
     ``(Batches, None)`` of ``th["batches"]`` renders at the golden's ``batch_spp``
-    (``evaluation.rules.render_batches``). One ``Renderer`` (upload and accelerator) per
+    (``evaluation.gate.rules.render_batches``). One ``Renderer`` (upload and accelerator) per
     scene, size and tie-break. ``render(renderer, view, label)`` renders an exact image
     (the CLI's ``whitted.progress.render_view``: a progress bar and Ctrl-C between bands)
     and returns a dict with the RenderResult under ``"result"``; None:
@@ -419,7 +419,7 @@ def write_junit(verdicts, path) -> None:
 
 
 def report_entries(verdicts):
-    """``evaluation.report.ReportEntry`` for every verdict with both images, failures first
+    """``evaluation.gate.report.ReportEntry`` for every verdict with both images, failures first
     (by exit code, largest first), each with its verdict and thresholds."""
     from .report import ReportEntry
     from .rules import exact_overlay

@@ -1,6 +1,6 @@
 """Probe: rays sorted before tracing, on the GPU (``results/h200/throughput/ray-sort.md``).
 
-    python -m evaluation.bench.probe_sort [--backend cuda] [--out DIR] [--force]
+    python -m lab.probes.probe_sort [--backend cuda] [--out DIR] [--force]
 
 For the incoherent and reflection batches of the throughput part, the binary and 4-wide
 BVHs plain and wrapped in sorted queries with several keys (``KeyedSort``), against
@@ -17,15 +17,14 @@ from pathlib import Path
 import drjit as dr
 import numpy as np
 
+from evaluation.bench import throughput as T
+from lab.probes.common import probe_parser, run_probe
 from renderer.accel import ACCELERATORS
 from renderer.accel.base import Ray
 from renderer.accel.bvh_build import build_bvh
 from renderer.accel.order import SortedQueries, _spread3
 from renderer.device import array3, types
 from renderer.scene import load_scene
-
-from . import throughput as T
-from .part import probe_parser, run_probe
 
 SCENES = ("cornell_sphere", "platonic_solids", "bunny", "sponza", "conference")
 #: (accelerator, key mode, origin bits per axis, direction bits per axis)

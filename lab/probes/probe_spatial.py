@@ -1,7 +1,7 @@
 """Probe: the BVH with and without spatial splits (``renderer.accel.spatial``) against
 Mitsuba, on the throughput part's batches.
 
-    python -m evaluation.bench.probe_spatial [--backend llvm] [--size 640x360]
+    python -m lab.probes.probe_spatial [--backend llvm] [--size 640x360]
         [--scenes sponza,conference] [--out DIR] [--force]
 
 Per scene: one build with ``spatial=0`` and one with the default, each as the binary and
@@ -18,15 +18,14 @@ from pathlib import Path
 import drjit as dr
 import numpy as np
 
+from evaluation import wxh
+from evaluation.bench import throughput as T
+from lab.probes.common import probe_parser, run_probe
+from lab.probes.probe_traversal import same_hits
 from renderer.accel import ACCELERATORS
 from renderer.accel.bvh_build import SPATIAL, build_bvh
 from renderer.device import types
 from renderer.scene import load_scene
-
-from .. import wxh
-from . import throughput as T
-from .part import probe_parser, run_probe
-from .probe_traversal import same_hits
 
 SCENES = ("sponza", "conference")
 

@@ -1,8 +1,8 @@
 """Where the watertight routine's time goes: variants of ``renderer.accel.triangle.watertight``
 that each drop one part (wrong on purpose: for timing only, never for rendering), measured
-through the same BVH on the routine-cost batches (``evaluation.routine_cost.measure``).
+through the same BVH on the routine-cost batches (``lab.probes.routine_cost.measure``).
 
-    python -m evaluation.routine_variants BACKEND WIDTH HEIGHT SCENES [REPEATS [OUT.json]]
+    python -m lab.probes.routine_variants BACKEND WIDTH HEIGHT SCENES [REPEATS [OUT.json]]
 
 e.g. ``cuda 1920 1080 cornell_box,bunny,conference 7 out.json`` (results/h200/routine/
 watertight-variants.md). The variants are registered in ``ROUTINES`` only in this process.

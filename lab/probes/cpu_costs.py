@@ -13,9 +13,9 @@ rays at once. This module times those operations alone, in CPU ns per 32-bit wor
   per-lane index inside a symbolic loop (the traversal stack).
 
 Records are drawn from a table that fits in L1 (300 records, 19 KB) or not (20 000,
-1.3 MB). Run: ``python -m evaluation.bench.cpu_costs`` (prints a markdown table).
+1.3 MB). Run: ``python -m lab.probes.cpu_costs`` (prints a markdown table).
 
-``step_fit(rows)`` / ``python -m evaluation.bench.cpu_costs --fit bench-llvm-throughput.json``:
+``step_fit(rows)`` / ``python -m lab.probes.cpu_costs --fit bench-llvm-throughput.json``:
 the per-step costs of a throughput run, by least squares over its (scene, batch, query)
 rows, per accelerator: CPU ns per 16-ray packet = a * node steps + b * triangle steps + c,
 the steps being those of each packet's slowest ray (``_steps``'s ``*_packet_max``).
@@ -111,7 +111,7 @@ def stack_ops(iterations: int = 40) -> dict:
 
 
 def markdown() -> list[str]:
-    from .part import table
+    from evaluation.bench.part import table
     rows = []
     for records in (300, 20_000):
         g = gathers(records)
@@ -161,7 +161,7 @@ def step_fit(rows: list[dict], lanes: int = 16) -> dict:
 
 
 def step_fit_markdown(rows: list[dict]) -> list[str]:
-    from .part import table
+    from evaluation.bench.part import table
     fit = step_fit(rows)
     cells = [[f"`{a}`", f"{f['node_ns']:.0f}", f"{f['triangle_ns']:.0f}",
               f"{f['const_ns']:.0f}", f"{f['iteration_ns']:.0f}", f"{f['r2']:.2f}",

@@ -2,11 +2,11 @@
 
 Two independent converged renders of OURS (16 batches each, batches 0-15 and 16-31 of
 ``render_batches``, at the golden's size and batch spp) are compared with
-``evaluation.rules.check_converged``, exactly as ours is compared with a golden: the same
+``evaluation.gate.rules.check_converged``, exactly as ours is compared with a golden: the same
 expectation on both sides, so every failure is a false failure. Also run: ours against the
 golden (the real check), for the record.
 
-    python -m evaluation.null_test [--cases SUBSTR ...] [--out results/null_test/null.json]
+    python -m evaluation.meta.null_test [--cases SUBSTR ...] [--out results/null_test/null.json]
 
 Writes a JSON record (per case: failed values/pixels and max |t| of the null pair and of
 ours vs golden; totals: false-failure rate over cases) atomically, and prints one line per
@@ -20,8 +20,8 @@ import sys
 import time
 from pathlib import Path
 
-from . import write_result
-from .rules import (
+from evaluation import write_result
+from evaluation.gate.rules import (
     CONVERGED_THRESHOLDS,
     OUR_SEED,
     ROOT,
@@ -39,7 +39,7 @@ def main(argv=None) -> int:
     from reference.golden import load_golden
     from renderer.scene import load_scene
 
-    ap = argparse.ArgumentParser(prog="python -m evaluation.null_test",
+    ap = argparse.ArgumentParser(prog="python -m evaluation.meta.null_test",
                                  description=__doc__.split("\n\n")[0])
     ap.add_argument("--cases", nargs="*", default=[], help="substrings of case names")
     ap.add_argument("--out", default=str(ROOT / "results/null_test/null.json"))

@@ -19,12 +19,12 @@ from typing import NamedTuple
 
 import numpy as np
 
+from evaluation import SEED_SCENES
 from reference import MODES
 
-from . import SEED_SCENES
 from .metrics import welch_test
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 #: Golden cases for what the seed scenes miss (issue 11): a non-black background in mirrors,
 #: Fresnel glass entered from outside, open glass, non-square images, inverse-square classic
 #: lights, physical ambient. They ship with the scenes (not under tests/) so that the gate
@@ -270,7 +270,7 @@ def check_converged(ours: Batches, ref: Batches, th: dict) -> dict:
     """Converged-mode rule: per-pixel-and-channel two-sample t-test of our mean (our own
     variance, from our ``Batches``) against the golden's (its batches' variance), pooled
     (both renderers sample the same estimator at the same spp under the null hypothesis),
-    Šidák-corrected at ``alpha`` (``evaluation.metrics.welch_test``). Passes iff every
+    Šidák-corrected at ``alpha`` (``evaluation.gate.metrics.welch_test``). Passes iff every
     value passes: no failure budget (the null test measured the false-failure rate
     without one). Returns the numbers, ``ok`` and the failing pixels (``failed``, [[y, x],
     ...], at most 50)."""

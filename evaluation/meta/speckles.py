@@ -1,7 +1,7 @@
 """The Mitsuba reference on CUDA against itself on LLVM, for each way of spawning rays.
 
 Usage (one GPU job, about a minute on an H200):
-``python -m evaluation.speckles --out DIR [--size 256] [--scenes platonic_solids,glass_bunny]
+``python -m evaluation.meta.speckles --out DIR [--size 256] [--scenes platonic_solids,glass_bunny]
 [--variants cuda_ad_rgb,llvm_ad_rgb] [--shading classic]``
 
 Mitsuba's CUDA render of platonic_solids (results/h100, middle panel) showed speckles inside

@@ -1,6 +1,6 @@
 """Probe: where a Whitted frame's time goes, by variants of our frozen frame.
 
-    python -m evaluation.bench.probe_frame [--backend cuda] [--size 1024] [--depth 2]
+    python -m lab.probes.probe_frame [--backend cuda] [--size 1024] [--depth 2]
         [--scenes cornell_box,cornell_sphere,platonic_solids,glass_bunny] [--out DIR] [--force]
 
 Per scene (exact mode, the peer part's frame: ``peer._at(scene, depth, size)``), the frozen
@@ -25,9 +25,8 @@ from pathlib import Path
 
 import numpy as np
 
+from lab.probes.common import probe_parser, run_probe
 from renderer.scene import load_scene
-
-from .part import probe_parser, run_probe
 
 SCENES = ("cornell_box", "cornell_sphere", "platonic_solids", "glass_bunny")
 VARIANTS = ("bvh", "rows", "block16x2", "block4x8", "bvh4", "bvh8", "bvh-nosplit",
@@ -38,9 +37,8 @@ BLOCK_VARIANTS = {"rows": None, "block16x2": (16, 2), "block4x8": (4, 8)}
 def _variant(scene, name: str, backend: str, frames: int) -> dict:
     """frozen_frame_ms of one variant of ``scene``."""
     import renderer.render as R
+    from evaluation.bench.frames import frozen_frame_ms
     from renderer.effects import EffectSet
-
-    from .frames import frozen_frame_ms
     accel, effects = "bvh", None
     if name in ("bvh4", "bvh8"):
         accel = name
@@ -71,7 +69,7 @@ def _variant(scene, name: str, backend: str, frames: int) -> dict:
 
 
 def probe(name: str, backend: str, size: int, depth: int, frames: int) -> list:
-    from .peer import _at, _no_collection
+    from evaluation.bench.peer import _at, _no_collection
     scene = _at(load_scene(f"scenes/{name}.toml"), depth, size)
     rows, ref = [], None
     for v in VARIANTS:

@@ -1,6 +1,6 @@
 """pytest plugin (entry point ``pytest11``, name ``whitted``): golden regression tests from a
 folder of scenes, one test per scene file x view x shading x mode, judged as ``whitted check``
-judges them (``evaluation.verdict``), so ``pytest --junitxml`` gives any CI the verdicts.
+judges them (``evaluation.gate.verdict``), so ``pytest --junitxml`` gives any CI the verdicts.
 
 Point it at your scenes and golden store on the command line or in the ini file::
 
@@ -93,7 +93,7 @@ class WhittedCase:
         return f"{self.scene.stem}-{self.view_name}-{self.shading}-{self.mode}"
 
     def verdict(self):
-        from evaluation.verdict import check_scene
+        from evaluation.gate.verdict import check_scene
         from reference.golden import search_stores
 
         found = check_scene(self.scene, search_stores(self.goldens), modes=[self.mode],
@@ -111,7 +111,7 @@ class WhittedVerdictError(AssertionError):
 
 
 def assert_verdict(v):
-    from evaluation.verdict import format_line
+    from evaluation.gate.verdict import format_line
 
     if v.status == "WARN":
         warnings.warn(format_line(v), stacklevel=2)
@@ -122,8 +122,8 @@ def assert_verdict(v):
 
 def cases_of(scene_path, *, goldens=None, modes=None, shadings=None,
              backend: str = "auto") -> list[WhittedCase]:
-    """Every case of one scene file (``evaluation.verdict.plan_for``). Raises SceneError."""
-    from evaluation.verdict import plan_for
+    """Every case of one scene file (``evaluation.gate.verdict.plan_for``). Raises SceneError."""
+    from evaluation.gate.verdict import plan_for
     from renderer.scene import load_scene
 
     path = Path(scene_path)

@@ -1,9 +1,9 @@
 """Pixel agreement of our exact-mode renders with a set of Mitsuba goldens, per case.
 
-Usage: ``python -m evaluation.agreement [--goldens DIR] [--scenes a,b] [--json PATH]
+Usage: ``python -m evaluation.gate.agreement [--goldens DIR] [--scenes a,b] [--json PATH]
 [--ray-epsilon E] [--spawn RULE]``
 
-For every exact-mode regression case (``evaluation.rules.cases``) it renders ours on LLVM
+For every exact-mode regression case (``evaluation.gate.rules.cases``) it renders ours on LLVM
 (float32, the BVH) at the golden's size with the golden's spawn rule (``rules.matching``)
 and prints: the fraction of pixels within 1e-3 (max over RGB, absolute) of the golden; the
 same fraction with the tie-probe pixels set aside (``rules.tie_probe``: the pixels whose
@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from evaluation.rules import GOLDEN_SCENES, cases, matching, tie_probe
+from evaluation.gate.rules import GOLDEN_SCENES, cases, matching, tie_probe
 from reference.golden import GOLDEN_DIR, load_golden
 from renderer.scene import SPAWN_RULES, load_scene
 

@@ -48,13 +48,13 @@ class ReportEntry:
     effects: our kernel's effect set, as text (e.g. "shadows, reflection").
     operations: our kernel's operation counts, as text.
     info: further (label, text) rows for the run table (settings, golden file, ...).
-    metrics: ``evaluation.metrics.metrics`` of (ours, ref); computed and stored by
+    metrics: ``evaluation.gate.metrics.metrics`` of (ours, ref); computed and stored by
         ``write_report`` when None.
-    verdict: the regression gate's status (PASS, WARN, FAIL, ...; ``evaluation.verdict``)
+    verdict: the regression gate's status (PASS, WARN, FAIL, ...; ``evaluation.gate.verdict``)
         or None when the entry was not judged; verdict_reason: its one-line reason.
     thresholds: the rule's thresholds used, name -> (value, why).
     overlay: uint8 (H, W, 3) or None: the exact rule's verdict drawn over the golden
-        (``evaluation.rules.exact_overlay``: hard pixels red, excused yellow, the rest of
+        (``evaluation.gate.rules.exact_overlay``: hard pixels red, excused yellow, the rest of
         the tie mask magenta), shown beside the images (the gate sets it for a FAIL).
     """
 
@@ -379,7 +379,8 @@ def write_report(out_dir: str | Path, entries: list[ReportEntry], *, title: str,
     """Write the HTML report and per-entry PNGs into ``out_dir``; return the page's path.
 
     entries: the comparisons, in page order; an entry without metrics gets them computed
-        (``evaluation.metrics.metrics``) and stored on it, so the caller can print them afterwards.
+        (``evaluation.gate.metrics.metrics``) and stored on it, so the caller can print them
+        afterwards.
     overwrite: replace the files of an existing, non-empty ``out_dir``; otherwise that is a
         ``FileExistsError``.
     notes: (status, name, reason) of verdicts without images (a missing or stale golden),
