@@ -8,7 +8,6 @@ from pathlib import Path
 
 import numpy as np
 
-# ---- project imports (the one block to rename at merge) ------------------------------------
 from renderer.accel import ACCELERATORS, ROUTINES
 from renderer.scene import Scene, load_scene
 

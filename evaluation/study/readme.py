@@ -3,7 +3,6 @@ markers (``update_readme``)."""
 
 from __future__ import annotations
 
-# ---- project imports (the one block to rename at merge) ------------------------------------
 from .points import busy_load
 from .report import summary_sentences
 

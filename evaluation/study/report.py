@@ -9,7 +9,6 @@ from pathlib import Path
 
 import numpy as np
 
-# ---- project imports (the one block to rename at merge) ------------------------------------
 from renderer.outputs import atomic_path, check_output_dir, write_text
 
 from .points import FACTORS, MODEL_FACTORS, REFS, SETTING_KEYS, busy_load

@@ -18,8 +18,6 @@ from pathlib import Path
 import numpy as np
 
 from evaluation.gate.executor import make_executor, progress
-
-# ---- project imports (the one block to rename at merge) ------------------------------------
 from evaluation.gate.metrics import delta_e2000, flip_error
 from reference.golden import GoldenError, load_golden
 from renderer.effects import EffectSet

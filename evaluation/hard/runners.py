@@ -1,206 +1,48 @@
-"""The hard-case stress suite (issue 10): cases where ray tracers usually crack, each with a
-measurable criterion, run for every accelerator, triangle routine and precision.
+"""The hard cases, one function each, registered in ``CASES`` under the table's name; each
+returns ``Row``s (case, variant, criterion, measured, pass). ``run_suite`` runs a selection
+for every accelerator, triangle routine and precision of a ``Config``."""
 
-The cases and their parameters are data (``tests/hard/cases.toml``); each case is one
-function here, registered in ``CASES`` under its table's name, that returns ``Row``s
-(case, variant, criterion, measured, pass). ``run_suite`` runs a selection and
-``write_report`` writes the table as markdown, JSON and an HTML page with each case's
-image. ``whitted hard-cases`` is the command line; tests/hard/test_*.py run the float32 LLVM
-subset in CI.
-
-Ray spawning goes through one function, ``spawn_origin``, so a new offset rule drops in
-without touching the cases.
-"""
 from __future__ import annotations
 
-import html
-import json
 import math
 import sys
-import time
-import tomllib
 import warnings
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import replace
 from pathlib import Path
 
 import drjit as dr
 import numpy as np
 
-from evaluation import write_result
-from renderer.accel import ACCELERATORS, DEFAULT_ROUTINE, ROUTINES, Ray, build_accelerator
+from renderer.accel import DEFAULT_ROUTINE, Ray, build_accelerator
 from renderer.device import array3, types
-from renderer.scene import Camera, Material, ObjectInfo, PointLight, Scene, Settings, shapes
-from renderer.shade import SurfacePoint, offset_origin
+from renderer.scene import Scene, Settings, shapes
+from renderer.shade import SurfacePoint
 
-CASES_FILE = Path(__file__).resolve().parents[1] / "tests" / "hard" / "cases.toml"
-PRECISIONS = ("float32", "float64")
-
-
-# ---- records -----------------------------------------------------------------------------
-@dataclass
-class Row:
-    """One line of the table. variant: "accel/routine/precision" or what the case varies;
-    criterion: the bound in words; measured: the value in words; value: the number compared
-    (None when the row only reports); passed: the criterion holds; image: PNG path
-    relative to the report folder, or None; info: extra numbers (JSON)."""
-
-    case: str
-    variant: str
-    criterion: str
-    measured: str
-    passed: bool
-    value: float | None = None
-    image: str | None = None
-    info: dict = field(default_factory=dict)
-
-
-@dataclass
-class Config:
-    """What a run covers. backend: "llvm" | "cuda"; precisions, accels, routines: the
-    variants; rays: case 1's ray count per BVH variant (None: the table's); out: report
-    folder (images are written there) or None; seed: of every random batch; chunk: rays
-    per device batch; progress: print one line per finished row to stderr."""
-
-    backend: str = "llvm"
-    precisions: tuple = PRECISIONS
-    accels: tuple = tuple(ACCELERATORS)
-    routines: tuple = tuple(ROUTINES)
-    rays: int | None = None
-    out: Path | None = None
-    seed: int = 1
-    chunk: int = 1 << 20
-    progress: bool = False
-
-
-def load_cases(path: Path = CASES_FILE) -> dict:
-    """The case table (``tests/hard/cases.toml``)."""
-    with open(path, "rb") as f:
-        return tomllib.load(f)
-
-
-# ---- scene building ----------------------------------------------------------------------
-def mesh_scene(objects, materials, *, lights=(), camera=None, settings=None, ambient=0.0,
-               name="hard") -> Scene:
-    """A Scene from ``objects``: (vertices float64 (V, 3), faces (F, 3), material index[,
-    smooth]); float64 positions kept (``vertices64``) for float64 runs, as the loader
-    does."""
-    verts, norms, faces, fmat, fobj, infos = [], [], [], [], [], []
-    nv = nf = 0
-    for k, ob in enumerate(objects):
-        V, F, m = np.asarray(ob[0], np.float64), np.asarray(ob[1], np.int64), ob[2]
-        smooth = bool(ob[3]) if len(ob) > 3 else False
-        fn = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
-        fn /= np.maximum(np.linalg.norm(fn, axis=1, keepdims=True), 1e-300)
-        vn = np.zeros_like(V)
-        for i in range(3):
-            np.add.at(vn, F[:, i], fn)
-        vn /= np.maximum(np.linalg.norm(vn, axis=1, keepdims=True), 1e-300)
-        verts.append(V)
-        norms.append(vn)
-        faces.append(F + nv)
-        fmat.append(np.full(len(F), m))
-        fobj.append(np.full(len(F), k))
-        infos.append(ObjectInfo(name=f"obj{k}", kind="hard", material=m, first_face=nf,
-                                face_count=len(F), first_vertex=nv, vertex_count=len(V),
-                                smooth=smooth))
-        nv += len(V)
-        nf += len(F)
-    if camera is None:
-        camera = Camera(position=np.array([0, 0, 5.0]), target=np.zeros(3),
-                        up=np.array([0, 1.0, 0]), fov_y=40.0, width=64, height=64)
-    V64, N64 = np.concatenate(verts), np.concatenate(norms)
-    return Scene(cameras=[camera], settings=settings or Settings(), lights=list(lights),
-                 materials=list(materials), objects=infos,
-                 vertices=V64.astype(np.float32), normals=N64.astype(np.float32),
-                 faces=np.concatenate(faces).astype(np.int32),
-                 face_material=np.concatenate(fmat).astype(np.int32),
-                 face_object=np.concatenate(fobj).astype(np.int32),
-                 ambient=np.broadcast_to(np.asarray(ambient, np.float64), (3,)).copy(),
-                 vertices64=V64, normals64=N64, name=name)
-
-
-def material(name="m", *, ka=0.0, kd=0.0, ks=0.0, n=32.0, k_refl=0.0, k_refr=0.0, ior=1.5,
-             combination="constant") -> Material:
-    def v(x):
-        return np.broadcast_to(np.asarray(x, np.float64), (3,)).copy()
-    return Material(name=name, ka=v(ka), kd=v(kd), ks=v(ks), n=float(n), k_refl=v(k_refl),
-                    k_refr=v(k_refr), ior=float(ior), combination=combination)
-
-
-def point_light(pos, intensity, falloff="none") -> PointLight:
-    return PointLight(position=np.asarray(pos, np.float64),
-                      intensity=np.broadcast_to(np.asarray(intensity, np.float64),
-                                                (3,)).copy(), falloff=falloff, name="l")
-
-
-def camera(pos, target, *, fov_y=40.0, size=64, up=(0, 1, 0)) -> Camera:
-    return Camera(position=np.asarray(pos, np.float64), target=np.asarray(target, np.float64),
-                  up=np.asarray(up, np.float64), fov_y=fov_y, width=size, height=size)
-
-
-def grid(n: int, size: float, center) -> tuple[np.ndarray, np.ndarray]:
-    """A square of ``n`` x ``n`` quads (2 triangles each) of side ``size`` in the plane
-    y = center.y, facing +y."""
-    xs = np.linspace(-size / 2, size / 2, n + 1)
-    X, Z = np.meshgrid(xs, xs, indexing="ij")
-    V = np.stack([X.ravel(), np.zeros(X.size), Z.ravel()], 1) + np.asarray(center)
-    idx = np.arange((n + 1) ** 2).reshape(n + 1, n + 1)
-    a, b, c, d = idx[:-1, :-1], idx[1:, :-1], idx[1:, 1:], idx[:-1, 1:]
-    F = np.concatenate([np.stack([a, d, c], -1).reshape(-1, 3),
-                        np.stack([a, c, b], -1).reshape(-1, 3)])
-    return V, F
-
-
-def variants(cfg: Config):
-    """(accel, routine, precision) of every variant ``cfg`` asks for."""
-    for p in cfg.precisions:
-        for r in cfg.routines:
-            for a in cfg.accels:
-                yield a, r, p
-
-
-# ---- ray spawning: the one function a new offset rule replaces ----------------------------
-def spawn_origin(p, ng, direction, eps):
-    """Origin of a ray leaving the surface point ``p`` (Array3f) with unit geometric normal
-    ``ng`` along ``direction`` with the explicit offset ``eps`` (a float or a Float per ray):
-    ``renderer.shade.offset_origin``'s override, ``p + ε N'``."""
-    sp = SurfacePoint(p=p, ng=ng, ns=ng)
-    return offset_origin(sp, direction, eps)
-
-
-# ---- helpers -----------------------------------------------------------------------------
-#: Case 2 spawns with the explicit ``ray_epsilon`` override (fraction of the triangle's
-#: diagonal), to compare the routines under one fixed offset; the default scale-free spawn
-#: (``renderer.shade.offset_origin``) has its own re-intersection test in
-#: ``tests/hard/test_offsets_reintersect.py``.
-OVERRIDE_EPSILON = 1e-4
-
-
-def _unit(rng, n):
-    v = rng.normal(size=(n, 3))
-    return v / np.linalg.norm(v, axis=1, keepdims=True)
-
-
-def _edges(F):
-    """The distinct edges (int (E, 2), sorted vertex pairs) of the triangles ``F``."""
-    return np.unique(np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]),
-                             axis=1), axis=0)
-
-
-def _ball(rng, n):
-    return _unit(rng, n) * rng.uniform(0, 1, size=(n, 1)) ** (1 / 3)
-
-
-def _closest(acc, t, o, d, t_max=None):
-    """Closest hits of the host rays (float64 (N, 3) each): (found bool (N,), prim (N,)
-    original face index, t (N,))."""
-    n = len(o)
-    tm = t.Float(np.full(n, np.inf) if t_max is None else t_max)
-    hit = acc.intersect(Ray(o=array3(t, o), d=array3(t, d), t_max=tm),
-                        dr.full(t.Bool, True, n))
-    order = dr.gather(t.UInt32, acc.tris.order, hit.prim, hit.found)
-    dr.eval(hit.found, order, hit.t)
-    return hit.found.numpy(), order.numpy(), hit.t.numpy()
+from .cases import OVERRIDE_EPSILON, PARITY_TIES_BY_DESIGN, Config, Row, load_cases, variants
+from .rays import (
+    ball_points,
+    closest_hit,
+    device_interior_misses,
+    mesh_edges,
+    ray_answers,
+    spawn_origin,
+    time_rays,
+    unit_vectors,
+)
+from .scenes import (
+    camera,
+    closed_mesh_scene,
+    degenerate_scene,
+    grid,
+    material,
+    mesh_scene,
+    parity_scenes,
+    point_light,
+    robust_scenes,
+    room_scene,
+    sphere_object,
+    terminator_scene,
+)
 
 
 # ---- case 1: closed mesh from inside ------------------------------------------------------
@@ -219,7 +61,7 @@ def case_closed_mesh(cfg: Config, spec: dict) -> list[Row]:
     scene = mesh_scene([(V, F, 0), (PV, PF, 0)], [material(kd=0.5)])
     n_rays = int(cfg.rays or spec["rays"])
     rows = []
-    edges = _edges(F)
+    edges = mesh_edges(F)
     zero_dirs = []
     for axis in range(3):
         for sign in (1.0, -1.0):
@@ -235,7 +77,7 @@ def case_closed_mesh(cfg: Config, spec: dict) -> list[Row]:
         info = _closed_mesh_counts(acc, t, cfg, n, c, r, V, edges, zero_dirs, side)
         total_miss = sum(v["misses"] for v in info.values())
         total_rays = sum(v["rays"] for v in info.values())
-        info["ns_per_ray"] = _ns_per_ray(acc, t, cfg, c, r, min(n, 1 << 22))
+        info["ns_per_ray"] = time_rays(acc, t, cfg, c, r, min(n, 1 << 22))
         default = routine == DEFAULT_ROUTINE
         limit = int(spec["max_misses"])
         rows.append(Row(
@@ -247,7 +89,7 @@ def case_closed_mesh(cfg: Config, spec: dict) -> list[Row]:
                       + f"); {info['ns_per_ray']:.0f} ns/ray"),
             passed=(total_miss <= limit) if default else True, value=float(total_miss),
             info=info))
-        _progress(cfg, rows[-1])
+        report_progress(cfg, rows[-1])
     # the view from the sphere's centre: every camera ray must hit the inside (no
     # background pixel), lit by a light at the centre
     # (background magenta; black pixels are shadow acne of the ε offset, reported apart)
@@ -256,7 +98,7 @@ def case_closed_mesh(cfg: Config, spec: dict) -> list[Row]:
                      settings=replace(scene.settings, background=np.array([1.0, 0.0, 1.0])))
     for prec in cfg.precisions:
         for routine in cfg.routines:
-            img = _render(inside, cfg, "bvh", routine, prec)
+            img = render_image(inside, cfg, "bvh", routine, prec)
             bg = int(np.all(img == [1.0, 0.0, 1.0], axis=2).sum())
             acne = int((img.max(axis=2) == 0).sum())
             default = routine == DEFAULT_ROUTINE
@@ -266,8 +108,8 @@ def case_closed_mesh(cfg: Config, spec: dict) -> list[Row]:
                             measured=(f"{bg} background pixels of {img.shape[0] * img.shape[1]}"
                                       f"; {acne} black (shadow acne of the ε offset)"),
                             passed=bg == 0 if default else True, value=float(bg),
-                            image=_save(cfg, f"closed_mesh_{routine}_{prec}", img)))
-            _progress(cfg, rows[-1])
+                            image=save_image(cfg, f"closed_mesh_{routine}_{prec}", img)))
+            report_progress(cfg, rows[-1])
     return rows
 
 
@@ -280,12 +122,12 @@ def _closed_mesh_counts(acc, t, cfg: Config, n, c, r, V, edges, zero_dirs, side)
     def interior(k):
         """Interior points, rounded to the precision: a ray aimed at a vertex is then
         ``o`` exactly and ``d = v - o`` rounded once."""
-        return (c + _ball(rng, k) * (0.5 * r)).astype(fdt).astype(np.float64)
+        return (c + ball_points(rng, k) * (0.5 * r)).astype(fdt).astype(np.float64)
 
     def count(o, d):
         misses = 0
         for s0 in range(0, len(o), cfg.chunk):
-            found, _, _ = _closest(acc, t, o[s0:s0 + cfg.chunk], d[s0:s0 + cfg.chunk])
+            found, _, _ = closest_hit(acc, t, o[s0:s0 + cfg.chunk], d[s0:s0 + cfg.chunk])
             misses += int((~found).sum())
         return {"misses": misses, "rays": len(o)}
 
@@ -293,7 +135,7 @@ def _closed_mesh_counts(acc, t, cfg: Config, n, c, r, V, edges, zero_dirs, side)
     left, batch = n, 0
     while left > 0:
         k = min(left, cfg.chunk)
-        info["random interior"]["misses"] += _device_interior_misses(acc, t, cfg, k, batch,
+        info["random interior"]["misses"] += device_interior_misses(acc, t, cfg, k, batch,
                                                                      c, r)
         info["random interior"]["rays"] += k
         left -= k
@@ -312,59 +154,6 @@ def _closed_mesh_counts(acc, t, cfg: Config, n, c, r, V, edges, zero_dirs, side)
                                       rng.uniform(-r, r, (m, 1))], 1)
     info["plane from above"] = count(above, targets - above)
     return info
-
-
-def _device_rays(t, cfg: Config, k: int, batch: int, c, r):
-    """``k`` rays from uniform random points of the ball of radius ``r/2`` about ``c`` in
-    uniform random directions, drawn on the device (PCG32 stream ``batch`` of seed
-    ``cfg.seed``; float64 arithmetic, then the precision in use), so 10^8 rays cost no
-    host traffic."""
-    import importlib
-    m = importlib.import_module(f"drjit.{t.backend}")
-    F64 = m.Float64
-    rng = m.PCG32(size=k, initstate=cfg.seed * 1000003 + batch,
-                  initseq=dr.arange(m.UInt64, k))
-
-    def sphere():
-        z = 1.0 - 2.0 * rng.next_float64()
-        phi = (2.0 * math.pi) * rng.next_float64()
-        s = dr.safe_sqrt(1.0 - z * z)
-        return s * dr.cos(phi), s * dr.sin(phi), z
-
-    dx, dy, dz = sphere()
-    ux, uy, uz = sphere()
-    rad = (0.5 * r) * dr.cbrt(rng.next_float64())
-    o = t.Array3f(t.Float(F64(c[0]) + rad * ux), t.Float(F64(c[1]) + rad * uy),
-                  t.Float(F64(c[2]) + rad * uz))
-    d = t.Array3f(t.Float(dx), t.Float(dy), t.Float(dz))
-    return o, d
-
-
-def _device_interior_misses(acc, t, cfg: Config, k: int, batch: int, c, r) -> int:
-    """Misses of ``_device_rays(k, batch)``, counted on the device."""
-    o, d = _device_rays(t, cfg, k, batch, c, r)
-    hit = acc.intersect(Ray(o=o, d=d, t_max=dr.full(t.Float, dr.inf, k)),
-                        dr.full(t.Bool, True, k))
-    miss = dr.count(~hit.found)
-    return int(miss[0] if hasattr(miss, "__len__") else miss)
-
-
-def _ns_per_ray(acc, t, cfg: Config, c, r, n: int, reps: int = 3) -> float:
-    """Closest-hit cost per ray (ns) of ``n`` random interior rays already on the device:
-    the best of ``reps`` timed runs after a warm-up (JIT compilation excluded)."""
-    o, d = _device_rays(t, cfg, n, 1 << 30, c, r)
-    dr.eval(o, d)
-    ray = Ray(o=o, d=d, t_max=t.Float(np.full(n, np.inf)))
-    times = []
-    for _ in range(reps + 1):             # the first run compiles the kernel: dropped
-        dr.sync_thread()
-        t0 = time.perf_counter()
-        hit = acc.intersect(ray, dr.full(t.Bool, True, n))
-        dr.eval(hit.found, hit.t, hit.prim)
-        dr.sync_thread()
-        times.append(time.perf_counter() - t0)
-    best = min(times[1:])
-    return 1e9 * best / n
 
 
 # ---- case 2: re-intersection ---------------------------------------------------------------
@@ -399,7 +188,7 @@ def case_reintersect(cfg: Config, spec: dict) -> list[Row]:
             aim = np.einsum("nk,nkj->nj", b, Pp)
             side = np.where(rng.uniform(size=(nt, 1)) < 0.5, 1.0, -1.0)
             dist = diag[:, None] * rng.uniform(0.5, 2.0, (nt, 1))
-            org = aim + ng * side * dist + _unit(rng, nt) * 0.1 * dist
+            org = aim + ng * side * dist + unit_vectors(rng, nt) * 0.1 * dist
             fn = triangle_routine(routine)
 
             def tri(idx, t=t, packed=packed, k=LAYOUT_VECTORS[layout]):
@@ -416,7 +205,7 @@ def case_reintersect(cfg: Config, spec: dict) -> list[Row]:
             for s0 in range(0, len(src), step):
                 idx = np.arange(s0, min(s0 + step, len(src)))
                 reps = np.repeat(idx, per)
-                dirs = _unit(rng, len(reps))
+                dirs = unit_vectors(rng, len(reps))
                 dd = array3(t, dirs)
                 o2 = spawn_origin(array3(t, pn[reps]), array3(t, ng[src][reps]), dd,
                                   t.Float(eps[src][reps]))
@@ -434,12 +223,12 @@ def case_reintersect(cfg: Config, spec: dict) -> list[Row]:
                 passed=(self_hits <= limit and len(src) >= 0.9 * nt) if default else True,
                 value=float(self_hits),
                 info={"self_hits": self_hits, "rays": n_rays, "triangles_hit": len(src)}))
-            _progress(cfg, rows[-1])
+            report_progress(cfg, rows[-1])
     return rows
 
 
 # ---- render helpers ------------------------------------------------------------------------
-def _render(scene: Scene, cfg: Config, accel="bvh", routine=None, prec="float32",
+def render_image(scene: Scene, cfg: Config, accel="bvh", routine=None, prec="float32",
             effects=None) -> np.ndarray:
     from renderer.render import Renderer
     with warnings.catch_warnings():
@@ -449,7 +238,7 @@ def _render(scene: Scene, cfg: Config, accel="bvh", routine=None, prec="float32"
         return r.render(0).image
 
 
-def _save(cfg: Config, name: str, img: np.ndarray) -> str | None:
+def save_image(cfg: Config, name: str, img: np.ndarray) -> str | None:
     """Write ``img`` (linear) as a PNG under ``cfg.out/images``; the relative path."""
     if cfg.out is None:
         return None
@@ -462,12 +251,12 @@ def _save(cfg: Config, name: str, img: np.ndarray) -> str | None:
     return rel
 
 
-def _render_all(scene: Scene, cfg: Config, key: str, effects=None) -> dict:
+def render_all(scene: Scene, cfg: Config, key: str, effects=None) -> dict:
     """Images of every variant (accel, routine, precision) of ``cfg``."""
-    return {(a, r, p): _render(scene, cfg, a, r, p, effects) for a, r, p in variants(cfg)}
+    return {(a, r, p): render_image(scene, cfg, a, r, p, effects) for a, r, p in variants(cfg)}
 
 
-def _agree_rows(case: str, imgs: dict, cfg: Config, what: str) -> list[Row]:
+def agree_rows(case: str, imgs: dict, cfg: Config, what: str) -> list[Row]:
     """Per (routine, precision): all pixels finite and every accelerator's image bitwise
     equal to brute force's (the oracle)."""
     rows = []
@@ -485,23 +274,8 @@ def _agree_rows(case: str, imgs: dict, cfg: Config, what: str) -> list[Row]:
                                       + (f"differ from brute: {differ}" if differ
                                          else "identical across accelerators")),
                             passed=bad == 0 and not differ, value=float(bad)))
-            _progress(cfg, rows[-1])
+            report_progress(cfg, rows[-1])
     return rows
-
-
-# ---- case 7: shadow terminator --------------------------------------------------------------
-def terminator_scene(subdivisions: int, angle_deg: float, size: int, fix: str = "none"
-                     ) -> Scene:
-    """A low-polygon icosphere (radius 1, interpolated normals, diffuse, nothing else in the
-    scene) seen from +z, lit by one light (no falloff) at ``angle_deg`` from the view
-    direction and a little above, so the terminator crosses the middle of the image;
-    ``fix``: the ``Settings.terminator`` treatment."""
-    a = math.radians(angle_deg)
-    light = np.array([math.sin(a), 0.3, math.cos(a)]) * 10.0
-    return mesh_scene([_sphere((0, 0, 0), 1.0, 0, subdivisions, True)],
-                      [material("white", kd=0.8)], lights=[point_light(light, 1.0)],
-                      camera=camera((0, 0, 4.0), (0, 0, 0), size=size),
-                      settings=Settings(terminator=fix), name="terminator")
 
 
 def facing_light(scene: Scene, cfg: Config, routine: str, prec: str) -> np.ndarray:
@@ -547,16 +321,16 @@ def case_terminator(cfg: Config, spec: dict) -> list[Row]:
                         sc = terminator_scene(int(sub), float(ang), size, fix)
                         with warnings.catch_warnings():
                             warnings.simplefilter("ignore")
-                            off = _render(sc, cfg, "bvh", r, prec,
+                            off = render_image(sc, cfg, "bvh", r, prec,
                                           EffectSet.from_scene(sc).without("shadows"))
-                        on = _render(sc, cfg, "bvh", r, prec)
+                        on = render_image(sc, cfg, "bvh", r, prec)
                         lost = (off.max(-1) > 0) & (on.max(-1) < 0.5 * off.max(-1))
                         facing = facing_light(sc, cfg, r, prec)
                         speck += int((lost & facing).sum())
                         term += int((lost & ~facing).sum())
                         lost_light.append(float((off - on).sum() / max(off.sum(), 1e-30)))
                         if ang == spec["angles"][0]:
-                            img = _save(cfg, f"terminator_{sub}_{fix}_{prec}", on)
+                            img = save_image(cfg, f"terminator_{sub}_{fix}_{prec}", on)
                     counts[fix] = (term, speck, lost_light, img)
                 base = counts["none"][0]
                 for fix, (term, speck, lost_light, img) in counts.items():
@@ -577,7 +351,7 @@ def case_terminator(cfg: Config, spec: dict) -> list[Row]:
                         passed=bool(ok), value=float(term), image=img,
                         info={"terminator_px": term, "speckle_px": speck,
                               "lost_light": lost_light, "angles": list(spec["angles"])}))
-                    _progress(cfg, rows[-1])
+                    report_progress(cfg, rows[-1])
     return rows
 
 
@@ -588,7 +362,7 @@ def case_tir(cfg: Config, spec: dict) -> list[Row]:
     ``w_refl`` exactly as MODEL.md (constant: ``k_refl + k_refr``; Fresnel: ``k_refl · 1``);
     otherwise a finite unit T and the MODEL.md weights; no non-finite value anywhere."""
     from renderer.effects import EffectSet
-    from renderer.shade import SurfacePoint, specular_branches, upload_materials
+    from renderer.shade import specular_branches, upload_materials
     rows = []
     ulps = int(spec["ulps"])
     for prec in cfg.precisions:
@@ -643,28 +417,8 @@ def case_tir(cfg: Config, spec: dict) -> list[Row]:
                               f"under TIR; finite {finite}; sin²t range "
                               f"[{sin2.min():.9g}, {sin2.max():.9g}]"),
                     passed=bool(passed), value=float(tir.sum())))
-                _progress(cfg, rows[-1])
+                report_progress(cfg, rows[-1])
     return rows
-
-
-# ---- shared test scenes --------------------------------------------------------------------
-def _room(extra=(), extra_mats=(), *, light_pos=(0.5, 2.5, 3.0), max_depth=6,
-          size=64, cam=((0, 1.0, 4.5), (0, 0.5, 0))):
-    """A floor and a back wall (diffuse, no shadows cast onto them by each other) under one
-    light with no falloff, plus ``extra`` objects (material indices from 2)."""
-    floor = grid(1, 6.0, (0, 0, 0))
-    wall = (np.array([[-3, 0, -2], [3, 0, -2], [3, 4, -2], [-3, 4, -2.0]]),
-            np.array([[0, 1, 2], [0, 2, 3]]))
-    mats = [material("floor", kd=[0.7, 0.6, 0.5]), material("wall", kd=[0.3, 0.5, 0.8])]
-    objs = [(*floor, 0), (*wall, 1)] + list(extra)
-    return mesh_scene(objs, mats + list(extra_mats),
-                      lights=[point_light(light_pos, 1.0)],
-                      camera=camera(*cam, size=size), settings=Settings(max_depth=max_depth))
-
-
-def _sphere(center, radius, mat, subdivisions=3, smooth=False):
-    V, F = shapes.make_shape("sphere", subdivisions=subdivisions)
-    return (V * radius + np.asarray(center, float), F, mat, smooth)
 
 
 # ---- case 9: index-matched glass ---------------------------------------------------------
@@ -674,29 +428,29 @@ def case_index_matched(cfg: Config, spec: dict) -> list[Row]:
     shadows differs from the one without; elsewhere max |with - without| <= ``max_abs``."""
     from renderer.effects import EffectSet
     glass = material("glass", k_refr=1.0, ior=1.0)
-    with_g = _room([_sphere((0, 0.8, 0), 0.6, 2)], [glass])
-    without = _room()
+    with_g = room_scene([sphere_object((0, 0.8, 0), 0.6, 2)], [glass])
+    without = room_scene()
     rows = []
     lim = float(spec["max_abs"])
     for a, r, p in variants(cfg):
         fx = EffectSet.from_scene(with_g)
-        A = _render(without, cfg, a, r, p)
-        B_on = _render(with_g, cfg, a, r, p)
+        A = render_image(without, cfg, a, r, p)
+        B_on = render_image(with_g, cfg, a, r, p)
         with warnings.catch_warnings():      # "forced off" is the point here
             warnings.simplefilter("ignore")
             no_shadows = fx.without("shadows")
-        B_off = _render(with_g, cfg, a, r, p, effects=no_shadows)
+        B_off = render_image(with_g, cfg, a, r, p, effects=no_shadows)
         shadow = np.any(B_on != B_off, axis=2)
         diff = np.abs(B_on - A).max(axis=2)
         m = float(diff[~shadow].max()) if (~shadow).any() else 0.0
-        img = _save(cfg, f"index_matched_{a}_{r}_{p}", B_on) if a == "bvh" else None
+        img = save_image(cfg, f"index_matched_{a}_{r}_{p}", B_on) if a == "bvh" else None
         rows.append(Row(case="9 index-matched glass", variant=f"{a}/{r}/{p}",
                         criterion=f"max |with - without| <= {lim:g} outside shadows",
                         measured=(f"max abs {m:.3g} outside shadows "
                                   f"({int((diff[~shadow] > lim).sum())} pixels over; "
                                   f"{int(shadow.sum())} shadow pixels)"),
                         passed=m <= lim, value=m, image=img))
-        _progress(cfg, rows[-1])
+        report_progress(cfg, rows[-1])
     return rows
 
 
@@ -713,7 +467,6 @@ def case_phong(cfg: Config, spec: dict) -> list[Row]:
     from renderer.shade import (
         SceneArrays,
         ShadingContext,
-        SurfacePoint,
         TraceOptions,
         _light_term,
         phong_lobe,
@@ -730,8 +483,8 @@ def case_phong(cfg: Config, spec: dict) -> list[Row]:
         for mode in ("classic", "physical"):
             for n_exp in spec["exponents"]:
                 rng = np.random.default_rng(cfg.seed)
-                L = _unit(rng, N).astype(fdt)
-                V = _unit(rng, N).astype(fdt)
+                L = unit_vectors(rng, N).astype(fdt)
+                V = unit_vectors(rng, N).astype(fdt)
                 # half the pairs mirror L about the normal's axis so the lobe peak is hit
                 k = N // 2
                 Vm = np.stack([-L[:k, 0], -L[:k, 1], L[:k, 2]], 1)
@@ -787,73 +540,19 @@ def case_phong(cfg: Config, spec: dict) -> list[Row]:
                     measured=(f"max err {err.max():.3g}, {over} of {N} pairs over; "
                               f"finite {finite}; {int((cos <= 0).sum())} below horizon"),
                     passed=finite and over == 0, value=float(err.max())))
-                _progress(cfg, rows[-1])
+                report_progress(cfg, rows[-1])
     return rows
-
-
-# ---- case 11: degenerate input -------------------------------------------------------------
-def degenerate_scene() -> Scene:
-    """Zero-area, collinear and duplicate-vertex triangles, and axis-aligned boxes seen
-    exactly edge-on (camera in the plane of their faces)."""
-    from renderer.scene import shapes as sh
-    bV, bF = sh.make_shape("box")
-    box1 = (bV * 0.5 + [0, 0.5, 0], bF, 2)
-    box2 = (bV * 0.3 + [1.2, 1.0, 0.3], bF, 2)
-    zero = (np.array([[0.3, 1.2, 0.5]] * 3), np.array([[0, 1, 2]]), 2)
-    collinear = (np.array([[-1.0, 1.0, 0.5], [-0.5, 1.5, 0.5], [0.0, 2.0, 0.5]]),
-                 np.array([[0, 1, 2]]), 2)
-    dup = (np.array([[-1.5, 0.2, 0.5], [-1.5, 0.2, 0.5], [-1.0, 0.8, 0.5]]),
-           np.array([[0, 1, 2], [0, 0, 2], [1, 2, 2]]), 2)
-    mats = [material("m", kd=0.6, ks=0.3, n=20, k_refl=0.2)]
-    return _room([box1, box2, zero, collinear, dup], mats,
-                 cam=((0, 1.0, 3.0), (0, 1.0, 0)))
 
 
 def case_degenerate(cfg: Config, spec: dict) -> list[Row]:
     """``degenerate_scene``: every pixel finite, no crash, accelerators agree."""
     sc = degenerate_scene()
-    imgs = _render_all(sc, cfg, "degenerate")
-    rows = _agree_rows("11 degenerate input", imgs, cfg, "zero-area/collinear/duplicate, "
+    imgs = render_all(sc, cfg, "degenerate")
+    rows = agree_rows("11 degenerate input", imgs, cfg, "zero-area/collinear/duplicate, "
                        "edge-on boxes")
     if cfg.out is not None and rows:
-        rows[0].image = _save(cfg, "degenerate", imgs[next(iter(imgs))])
+        rows[0].image = save_image(cfg, "degenerate", imgs[next(iter(imgs))])
     return rows
-
-
-# ---- case 12: robust scenes --------------------------------------------------------------
-def robust_scenes() -> dict:
-    """The case-12 scenes by name."""
-    glass = material("glass", k_refl=0.0, k_refr=1.0, ior=1.5, combination="fresnel")
-    mirror = material("mirror", kd=0.05, k_refl=0.9)
-    out = {}
-    out["camera in glass"] = _room([_sphere((0, 1.0, 4.5), 0.5, 2, 3, True),
-                                    _sphere((0, 0.6, 0), 0.5, 3)],
-                                   [glass, material("red", kd=[0.8, 0.1, 0.1])])
-    bV, bF = shapes.make_shape("box")
-    lit_box = _room([(bV * 0.8 + [0, 0.8, 0], bF, 2)], [material("grey", kd=0.6)],
-                    light_pos=(0, 0.8, 0))
-    out["light in a closed box"] = lit_box
-    q = np.array([[-1, 0.5, -1.0], [1, 0.5, -1], [1, 0.5, 1], [-1, 0.5, 1]])
-    quad_faces = np.array([[0, 2, 1], [0, 3, 2]])
-    # the same faces twice (red first, then green): every hit is an exact tie in t
-    out["coplanar overlapping faces"] = _room(
-        [(q, quad_faces, 2), (q, quad_faces, 3)],
-        [material("red", kd=[0.9, 0, 0]), material("green", kd=[0, 0.9, 0])],
-        cam=((0, 3.0, 2.0), (0, 0.5, 0)))
-    # a coplanar quad inside the red one, with other vertices: t differs by rounding
-    inner = np.array([[-0.6, 0.5, -0.7], [0.8, 0.5, -0.6], [0.7, 0.5, 0.9], [-0.5, 0.5, 0.6]])
-    out["coplanar faces, other vertices"] = _room(
-        [(q, quad_faces, 2), (inner, quad_faces, 3)],
-        [material("red", kd=[0.9, 0, 0]), material("green", kd=[0, 0.9, 0])],
-        cam=((0, 3.0, 2.0), (0, 0.5, 0)))
-    m1 = (np.array([[-2, 0, -1.0], [-2, 0, 1], [-2, 3, 1], [-2, 3, -1]]),
-          np.array([[0, 1, 2], [0, 2, 3]]), 2)
-    m2 = (np.array([[2, 0, -1.0], [2, 0, 1], [2, 3, 1], [2, 3, -1]]),
-          np.array([[0, 2, 1], [0, 3, 2]]), 2)
-    out["hall of mirrors"] = _room([m1, m2, _sphere((0, 1, 0), 0.4, 3)],
-                                   [mirror, material("red", kd=[0.8, 0.2, 0.1])],
-                                   max_depth=16, cam=((-1.9, 1.2, 0.9), (2, 1.0, -0.2)))
-    return out
 
 
 def case_robust_scenes(cfg: Config, spec: dict) -> list[Row]:
@@ -863,26 +562,26 @@ def case_robust_scenes(cfg: Config, spec: dict) -> list[Row]:
     for all: finite, accelerators bitwise equal, and a repeat render bitwise identical."""
     rows = []
     for name, sc in robust_scenes().items():
-        imgs = _render_all(sc, cfg, name)
-        rows += _agree_rows(f"12 {name}", imgs, cfg, name)
+        imgs = render_all(sc, cfg, name)
+        rows += agree_rows(f"12 {name}", imgs, cfg, name)
         key = next(iter(imgs))
-        again = _render(sc, cfg, *key)
+        again = render_image(sc, cfg, *key)
         same = np.array_equal(again, imgs[key])
         rows.append(Row(case=f"12 {name}", variant="/".join(key),
                         criterion="repeat render bitwise identical",
                         measured="identical" if same else "differs", passed=same,
-                        image=_save(cfg, name.replace(" ", "_"), imgs[key])))
-        _progress(cfg, rows[-1])
+                        image=save_image(cfg, name.replace(" ", "_"), imgs[key])))
+        report_progress(cfg, rows[-1])
         if name == "light in a closed box":
             dark = replace(sc, lights=[point_light((0, 0.8, 0), 0.0)])
             for key, im in imgs.items():
-                ref = _render(dark, cfg, *key)
+                ref = render_image(dark, cfg, *key)
                 leak = int((np.abs(im - ref).max(axis=2) > 0).sum())
                 rows.append(Row(case="12 light in a closed box", variant="/".join(key),
                                 criterion="no light leaks: image == image without the light",
                                 measured=f"{leak} lit pixels", passed=leak == 0,
                                 value=float(leak)))
-                _progress(cfg, rows[-1])
+                report_progress(cfg, rows[-1])
         if name.startswith("coplanar"):
             same = name == "coplanar overlapping faces"
             for key, im in imgs.items():
@@ -896,7 +595,7 @@ def case_robust_scenes(cfg: Config, spec: dict) -> list[Row]:
                                else "speckle reported (not default: t rounds per triangle)"),
                     measured=f"{green} green pixels", passed=green == 0 if judged else True,
                     value=float(green)))
-                _progress(cfg, rows[-1])
+                report_progress(cfg, rows[-1])
     return rows
 
 
@@ -908,14 +607,14 @@ def case_precision(cfg: Config, spec: dict) -> list[Row]:
     if not {"float32", "float64"} <= set(cfg.precisions):
         return []
     lim = float(spec["max_abs"])
-    scenes = {"index-matched glass": _room([_sphere((0, 0.8, 0), 0.6, 2)],
+    scenes = {"index-matched glass": room_scene([sphere_object((0, 0.8, 0), 0.6, 2)],
                                            [material("glass", k_refr=1.0, ior=1.0)]),
               "degenerate": degenerate_scene(), **robust_scenes()}
     rows = []
     for name, sc in scenes.items():
         for r in cfg.routines:
-            a32 = _render(sc, cfg, "bvh", r, "float32")
-            a64 = _render(sc, cfg, "bvh", r, "float64")
+            a32 = render_image(sc, cfg, "bvh", r, "float32")
+            a64 = render_image(sc, cfg, "bvh", r, "float64")
             d = np.abs(a32 - a64).max(axis=2)
             frac = float((d > 1e-3).mean())
             # Möller–Trumbore's t rounds per triangle: coplanar faces z-fight there
@@ -927,39 +626,8 @@ def case_precision(cfg: Config, spec: dict) -> list[Row]:
                             measured=f"max abs {d.max():.3g}; {frac:.4%} of pixels > 1e-3",
                             passed=True if zfight else float(d.max()) <= lim,
                             value=float(d.max())))
-            _progress(cfg, rows[-1])
+            report_progress(cfg, rows[-1])
     return rows
-
-
-# ---- case 14: Mitsuba parity on hard cases ------------------------------------------------
-def _closed_mesh_scene(spec: dict):
-    """Case 1's closed icosphere and plane (vertices, faces, centre, radius, Scene)."""
-    c = np.asarray(spec["center"], np.float64)
-    r = float(spec["radius"])
-    V, F = shapes.make_shape("sphere", subdivisions=int(spec["subdivisions"]))
-    V = V * r + c
-    PV, PF = grid(int(spec["plane_grid"]), 4 * r, c + [0, -3 * r, 0])
-    return V, F, c, r, mesh_scene([(V, F, 0), (PV, PF, 0)], [material(kd=0.5)])
-
-
-def parity_scenes(closed_spec: dict, size: int) -> dict:
-    """The render cases compared with Mitsuba: case 12's scenes, case 11's degenerate input,
-    case 7's coarse sphere and case 1's closed sphere seen from its centre."""
-    out = dict(robust_scenes())
-    out["degenerate"] = degenerate_scene()
-    out["terminator"] = terminator_scene(1, 88.0, size)
-    _, _, c, _, sc = _closed_mesh_scene(closed_spec)
-    out["closed sphere from inside"] = replace(
-        sc, lights=[point_light(c, 1.0)],
-        cameras=[camera(c, c + [1.0, -0.3, 0.2], fov_y=120.0, size=size)],
-        settings=replace(sc.settings, background=np.array([1.0, 0.0, 1.0])))
-    return {k: v.with_size(size, size) for k, v in out.items()}
-
-
-#: Render cases whose differences from Mitsuba are ties by design: coplanar faces with
-#: other vertices, where our routine gives every face the plane's ``t`` (the lowest face
-#: index wins) and Embree's ``t`` rounds per triangle.
-PARITY_TIES_BY_DESIGN = ("coplanar faces, other vertices",)
 
 
 def case_mitsuba_parity(cfg: Config, spec: dict) -> list[Row]:
@@ -982,13 +650,13 @@ def case_mitsuba_parity(cfg: Config, spec: dict) -> list[Row]:
     mitsuba_variant("llvm_ad_rgb")
     rows = []
     closed = load_cases()["closed_mesh"]
-    V, F, c, r, sc = _closed_mesh_scene(closed)
+    V, F, c, r, sc = closed_mesh_scene(closed)
     V32 = V.astype(np.float32).astype(np.float64)
-    edges = _edges(F)
+    edges = mesh_edges(F)
     rng = np.random.default_rng(cfg.seed)
 
     def interior(k):
-        return (c + _ball(rng, k) * (0.5 * r)).astype(np.float32).astype(np.float64)
+        return (c + ball_points(rng, k) * (0.5 * r)).astype(np.float32).astype(np.float64)
 
     groups = {}
     k = int(spec["vertex_repeats"])
@@ -999,11 +667,11 @@ def case_mitsuba_parity(cfg: Config, spec: dict) -> list[Row]:
     groups["at edge midpoints"] = (o, np.tile(0.5 * (V32[edges[:, 0]] + V32[edges[:, 1]]),
                                               (k, 1)) - o)
     m = int(spec["random_rays"])
-    groups["random interior"] = (interior(m), _unit(rng, m))
+    groups["random interior"] = (interior(m), unit_vectors(rng, m))
     t = types("llvm", "float32")
     acc = build_accelerator("bvh", sc, t)
     for g, (o, d) in groups.items():
-        ours = int((~_closest(acc, t, o, d)[0]).sum())
+        ours = int((~closest_hit(acc, t, o, d)[0]).sum())
         fast, robust = (int((~np.isfinite(closest_t(sc.vertices, sc.faces, o, d,
                                                      robust=rb))).sum())
                         for rb in (False, True))
@@ -1013,7 +681,7 @@ def case_mitsuba_parity(cfg: Config, spec: dict) -> list[Row]:
                                   f"Embree fast {fast} misses"),
                         passed=ours == 0 and robust == 0, value=float(fast),
                         info={"rays": len(o), "ours": ours, "robust": robust, "fast": fast}))
-        _progress(cfg, rows[-1])
+        report_progress(cfg, rows[-1])
 
     def differ(a, b):
         a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
@@ -1045,13 +713,13 @@ def case_mitsuba_parity(cfg: Config, spec: dict) -> list[Row]:
                       f"vs fast {vs_f[0]} ({vs_f[1]}), fast vs robust {f_r[0]} ({f_r[1]}) "
                       f"of {ours.shape[0] * ours.shape[1]}{tie}"),
             passed=True if by_design else vs_r[1] == 0, value=float(vs_r[1]),
-            image=_save(cfg, f"parity_{name.replace(' ', '_')}_mitsuba_robust", robust),
+            image=save_image(cfg, f"parity_{name.replace(' ', '_')}_mitsuba_robust", robust),
             info={"vs_robust": vs_r, "vs_fast": vs_f, "fast_vs_robust": f_r, **tie_info}))
-        _progress(cfg, rows[-1])
+        report_progress(cfg, rows[-1])
     return rows
 
 
-def _progress(cfg: Config, row: Row) -> None:
+def report_progress(cfg: Config, row: Row) -> None:
     if cfg.progress:
         mark = "ok " if row.passed else "RED"
         print(f"[{mark}] {row.case} | {row.variant} | {row.measured}", file=sys.stderr,
@@ -1080,7 +748,7 @@ def case_far_origin(cfg: Config, spec: dict) -> list[Row]:
     scene = mesh_scene([(V, F, 0)], [material(kd=0.5)],
                        camera=camera(c + [0, 0, 4 * r], c))
     rng = np.random.default_rng(cfg.seed)
-    edges = _edges(F)
+    edges = mesh_edges(F)
     k = int(spec["random_rays"])
     u, w = rng.uniform(size=(2, k))
     tri = F[rng.integers(0, len(F), k)]
@@ -1093,13 +761,13 @@ def case_far_origin(cfg: Config, spec: dict) -> list[Row]:
     rays = {}
     for g, targets in groups.items():
         dist = r * 10.0 ** rng.uniform(lo, hi, (len(targets), 1))
-        o = targets + _unit(rng, len(targets)) * dist
+        o = targets + unit_vectors(rng, len(targets)) * dist
         rays[g] = (o, targets - o)
     rows = []
     for prec in cfg.precisions:
         t = types(cfg.backend, prec)
         for routine in cfg.routines:
-            ref = {g: _answers(build_accelerator("brute", scene, t, intersection=routine),
+            ref = {g: ray_answers(build_accelerator("brute", scene, t, intersection=routine),
                                t, o, d) for g, (o, d) in rays.items()}
             for accel in cfg.accels:
                 if accel == "brute":
@@ -1107,7 +775,7 @@ def case_far_origin(cfg: Config, spec: dict) -> list[Row]:
                 acc = build_accelerator(accel, scene, t, intersection=routine)
                 info = {}
                 for g, (o, d) in rays.items():
-                    got, want = _answers(acc, t, o, d), ref[g]
+                    got, want = ray_answers(acc, t, o, d), ref[g]
                     f = want[0]
                     bad = ((got[0] != f) | (got[3] != want[3])
                            | (f & ((got[1] != want[1]) | (got[2] != want[2]))))
@@ -1122,21 +790,12 @@ def case_far_origin(cfg: Config, spec: dict) -> list[Row]:
                                           for g, v in info.items()) + ")"),
                     passed=differ == 0, value=float(differ),
                     info=info))
-                _progress(cfg, rows[-1])
+                report_progress(cfg, rows[-1])
     return rows
 
 
-def _answers(acc, t, o, d):
-    """``(found, face, t, any_hit)`` numpy arrays of the host rays ``o``, ``d``."""
-    found, face, th = _closest(acc, t, o, d)
-    n = len(o)
-    p = acc.intersect_p(Ray(o=array3(t, o), d=array3(t, d), t_max=t.Float(np.full(n, np.inf))),
-                        dr.full(t.Bool, True, n))
-    return found, face, th, p.numpy()
-
-
 # ---- the suite -------------------------------------------------------------------------------
-#: Case functions by their table name in ``tests/hard/cases.toml``.
+#: Case functions by their table name in ``cases.toml``.
 CASES = {"closed_mesh": case_closed_mesh, "reintersect": case_reintersect,
          "terminator": case_terminator, "tir": case_tir,
          "index_matched": case_index_matched, "phong": case_phong,
@@ -1156,49 +815,3 @@ def run_suite(cfg: Config, names=None, table: dict | None = None) -> list[Row]:
     for name in names:
         rows += CASES[name](cfg, table[name])
     return rows
-
-
-def markdown(rows: list[Row], header: str = "") -> str:
-    """The table as markdown (case, variant, criterion, measured, pass)."""
-    out = [header, ""] if header else []
-    out += ["| case | variant | criterion | measured | pass |", "|---|---|---|---|---|"]
-    for r in rows:
-        cells = [r.case, r.variant, r.criterion, r.measured, "yes" if r.passed else "**NO**"]
-        out.append("| " + " | ".join(c.replace("|", "/") for c in cells) + " |")
-    return "\n".join(out) + "\n"
-
-
-def page(rows: list[Row], header: str = "") -> str:
-    """The table as an HTML page, each case's image beside its row."""
-    e = html.escape
-    body = [f"<h1>Hard cases</h1><p>{e(header)}</p><table>",
-            "<tr><th>case</th><th>variant</th><th>criterion</th><th>measured</th>"
-            "<th>pass</th><th>image</th></tr>"]
-    for r in rows:
-        img = f'<img src="{e(r.image)}" width="128">' if r.image else ""
-        cls = "ok" if r.passed else "red"
-        body.append(f'<tr class="{cls}"><td>{e(r.case)}</td><td>{e(r.variant)}</td>'
-                    f"<td>{e(r.criterion)}</td><td>{e(r.measured)}</td>"
-                    f"<td>{'yes' if r.passed else 'NO'}</td><td>{img}</td></tr>")
-    body.append("</table>")
-    style = ("body{font-family:sans-serif}table{border-collapse:collapse}"
-             "td,th{border:1px solid #ccc;padding:4px;font-size:13px;vertical-align:top}"
-             "tr.red{background:#fdd}")
-    return (f"<!doctype html><html><head><meta charset='utf-8'><title>Hard cases</title>"
-            f"<style>{style}</style></head><body>{''.join(body)}</body></html>\n")
-
-
-def write_report(rows: list[Row], out: Path, meta: dict) -> dict:
-    """Write ``hard_cases.md``, ``hard_cases.json`` and ``index.html`` into ``out``
-    (atomically); returns the paths."""
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    header = ", ".join(f"{k}: {v}" for k, v in meta.items())
-    paths = {"markdown": out / "hard_cases.md", "json": out / "hard_cases.json",
-             "html": out / "index.html"}
-    write_result(paths["markdown"], markdown(rows, header))
-    write_result(paths["json"], json.dumps({"meta": meta, "rows": [asdict(r) for r in rows],
-                                             "passed": all(r.passed for r in rows)},
-                                            indent=1, default=float))
-    write_result(paths["html"], page(rows, header))
-    return paths
