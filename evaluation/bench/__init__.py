@@ -37,11 +37,16 @@ from renderer.outputs import check_output_file
 from . import effects, peer, seed_table, throughput, whitted_frame
 from .part import Context, Part, jsonable, write_atomic
 
-__all__ = ["PARTS", "Context", "Part", "device_info", "markdown", "run"]
+__all__ = ["PARTS", "Context", "NothingMeasured", "Part", "device_info", "markdown", "run"]
 
 #: The study's parts by name, in the order they run and appear in the markdown.
 PARTS: dict[str, Part] = {p.name: p for p in (throughput.PART, seed_table.PART,
                                                whitted_frame.PART, peer.PART, effects.PART)}
+
+
+class NothingMeasured(Exception):
+    """No part asked for found a scene of its own in the scenes folder: the run measured
+    nothing and wrote no result."""
 
 
 def device_info(backend: str) -> dict:
@@ -87,6 +92,8 @@ def run(out_dir, *, backend: str = "auto", scenes_dir="scenes", quick: bool = Fa
     The files are rewritten (atomically) after each part and at each part's checkpoints
     (``Context.save_rows``); on Ctrl-C (or ``timeout -s INT``) they are written with what
     was measured and ``"interrupted"`` naming the part, and the interrupt is re-raised.
+    Nothing is written until a part has rows; when no part finds a scene of its own in
+    ``scenes_dir``, ``NothingMeasured`` is raised and no file is written.
 
     ``quick`` shrinks every size (for a smoke run on a CPU): 1920×1080 → 320×180,
     512² → 128², 20 frozen frames → 5.
@@ -108,10 +115,14 @@ def run(out_dir, *, backend: str = "auto", scenes_dir="scenes", quick: bool = Fa
         write_atomic(out / f"bench-{tag}.json", json.dumps(jsonable(result), indent=1))
         write_atomic(out / f"bench-{tag}.md", markdown(result))
 
+    def measured() -> bool:
+        return any(result.get(p.key) for p in PARTS.values())
+
     def checkpoint(key: str):
         def keep(rows: list[dict]) -> None:
             result[key] = list(rows)
-            save()
+            if measured():
+                save()
         return keep
 
     part = None
@@ -122,13 +133,17 @@ def run(out_dir, *, backend: str = "auto", scenes_dir="scenes", quick: bool = Fa
                               quick=quick, checkpoint=checkpoint(part.key),
                               overwrite=overwrite)
                 result[part.key] = part.run(ctx)
-                save()
+                if measured():
+                    save()
     except KeyboardInterrupt:
         result["interrupted"] = f"in part {part.name}" if part else "before the first part"
         save()
         print(f"interrupted {result['interrupted']}: wrote what was measured to "
               f"{out / f'bench-{tag}.json'} and .md", flush=True)
         raise
+    if not measured():
+        raise NothingMeasured(f"no scene of the parts {', '.join(parts)} in {scenes_dir}: "
+                              "nothing measured, nothing written")
     save()
     print(f"wrote {out / f'bench-{tag}.json'} and .md", flush=True)
     return result

@@ -118,17 +118,15 @@ def peer_frame_ms(scene, *, backend: str, frames: int = 20, warmup: int = 3) -> 
     import drjit as dr
 
     from reference.peer import load_peer
-    from renderer.stats import kernel_ms
+    from renderer.stats import kernel_launches, kernel_ms
     peer = load_peer(scene, backend=backend)
     pos = peer.positions()
-    dr.sync_thread()
-    with dr.scoped_set_flag(dr.JitFlag.KernelHistory, True):
-        dr.kernel_history()
-        t0 = time.perf_counter()
+
+    def frame():
         img = peer.frame(pos)
-        dr.sync_thread()
-        traced_ms = (time.perf_counter() - t0) * 1e3
-        hist = dr.kernel_history()
+        dr.eval(img)
+        return img
+    img, hist, traced_ms = kernel_launches(frame)
     traced = np.asarray(img.numpy(), np.float32)
     run_frozen = peer.frozen()
     timing = kernel_ms(lambda: run_frozen(pos), warmup=warmup, repeats=frames)
@@ -285,21 +283,16 @@ def peer_compiles(scene, depth: int, timeout_s: float, *, backend: str = "llvm",
 
 def _probe_main(path: str, depth: int, backend: str, size: int) -> None:
     """Subprocess side of ``peer_compiles``: one traced peer frame; prints one JSON line."""
-    import drjit as dr
 
     from reference.peer import load_peer
     from renderer.scene import load_scene
+    from renderer.stats import kernel_launches
     sc = _at(load_scene(path), depth, size)
     peer = load_peer(sc, backend=backend)
     pos = peer.positions()
-    with dr.scoped_set_flag(dr.JitFlag.KernelHistory, True):
-        dr.kernel_history()
-        t0 = time.perf_counter()
-        peer.frame(pos)
-        dr.sync_thread()
-        first = time.perf_counter() - t0
-        ops = sum(int(h.get("operation_count", 0)) for h in dr.kernel_history())
-    print(json.dumps({"first_frame_s": first, "operations": ops}))
+    _, hist, wall_ms = kernel_launches(lambda: peer.frame(pos))
+    ops = sum(int(h.get("operation_count", 0)) for h in hist)
+    print(json.dumps({"first_frame_s": wall_ms * 1e-3, "operations": ops}))
 
 
 def deepest(probes: list[dict]) -> int:

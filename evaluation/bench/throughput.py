@@ -36,6 +36,7 @@ from renderer.accel import ACCELERATORS, Ray, build_accelerator
 from renderer.accel.bvh_build import build_bvh
 from renderer.accel.order import SortedQueries
 from renderer.device import array3, types
+from renderer.stats import kernel_launches
 
 from .. import SEED_SCENES
 from .part import Context, Part, jsonable, table
@@ -202,16 +203,12 @@ def _timed(fns: dict, repeats: int, warmup: int = 2, eager=()) -> dict:
     kern = {k: [] for k in fns}
     wall = {k: [] for k in fns}
     cpu = {k: [] for k in fns}
-    dr.kernel_history()
-    with dr.scoped_set_flag(dr.JitFlag.KernelHistory, True):
-        for _ in range(repeats):
-            for k, fn in fns.items():
-                dr.kernel_history()
-                t0 = time.perf_counter()
-                cpu[k].append(once(fn, k in eager) * 1e3)
-                wall[k].append((time.perf_counter() - t0) * 1e3)
-                hist = [h for h in dr.kernel_history() if "execution_time" in h]
-                kern[k].append(sum(h["execution_time"] for h in hist))
+    for _ in range(repeats):
+        for k, fn in fns.items():
+            cpu_s, hist, ms = kernel_launches(lambda fn=fn, k=k: once(fn, k in eager))
+            cpu[k].append(cpu_s * 1e3)
+            wall[k].append(ms)
+            kern[k].append(sum(h["execution_time"] for h in hist if "execution_time" in h))
     return {k: {"kernel_ms": statistics.median(kern[k]), "kernel_ms_min": min(kern[k]),
                 "cpu_ms": statistics.median(cpu[k]), "cpu_ms_min": min(cpu[k]),
                 "wall_ms": statistics.median(wall[k]), "repeats": repeats} for k in fns}

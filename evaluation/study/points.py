@@ -86,6 +86,13 @@ def parse_scene_arg(text: str) -> tuple[str, float]:
     return path, float(off) if off else 0.0
 
 
+def scene_file(path: str) -> Path:
+    """A spec's scene path as a file: absolute as given; relative, from the current folder
+    when the file is there, else from the repository root (``ROOT``, a checkout)."""
+    p = Path(path)
+    return p if p.is_absolute() or p.exists() else ROOT / p
+
+
 def scene_label(path: str, offset: float = 0.0) -> str:
     return Path(path).stem + (f"@{offset:g}" if offset else "")
 
@@ -110,8 +117,7 @@ def prepare_scene(spec: dict) -> Scene:
     """The scene a point spec describes: loaded with its shading, translated, resized
     (height ``size``, width by the camera's aspect), its view first, settings and
     combination applied (converged mode, ``spp``; the seed is set per render)."""
-    sc = load_scene(ROOT / spec["scene"] if not Path(spec["scene"]).is_absolute()
-                    else spec["scene"], shading=spec.get("shading"))
+    sc = load_scene(scene_file(spec["scene"]), shading=spec.get("shading"))
     if spec.get("offset"):
         sc = translated(sc, spec["offset"])
     if spec.get("view", 0):
@@ -159,7 +165,7 @@ def build_sweep(scene_args, profile: Profile, *, backend: str = "llvm",
     for arg in scene_args:
         path, offset = parse_scene_arg(arg)
         label = scene_label(path, offset)
-        sc = load_scene(ROOT / path if not Path(path).is_absolute() else path, shading=shading)
+        sc = load_scene(scene_file(path), shading=shading)
         scenes[label] = {"path": path, "offset": offset, "label": label,
                          "shading": sc.settings.shading,
                          "default": default_settings(sc, profile),

@@ -24,7 +24,7 @@ from renderer.effects import EffectSet
 from renderer.outputs import atomic_path, write_text
 from renderer.render import Renderer, make_frame_fn
 from renderer.scene import Scene
-from renderer.stats import kernel_ms
+from renderer.stats import kernel_launches, kernel_ms
 
 from .points import (
     METRICS,
@@ -168,20 +168,19 @@ def render_seeds(spec: dict, seeds=None, *, timing: bool = False) -> tuple[list,
         dr.sync_thread()
         first = i == 0 and timing
         if first:
-            dr.kernel_history()
-            with dr.scoped_set_flag(dr.JitFlag.KernelHistory, True):
-                t0 = time.perf_counter()
-                img = fn(ca, r.arrays, W, H)
+            def frame(fn=fn, arrays=r.arrays):
+                img = fn(ca, arrays, W, H)
                 dr.eval(img)
-                dr.sync_thread()
-                wall = (time.perf_counter() - t0) * 1e3
-                hist = [h for h in dr.kernel_history() if "operation_count" in h]
+                return img
+            img, hist, wall = kernel_launches(frame)
+            hist = [h for h in hist if "operation_count" in h]
             compile_ms = sum(float(h.get("codegen_time", 0)) + float(h.get("backend_time", 0))
                              for h in hist)
             exec_ms = sum(float(h.get("execution_time", 0)) for h in hist)
             facts.update(first_frame_ms=wall, compile_ms=compile_ms,
                          trace_ms=max(wall - compile_ms - exec_ms, 0.0),
-                         kernels=len(hist), operations=sum(int(h["operation_count"]) for h in hist),
+                         kernels=len(hist),
+                         operations=sum(int(h["operation_count"]) for h in hist),
                          cache_hits=sum(bool(h.get("cache_hit")) for h in hist))
         else:
             img = fn(ca, r.arrays, W, H)

@@ -25,6 +25,7 @@ from renderer.accel.bvh_build import build_bvh
 from renderer.accel.order import SortedQueries, _spread3
 from renderer.device import array3, types
 from renderer.scene import load_scene
+from renderer.stats import kernel_launches
 
 SCENES = ("cornell_sphere", "platonic_solids", "bunny", "sponza", "conference")
 #: (accelerator, key mode, origin bits per axis, direction bits per axis)
@@ -136,12 +137,9 @@ def probe(name: str, t, width: int, height: int, repeats: int) -> list:
             same = {k: all(np.array_equal(x, y) for x, y in
                            zip(_results(fns[a]), _results(fns[k])))
                     for k, (a, _) in variants.items()}
-            dr.kernel_history()
-            with dr.scoped_set_flag(dr.JitFlag.KernelHistory, True):
-                dr.eval(fns["bvh+oct4"]())
-                dr.sync_thread()
-                hist = [(str(h.get("type")), h.get("size"),
-                         round(h.get("execution_time", -1), 4)) for h in dr.kernel_history()]
+            _, launched, _ = kernel_launches(lambda f=fns["bvh+oct4"]: dr.eval(f()))
+            hist = [(str(h.get("type")), h.get("size"), round(h.get("execution_time", -1), 4))
+                    for h in launched]
             timing = T._timed(fns, repeats, eager=tuple(variants))
             rows.append({"scene": name, "batch": bname, "query": q, "rays": m,
                          "bitwise": same, "hist_sorted_call": hist, "ms": timing})
