@@ -53,8 +53,8 @@ def register(subparsers) -> None:
                         "$WHITTED_GOLDENS or [tool.whitted] goldens in pyproject.toml)")
     p.add_argument("--force", action="store_true", help="replace an existing report folder")
     p.add_argument("--study", type=Path, action="append",
-                   help="accuracy-vs-time study folder (whitted study --out, e.g. "
-                        "results/study/cpu) to carry as the report's 'Accuracy vs time' page "
+                   help="accuracy-vs-time study folder (whitted study --out) to carry as the "
+                        "report's 'Accuracy vs time' page "
                         "(repeatable)")
     p.set_defaults(source="golden", func=cmd_compare)
 

@@ -1,7 +1,7 @@
 """``whitted study``: the accuracy-vs-time study (``evaluation.study``).
 
-    whitted study [SCENE ...] --out results/study/cpu --profile cpu --backend llvm
-    whitted study --profile gpu --backend cuda --out results/study/h200 --budget-minutes 7
+    whitted study [SCENE ...] --out out/study-cpu --profile cpu --backend llvm
+    whitted study --profile gpu --backend cuda --out out/study-gpu --budget-minutes 7
     whitted study --workers 4 ...            # Dask LocalCluster of 4 worker processes
     whitted study --scheduler tcp://host:8786 ...
     whitted study --report-only --out DIR    # re-write markdown, plots, HTML from DIR/study.json
@@ -25,7 +25,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("scenes", nargs="*", default=list(SEED_SCENES),
                    help="scene files, names or PATH@OFFSET (default: the seed scenes and "
                         "the glass bunny)")
-    p.add_argument("--out", type=Path, default=Path("results/study/run"),
+    p.add_argument("--out", type=Path, default=Path("out/study"),
                    help="results folder (study.json is resumed if present)")
     p.add_argument("--profile", default="cpu", choices=sorted(PROFILES),
                    help="sweep size: gpu (full), cpu (grid to 64 spp, 3 repeats), tiny (CI)")

@@ -52,7 +52,7 @@ from .frames import frozen_frame_ms
 from .part import Context, Part, table
 
 ROOT = Path(__file__).resolve().parents[2]
-#: The scenes of issue 12, goal 3: the seed scenes and the glass bunny.
+#: The scenes of the peer comparison: the seed scenes and the glass bunny.
 PEER_SCENES = SEED_SCENES + ("glass_bunny",)
 #: The depth every scene is compared at (the peer compiles it on every backend).
 BASE_DEPTH = 2
@@ -74,7 +74,7 @@ class Plan:
 
 def plan(ctx: Context, n_scenes: int = len(PEER_SCENES)) -> Plan:
     """The part's plan on ``ctx``'s backend. CUDA: probes at depths 3-5, 45 s each, all at
-    once (the whole part fits in ~5 minutes on an H200); LLVM: 3-6, 120 s each, as many at
+    once (the whole part fits in about 5 minutes on a GPU); LLVM: 3-6, 120 s each, as many at
     once as there are cores; quick: depth 3 only, 60 s, 128²/256² frames at depth 2 and
     128² beyond. Full runs time the deeper rows at 1024²."""
     cores = os.cpu_count() or 1

@@ -46,7 +46,7 @@ ACCELS = ("bvh", "bvh4", "bvh8")     # binary, and the wide BVHs collapsed from 
 BATCHES = ("primary", "shadow", "incoherent", "reflection")
 #: Variants of an accelerator of ``ACCELS``: queries for evaluated batches, the rays sorted
 #: first (``renderer.accel.order.SortedQueries``; CPU only: on the GPU the sort costs more
-#: than it saves, ``results/h200/throughput/ray-sort.md``) and lanes that take the next ray
+#: than it saves, ``lab/notes/ray-sort.md``) and lanes that take the next ray
 #: when theirs is done (``traverse.refill_traversal``, ``REFILL`` rays per lane by
 #: backend); and the BVH built without spatial splits (``build_bvh(spatial=0)``; only in
 #: scenes where the default build cuts references), to show what the splits gain or cost.
@@ -60,8 +60,8 @@ VARIANT_BATCHES = {"sort": ("incoherent", "reflection"),
 EAGER = ("sort", "refill")            # kinds that launch kernels while tracing
 #: Variants shown beside the contenders but never "best": the renderer does not build them.
 NOT_CONTENDERS = ("bvh-nosplit",)
-#: Rays per lane of the refill variant: on an H200 16 per thread beat 8 on every incoherent
-#: batch (1.04-1.10x; ``results/h200/throughput/refill-count.md``).
+#: Rays per lane of the refill variant by backend: on CUDA 16 per thread beat 8 on every
+#: incoherent batch (``lab/notes/refill-count.md``).
 REFILL = {"llvm": 32, "cuda": 16}
 SEED = 12                           # the incoherent batch's random generator
 #: Offset of the host-side reflection batch's origins (fraction of the scene diagonal): both

@@ -1,5 +1,5 @@
 """The throughput part alone at a chosen batch size: ``python -m
-evaluation.bench.throughput_run --size 640x360 --repeats 5 --out results/cpu``.
+evaluation.bench.throughput_run --size 640x360 --repeats 5 --out out/throughput``.
 
 Writes ``bench-<backend>-throughput.json`` / ``.md`` in the format of ``evaluation.bench.run``
 (so ``markdown(json)`` reproduces the ``.md``), each row with the load average measured
@@ -32,7 +32,7 @@ def main(argv=None) -> int:
     ap.add_argument("--backend", default="llvm")
     ap.add_argument("--scenes", default="scenes")
     ap.add_argument("--only", default="", help="comma-separated scene names (default all)")
-    ap.add_argument("--out", default="results/cpu")
+    ap.add_argument("--out", default="out/throughput")
     ap.add_argument("--note", default="")
     ap.add_argument("--force", action="store_true")
     args = ap.parse_args(argv)

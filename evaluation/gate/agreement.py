@@ -8,7 +8,7 @@ For every exact-mode regression case (``evaluation.gate.rules.cases``) it render
 and prints: the fraction of pixels within 1e-3 (max over RGB, absolute) of the golden; the
 same fraction with the tie-probe pixels set aside (``rules.tie_probe``: the pixels whose
 value depends on how a geometric tie is broken, found by tracing); the size of the tie
-mask; the exact rule's excused and hard pixel counts and its verdict. The issue-10 goal is
+mask; the exact rule's excused and hard pixel counts and its verdict. The goal is
 >= 99.5 % on every bundled scene in the second column.
 
 ``--goldens`` reads another golden folder (e.g. the goldens of an older commit, extracted

@@ -25,7 +25,7 @@ from reference import MODES
 from .metrics import welch_test
 
 ROOT = Path(__file__).resolve().parents[2]
-#: Golden cases for what the seed scenes miss (issue 11): a non-black background in mirrors,
+#: Golden cases for what the seed scenes miss: a non-black background in mirrors,
 #: Fresnel glass entered from outside, open glass, non-square images, inverse-square classic
 #: lights, physical ambient. They ship with the scenes (not under tests/) so that the gate
 #: of an installed copy checks the same features.
@@ -70,8 +70,8 @@ EXACT_THRESHOLDS = {
 CONVERGED_THRESHOLDS = {
     "alpha": Threshold(0.01, "Šidák-corrected family-wise significance of the per-value "
                              "pooled two-sample t-test: a correct renderer fails a case "
-                             "with probability <= 1 % (measured: 0 of 32 cases, "
-                             "results/null_test/null.json); no failure budget on top"),
+                             "with probability <= 1 % (the null test, "
+                             "evaluation.meta.null_test); no failure budget on top"),
     "var_floor": Threshold(1e-4, "relative floor added to the standard deviation: pixels "
                                  "whose samples all agree have ~0 variance in both, and "
                                  "float32 rounding differs"),

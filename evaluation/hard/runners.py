@@ -737,10 +737,9 @@ def case_far_origin(cfg: Config, spec: dict) -> list[Row]:
     from farther away enter every box (``renderer.accel.traverse.box_ray``). Counted per
     (accel, routine, precision): rays whose answer differs from brute force's, 0 for
     every routine (agreement is the accelerators' property, whichever test they share).
-    On an H200 Möller–Trumbore in float64 once differed from brute force at 4-5 of the 642
-    vertex rays in the BVHs: Dr.Jit's ``dr.rcp`` of float64 is ``rcp.approx`` on CUDA, so
-    its distances were 2e-7 short, beyond the padded boxes' reach, and a BVH culled the
-    nearer hit; ``renderer.device.rcp`` divides instead."""
+    Dr.Jit's ``dr.rcp`` of float64 is ``rcp.approx`` on CUDA, whose distances fall short
+    of the padded boxes' reach (a BVH then culls the nearer hit at vertex rays);
+    ``renderer.device.rcp`` divides instead."""
     c = np.asarray(spec["center"], np.float64)
     r = float(spec["radius"])
     V, F = shapes.make_shape("sphere", subdivisions=int(spec["subdivisions"]))

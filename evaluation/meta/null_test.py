@@ -6,7 +6,7 @@ Two independent converged renders of OURS (16 batches each, batches 0-15 and 16-
 expectation on both sides, so every failure is a false failure. Also run: ours against the
 golden (the real check), for the record.
 
-    python -m evaluation.meta.null_test [--cases SUBSTR ...] [--out results/null_test/null.json]
+    python -m evaluation.meta.null_test [--cases SUBSTR ...] [--out out/null_test/null.json]
 
 Writes a JSON record (per case: failed values/pixels and max |t| of the null pair and of
 ours vs golden; totals: false-failure rate over cases) atomically, and prints one line per
@@ -42,7 +42,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m evaluation.meta.null_test",
                                  description=__doc__.split("\n\n")[0])
     ap.add_argument("--cases", nargs="*", default=[], help="substrings of case names")
-    ap.add_argument("--out", default=str(ROOT / "results/null_test/null.json"))
+    ap.add_argument("--out", default=str(ROOT / "out/null_test/null.json"))
     ap.add_argument("--backend", default="llvm")
     args = ap.parse_args(argv)
     batches = int(CONVERGED_THRESHOLDS["batches"].value)

@@ -1,17 +1,17 @@
 """The Mitsuba reference on CUDA against itself on LLVM, for each way of spawning rays.
 
-Usage (one GPU job, about a minute on an H200):
+Usage (one GPU job, about a minute):
 ``python -m evaluation.meta.speckles --out DIR [--size 256] [--scenes platonic_solids,glass_bunny]
 [--variants cuda_ad_rgb,llvm_ad_rgb] [--shading classic]``
 
-Mitsuba's CUDA render of platonic_solids (results/h100, middle panel) showed speckles inside
-glass that the LLVM goldens lack. This renders every view of each scene with the reference
-harness (``reference.mitsuba_scene.render_mitsuba``, exact mode) on both variants, once
-with the offset rule the harness used to copy from us (``spawn="fixed"``: an absolute
-1e-4 x diagonal along N_g) and once with Mitsuba's own ``si.spawn_ray`` /
-``si.spawn_ray_to`` (``spawn="mitsuba"``), and counts the pixels where CUDA and LLVM differ
-by more than 1e-2 (max over RGB, absolute). The rule whose count drops to the level of the
-diffuse scenes (a few edge pixels) is the one that fixes it.
+Mitsuba's CUDA renders can show speckles inside glass that the LLVM goldens lack. This
+renders every view of each scene with the reference harness
+(``reference.mitsuba_scene.render_mitsuba``, exact mode) on both variants, once with the
+fixed offset rule (``spawn="fixed"``: an absolute 1e-4 x diagonal
+along N_g) and once with Mitsuba's own ``si.spawn_ray`` / ``si.spawn_ray_to``
+(``spawn="mitsuba"``), and counts the pixels where CUDA and LLVM differ by more than 1e-2
+(max over RGB, absolute). The rule whose count drops to the level of the diffuse scenes (a
+few edge pixels) is the one that fixes it.
 
 Writes ``DIR/speckles.json`` and ``DIR/speckles.md`` (a row per scene x view x spawn) and
 ``DIR/<scene>-<view>-<spawn>.png`` (CUDA | LLVM | pixels over 1e-2 in white).

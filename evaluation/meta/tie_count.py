@@ -1,17 +1,18 @@
-"""How many pixels the exact rule excuses, per golden case: before (the image-space rule of
-issue 9: a 3x3 neighbourhood range +- 0.02 plus a 0.5 % pixel budget) and now (the tie
-probe: ``evaluation.gate.rules.tie_probe``, no neighbourhood, no budget).
+"""How many pixels the exact rule excuses, per golden case: under the image-space
+neighbourhood rule (a 3x3 neighbourhood range +- 0.02 plus a 0.5 % pixel budget,
+``old_edge_rule``) and under the tie probe (``evaluation.gate.rules.tie_probe``, no
+neighbourhood, no budget), the rule the gate uses.
 
-    python -m evaluation.meta.tie_count [--cases SUBSTR ...] [--out results/rules/exact_ties.json]
-                                   [--slack F] [--ray-epsilon E]
+    python -m evaluation.meta.tie_count [--cases SUBSTR ...] [--out out/rules/exact_ties.json]
+                                        [--slack F] [--ray-epsilon E]
 
 ``--slack`` tries another tie-probe distance (fraction of the diagonal); ``--ray-epsilon``
 renders ours with another ray offset than the golden's, to see what a mismatch of offset
-models between the renderers does (measured on 2026-12-01: ours at 1e-5 or 1e-6 against
-goldens at 1e-4 gives 30-250 hard pixels per view, most of them no tie even at 10x the
-slack: a mismatch of offsets is a model difference, and the rule does not excuse it).
+models between the renderers does (a mismatch of offsets is a model difference: its
+pixels are no ties, and the rule does not excuse them).
 
-Per case: pixels off by more than max_rel, excused before / now, hard now, the size of the
+Per case: pixels off by more than max_rel, excused by the neighbourhood rule / the tie
+probe, hard under the tie probe, the size of the
 tie mask (where a bug could hide now), and the worst relative error of the pixels held.
 Writes JSON and a markdown table beside it (atomically); prints the table.
 """
@@ -29,7 +30,7 @@ from evaluation.gate.rules import EXACT_THRESHOLDS, ROOT, cases, check_exact, ma
 
 
 def old_edge_rule(ours: np.ndarray, ref: np.ndarray) -> np.ndarray:
-    """The excused ("edge") pixels of the rule before issue 11: a pixel off by more than
+    """The excused ("edge") pixels of the image-space neighbourhood rule: a pixel off by more than
     max_rel whose golden value lies within our 3x3 neighbourhood's range +- 0.02 (relative
     and absolute), or ours within the golden's."""
     def rng(img):
@@ -54,7 +55,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m evaluation.meta.tie_count",
                                  description=__doc__.split("\n\n")[0])
     ap.add_argument("--cases", nargs="*", default=[])
-    ap.add_argument("--out", default=str(ROOT / "results/rules/exact_ties.json"))
+    ap.add_argument("--out", default=str(ROOT / "out/rules/exact_ties.json"))
     ap.add_argument("--backend", default="llvm")
     ap.add_argument("--slack", type=float, default=EXACT_THRESHOLDS["tie_slack"].value)
     ap.add_argument("--ray-epsilon", type=float, default=None)
