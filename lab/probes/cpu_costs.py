@@ -13,9 +13,9 @@ rays at once. This module times those operations alone, in CPU ns per 32-bit wor
   per-lane index inside a symbolic loop (the traversal stack).
 
 Records are drawn from a table that fits in L1 (300 records, 19 KB) or not (20 000,
-1.3 MB). Run: ``python -m lab.probes.cpu_costs`` (prints a markdown table).
+1.3 MB). Run: ``PYTHONPATH=. python lab/probes/cpu_costs.py`` (prints a markdown table).
 
-``step_fit(rows)`` / ``python -m lab.probes.cpu_costs --fit bench-llvm-throughput.json``:
+``step_fit(rows)`` / ``... cpu_costs.py --fit bench-llvm-throughput.json``:
 the per-step costs of a throughput run, by least squares over its (scene, batch, query)
 rows, per accelerator: CPU ns per 16-ray packet = a * node steps + b * triangle steps + c,
 the steps being those of each packet's slowest ray (``_steps``'s ``*_packet_max``).

@@ -1,6 +1,6 @@
 """Probe: where a Whitted frame's time goes, by variants of our frozen frame.
 
-    python -m lab.probes.probe_frame [--backend cuda] [--size 1024] [--depth 2]
+    PYTHONPATH=. python lab/probes/probe_frame.py [--backend cuda] [--size 1024] [--depth 2]
         [--scenes cornell_box,cornell_sphere,platonic_solids,glass_bunny] [--out DIR] [--force]
 
 Per scene (exact mode, the peer part's frame: ``peer._at(scene, depth, size)``), the frozen

@@ -1,6 +1,6 @@
-"""Probe: rays sorted before tracing, on the GPU (``results/h200/throughput/ray-sort.md``).
+"""Probe: rays sorted before tracing, on the GPU (``lab/notes/ray-sort.md``).
 
-    python -m lab.probes.probe_sort [--backend cuda] [--out DIR] [--force]
+    PYTHONPATH=. python lab/probes/probe_sort.py [--backend cuda] [--out DIR] [--force]
 
 For the incoherent and reflection batches of the throughput part, the binary and 4-wide
 BVHs plain and wrapped in sorted queries with several keys (``KeyedSort``), against

@@ -1,7 +1,7 @@
 """Probe: the BVH with and without spatial splits (``renderer.accel.spatial``) against
 Mitsuba, on the throughput part's batches.
 
-    python -m lab.probes.probe_spatial [--backend llvm] [--size 640x360]
+    PYTHONPATH=. python lab/probes/probe_spatial.py [--backend llvm] [--size 640x360]
         [--scenes sponza,conference] [--out DIR] [--force]
 
 Per scene: one build with ``spatial=0`` and one with the default, each as the binary and

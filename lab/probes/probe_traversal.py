@@ -1,33 +1,29 @@
-"""Probe: traversal variants against Mitsuba on the GPU (``results/h200/throughput/branches.md``).
+"""Probe: traversal variants against Mitsuba on the GPU (``lab/notes/branches.md``).
 
-    python -m lab.probes.probe_traversal --mode branches [--backend cuda] [--out DIR]
-    python -m lab.probes.probe_traversal --mode leaf ...    [--size WxH] [--force]
-    python -m lab.probes.probe_traversal --mode setup ...
-    python -m lab.probes.probe_traversal --mode slab ...
-    python -m lab.probes.probe_traversal --mode optimize ...
-    python -m lab.probes.probe_traversal --mode refill-count ...
+    PYTHONPATH=. python lab/probes/probe_traversal.py --mode branches [--backend cuda] [--out DIR]
+    PYTHONPATH=. python lab/probes/probe_traversal.py --mode leaf ...    [--size WxH] [--force]
+    PYTHONPATH=. python lab/probes/probe_traversal.py --mode setup ...
+    PYTHONPATH=. python lab/probes/probe_traversal.py --mode optimize ...
+    PYTHONPATH=. python lab/probes/probe_traversal.py --mode refill-count ...
 
 ``branches``: the traversal steps written inline with masked updates (what CUDA ran before
 ``traverse.masked_step`` became a symbolic ``if`` everywhere) against real branches for both
-steps (``+br``), for the triangle step only (``+brtri``) or the node step only
-(``+brnode``); also leaves of 2 and 8 triangles and Möller–Trumbore, inline. ``refill``: the
-binary and 4-wide BVHs whose threads take the next ray when theirs is done (``refill``, rays
-per thread: ``traverse.refill_traversal``), and the tie-break's gather on every nearer hit
-(``+tiegather``; ``traverse.TIE_BRANCH_BACKENDS``), against the binary and 4-wide BVHs.
-``leaf``: with the branches, leaves of 1, 2, 4 and 8 triangles, the 4-wide BVH from the
-leaf-2 build, the 8-wide BVH and Möller–Trumbore. ``slab``: the binary and 4-wide BVHs with
-the slab test's one FMA per plane (the renderer's, ``traverse.box_ray``) against the
-subtraction form (``+sub``). ``optimize``: the binary and 4-wide BVHs built without and with
-the insertion-based optimisation (``+reinsert``, ``renderer.accel.optimize``).
-``refill-count``: the 4-wide BVH with 8, 16 and 32 rays per thread (``+refillN``), each also
-with the tie-break's gather on every nearer hit instead of in a branch (``+tiegather``), as
-the binary and 4-wide BVHs. ``setup``: the watertight test bound to each traversal's rays
-(the renderer's, ``triangle.bind_routine``) against the same test doing its per-ray set-up
-at every triangle (``+per-test``). Batches as the throughput part's (primary, incoherent,
-reflection; closest and any hit; ``setup``, ``slab`` and ``optimize`` also the shadow rays),
-every contender timed in turn (``throughput._timed``), and every contender's hits compared
-with the binary BVH's (t and face where found). Writes ``OUT/<mode>.json`` and prints one
-line per query.
+steps (``+br``), for the triangle step only (``+brtri``) or the node step only (``+brnode``);
+also leaves of 2 and 8 triangles and Möller–Trumbore, inline. ``refill``: the binary and 4-wide
+BVHs whose threads take the next ray when theirs is done (``refill``, rays per thread:
+``traverse.refill_traversal``), against the binary and 4-wide BVHs. ``leaf``: with the
+branches, leaves of 1, 2, 4 and 8 triangles, the 4-wide BVH from the leaf-2 build, the 8-wide
+BVH and Möller–Trumbore. ``optimize``: the binary and 4-wide BVHs built without and with the
+insertion-based optimisation (``+reinsert``, ``renderer.accel.optimize``). ``refill-count``:
+the 4-wide BVH with 8, 16 and 32 rays per thread (``+refillN``) against the binary and 4-wide
+BVHs. (The ``slab`` mode and the ``+tiegather`` variants compared the forms the renderer no
+longer has; their results stay in the lab notes.) ``setup``: the watertight test bound to each
+traversal's rays (the renderer's, ``triangle.bind_routine``) against the same test doing its
+per-ray set-up at every triangle (``+per-test``). Batches as the throughput part's (primary,
+incoherent, reflection; closest and any hit; ``setup`` and ``optimize`` also the shadow rays),
+every contender timed in turn (``throughput._timed``), and every contender's hits compared with
+the binary BVH's (t and face where found). Writes ``OUT/<mode>.json`` and prints one line per
+query.
 """
 from __future__ import annotations
 
@@ -84,14 +80,6 @@ def _accelerators(scene, t, mode: str) -> tuple[dict, dict]:
         dr.eval(accs)
         accs["bvh+per-test"] = replace(accs["bvh"], intersection="watertight_per_test")
         return accs, {a: (a, True, True) for a in accs}
-    if mode == "slab":
-        b = build_bvh(scene.vertices, scene.faces)
-        accs = {a: ACCELERATORS[a].build(scene, t, binary=b) for a in ("bvh", "bvh4")}
-        dr.eval(accs)
-        for a in ("bvh", "bvh4"):
-            # the slab test's subtraction form, (lo - o) * inv, instead of one FMA per plane
-            accs[a + "+sub"] = _Traced(accs[a], "SLAB_FMA_BACKENDS", ())
-        return accs, {a: (a, True, True) for a in accs}
     if mode == "optimize":
         from renderer.accel.optimize import reinsert
         b = build_bvh(scene.vertices, scene.faces, optimize=0)
@@ -107,8 +95,6 @@ def _accelerators(scene, t, mode: str) -> tuple[dict, dict]:
         accs = {"bvh": ACCELERATORS["bvh"].build(scene, t, binary=b),
                 "bvh4": ACCELERATORS["bvh4"].build(scene, t, binary=b)}
         dr.eval(accs)
-        # the tie-break's gather on every nearer hit (CUDA's path before 2026-12-02)
-        accs["bvh+tiegather"] = _Traced(accs["bvh"], "TIE_BRANCH_BACKENDS", ())
         for r in (2, 4, 8, 16):
             accs[f"bvh+refill{r}"] = replace(accs["bvh"], refill=r)
         for r in (4, 8):
@@ -118,12 +104,8 @@ def _accelerators(scene, t, mode: str) -> tuple[dict, dict]:
         b = build_bvh(scene.vertices, scene.faces)
         accs = {a: ACCELERATORS[a].build(scene, t, binary=b) for a in ("bvh", "bvh4")}
         dr.eval(accs)
-        tie = ("TIE_BRANCH_BACKENDS", ())     # the tie-break's gather on every nearer hit
-        for a in ("bvh", "bvh4"):
-            accs[a + "+tiegather"] = _Traced(accs[a], *tie)
         for r in (8, 16, 32):
             accs[f"bvh4+refill{r}"] = replace(accs["bvh4"], refill=r)
-            accs[f"bvh4+refill{r}+tiegather"] = _Traced(accs[f"bvh4+refill{r}"], *tie)
         return accs, {a: (a, True, True) for a in accs}
     accs["bvh-mt"] = ACCELERATORS["bvh"].build(scene, t, binary=binary,
                                                intersection="moller_trumbore")
@@ -144,28 +126,6 @@ def watertight_per_test(o, d, p0, p1, p2, n, t_min=0.0):
 
 
 watertight_per_test.layout = "vertices"
-
-
-class _Traced:
-    """``acc`` traced with ``renderer.accel.traverse``'s setting ``name`` set to ``value``
-    (the probes' variants of a module-level switch, read when a query is traced)."""
-
-    def __init__(self, acc, name: str, value):
-        self.acc, self.tris, self.name, self.value = acc, acc.tris, name, value
-
-    def _with(self, fn, *args):
-        old = getattr(traverse_module, self.name)
-        setattr(traverse_module, self.name, self.value)
-        try:
-            return fn(*args)
-        finally:
-            setattr(traverse_module, self.name, old)
-
-    def intersect(self, ray, on):
-        return self._with(self.acc.intersect, ray, on)
-
-    def intersect_p(self, ray, on):
-        return self._with(self.acc.intersect_p, ray, on)
 
 
 def _query(t, acc, ray, on, q, node, tri):
@@ -211,7 +171,7 @@ def probe(scene_name: str, t, mode: str, width: int, height: int, repeats: int) 
                "reflection": T.reflection_rays_host(scene, o, d, t_h, face) + (False,)}
     rows = []
     for bname, (bo, bd, coherent, *btmax) in batches.items():
-        if bname == "shadow" and mode not in ("setup", "slab", "optimize"):
+        if bname == "shadow" and mode not in ("setup", "optimize"):
             continue
         m = len(bo)
         ray, on, mray = T.upload_batch(t, bo, bd, *btmax)
@@ -237,7 +197,7 @@ def probe(scene_name: str, t, mode: str, width: int, height: int, repeats: int) 
 def main(argv=None) -> int:
     ap = probe_parser(__doc__, SCENES)
     ap.add_argument("--mode", choices=("branches", "leaf", "refill", "refill-count", "setup",
-                                       "slab", "optimize"),
+                                       "optimize"),
                     default="branches")
     ap.add_argument("--size", type=wxh, default=None,
                     help="batch WxH (default 1920x1080 on CUDA, 160x90 on the CPU)")

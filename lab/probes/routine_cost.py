@@ -3,7 +3,7 @@
 and incoherent batches, kernel time (median of repeats after warm-up), plus how often the
 routines pick the same triangle. The measurement behind ``DEFAULT_ROUTINE``.
 
-    python -m lab.probes.routine_cost --backend cuda --out DIR    (JSON + markdown)
+    PYTHONPATH=. python lab/probes/routine_cost.py --backend cuda --out DIR    (JSON + markdown)
 """
 from __future__ import annotations
 
@@ -66,7 +66,7 @@ def markdown(rows: list[dict], device: str) -> str:
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog="python -m lab.probes.routine_cost")
+    p = argparse.ArgumentParser(prog="lab/probes/routine_cost.py")
     p.add_argument("--backend", default="auto")
     p.add_argument("--out", type=Path, required=True)
     p.add_argument("--size", type=wxh, default=(1920, 1080), help="batch WxH")

@@ -2,10 +2,11 @@
 that each drop one part (wrong on purpose: for timing only, never for rendering), measured
 through the same BVH on the routine-cost batches (``lab.probes.routine_cost.measure``).
 
-    python -m lab.probes.routine_variants BACKEND WIDTH HEIGHT SCENES [REPEATS [OUT.json]]
+    PYTHONPATH=. python lab/probes/routine_variants.py BACKEND WIDTH HEIGHT SCENES \
+        [REPEATS [OUT.json]]
 
-e.g. ``cuda 1920 1080 cornell_box,bunny,conference 7 out.json`` (results/h200/routine/
-watertight-variants.md). The variants are registered in ``ROUTINES`` only in this process.
+e.g. ``cuda 1920 1080 cornell_box,bunny,conference 7 out.json`` (``lab/notes/
+watertight-variants.md``). The variants are registered in ``ROUTINES`` only in this process.
 """
 import json
 import sys
