@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import shlex
 
 from evaluation.bench import PARTS, run
 
@@ -35,12 +36,22 @@ def part_names(text: str) -> tuple[str, ...]:
     return names
 
 
+def bench_command(args: argparse.Namespace) -> str:
+    """The ``whitted bench`` command line that repeats this run (stored in the result)."""
+    words = ["whitted", "bench", "--backend", args.backend, "--parts", ",".join(args.parts),
+             "--out", str(args.out)]
+    if args.scenes != "scenes":
+        words += ["--scenes", str(args.scenes)]
+    words += ["--quick"] * args.quick + ["--force"]
+    return shlex.join(words)
+
+
 def cmd_bench(args: argparse.Namespace) -> int:
     """Run the study; on Ctrl-C (``timeout -s INT``) the partial result is already written
     (``evaluation.bench.run``) and the exit status is 130."""
     try:
         run(args.out, backend=args.backend, scenes_dir=args.scenes, quick=args.quick,
-            parts=args.parts, overwrite=args.force)
+            parts=args.parts, overwrite=args.force, command=bench_command(args))
     except KeyboardInterrupt:
         return 130
     return 0
