@@ -42,17 +42,22 @@ def test_readme_block_is_the_generators_output():
     assert rt.block_of(readme) == rt.table(RESULTS)
 
 
+def row(name: str) -> rt.Row:
+    return next(r for r in rt.load_rows(RESULTS) if r.name == name)
+
+
 def test_throughput_rows_are_the_stored_tables_best_over_mitsuba():
-    for path, row in (("h200/throughput/bench-cuda.json", rt.ROWS[0]),
-                      ("cpu/bench-llvm-throughput.json", rt.ROWS[2])):
-        assert row.path == path
+    for path, name in (("h200/throughput/bench-cuda.json", "Ray throughput"),
+                       ("cpu/bench-llvm-throughput.json", "Ray throughput, CPU")):
+        r = row(name)
+        assert r.file == path and r.kind == "throughput"
         stored = [float(cell.split()[0]) for _, cell in
                   md_column((RESULTS / path).with_suffix(".md"), "best / Mitsuba")]
         assert len(stored) >= 7 * 7
-        cell = rt.read_row(row, RESULTS)
+        cell = rt.read_row(r, RESULTS)
         lo, hi, mid = min(stored), max(stored), statistics.median(stored)
         assert cell.result.startswith(f"{lo:.2f}–{hi:.2f}× (median {mid:.2f}×)"), cell.result
-    gpu = rt.read_row(rt.ROWS[0], RESULTS)
+    gpu = rt.read_row(row("Ray throughput"), RESULTS)
     assert gpu.device == "NVIDIA H200" and "49 of 49 rows ≥ 1.5×" in gpu.result
 
 
@@ -60,12 +65,13 @@ def test_peer_row_is_the_stored_tables_frame_ratio_at_depth_2():
     rows = md_column(RESULTS / "h200/peer/bench-cuda.md", "ours faster (frame)")
     frame = [float(c.rstrip("×")) for cells, c in rows if cells[1] == "2" and cells[2] == "1024²"]
     assert len(frame) == 4
-    cell = rt.read_row(rt.ROWS[1], RESULTS)
+    cell = rt.read_row(row("Whitted frame"), RESULTS)
     assert cell.result.startswith(f"{min(frame):.2f}–{max(frame):.2f}×"), cell.result
     assert "depth 2" in cell.conditions and "4 scenes" in cell.conditions
 
 
 def test_a_missing_result_says_not_measured(tmp_path):
+    shutil.copy(RESULTS / rt.ROWS_FILE, tmp_path)
     (tmp_path / "h200/throughput").mkdir(parents=True)
     shutil.copy(RESULTS / "h200/throughput/bench-cuda.json", tmp_path / "h200/throughput")
     text = rt.table(tmp_path)
@@ -100,6 +106,7 @@ def test_write_without_markers_is_one_error_line_and_leaves_the_file(tmp_path, c
 
 @pytest.mark.parametrize("broken", ["{", '{"device": {}, "throughput": [{"accels": []}]}'])
 def test_an_unreadable_result_names_its_file(tmp_path, broken):
+    shutil.copy(RESULTS / rt.ROWS_FILE, tmp_path)
     (tmp_path / "h200/throughput").mkdir(parents=True)
     (tmp_path / "h200/throughput/bench-cuda.json").write_text(broken)
     with pytest.raises(ValueError, match="bench-cuda.json"):
@@ -134,3 +141,15 @@ def test_bench_records_a_command_that_parses_back_to_the_same_run():
     for key in ("backend", "parts", "out", "scenes", "quick"):
         assert getattr(again, key) == getattr(args, key), key
     assert again.force      # the stored command replaces the result it made
+
+
+def test_the_rows_file_is_checked_field_by_field(tmp_path):
+    with pytest.raises(ValueError, match="readme_table.toml"):
+        rt.table(tmp_path)                                  # no rows file
+    (tmp_path / rt.ROWS_FILE).write_text('[[row]]\nname = "x"\nagainst = "y"\nfile = ""\n')
+    with pytest.raises(ValueError, match="row 1: kind missing"):
+        rt.table(tmp_path)
+    (tmp_path / rt.ROWS_FILE).write_text('[[row]]\nname = "x"\nagainst = "y"\nkind = "new"\n'
+                                         'file = "new.json"\n')
+    (tmp_path / "new.json").write_text("{}")           # a kind with no reader yet
+    assert "| x | y | – | not measured |" in rt.table(tmp_path)
