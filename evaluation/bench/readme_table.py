@@ -99,9 +99,10 @@ def _batch_size(result: dict) -> str:
 
 
 def _throughput_conditions(result: dict) -> str:
-    return (f"{len(result['throughput'])} scenes × 4 batches of {_batch_size(result)} rays "
-            "(primary, shadow, incoherent, reflection), closest and any hit (shadow: any); "
-            "best of ours; kernel time")
+    scenes = len(result["throughput"])
+    return (f"{scenes} scenes × 4 ray batches from a {_batch_size(result)} camera (primary"
+            ", shadow, incoherent, reflection), closest and any hit (shadow: any); best of ours; "
+            "kernel time")
 
 
 def read_throughput(result: dict) -> Cell:
