@@ -13,7 +13,8 @@ Mitsuba, the same with the exact rule's edge ties set aside
 (``evaluation.gate.agreement.edge_mask``), the number of pixels over 1e-3 that are not edge ties;
 then, on ``--pixels`` sampled pixels (``oracle.sample_pixels``), the share within 1e-3 of the
 float64 oracle (offsets -> 0) of each image, on all of them and on those whose tree touches
-glass. (The measurement behind results/offsets/glass_bunny_vs_mitsuba_native*.txt.)
+glass. (The measurement behind
+lab/notes/data/issue10-ray-offsets/glass_bunny_vs_mitsuba_native*.txt.)
 """
 from __future__ import annotations
 

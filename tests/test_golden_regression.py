@@ -67,7 +67,8 @@ KNOWN_FAILURES = {
 #: No exact case is excused for the offset rule: ours renders with the rule the golden records
 #: (Mitsuba's own spawn_ray, evaluation.gate.verdict._ours). Under our default scale-free rule six
 #: cases differed at 1-4 glass pixels where the float64 oracle sides with ours
-#: (results/offsets/hard_pixels_vs_oracle.txt); tests/test_oracle.py holds that part.
+#: (lab/notes/data/issue10-ray-offsets/hard_pixels_vs_oracle.txt); tests/test_oracle.py holds
+#: that part.
 
 
 @pytest.mark.whitted(scenes=[ROOT / s for s in GOLDEN_SCENES], modes=["exact"],

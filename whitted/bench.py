@@ -7,6 +7,7 @@ with ``EXIT["file"]``."""
 from __future__ import annotations
 
 import argparse
+import shlex
 from pathlib import Path
 
 from evaluation.bench import PARTS, NothingMeasured, run
@@ -42,6 +43,16 @@ def part_names(text: str) -> tuple[str, ...]:
     return names
 
 
+def bench_command(args: argparse.Namespace) -> str:
+    """The ``whitted bench`` command line that repeats this run (stored in the result)."""
+    words = ["whitted", "bench", "--backend", args.backend, "--parts", ",".join(args.parts),
+             "--out", str(args.out)]
+    if args.scenes is not None:
+        words += ["--scenes", str(args.scenes)]
+    words += ["--quick"] * args.quick + ["--force"]
+    return shlex.join(words)
+
+
 def cmd_bench(args: argparse.Namespace) -> int:
     """Run the study; on Ctrl-C (``timeout -s INT``) the partial result is already written
     (``evaluation.bench.run``) and the exit status is 130."""
@@ -50,7 +61,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
         raise CliError(f"--scenes: {args.scenes}: no such folder", EXIT["file"])
     try:
         run(args.out, backend=args.backend, scenes_dir=folder, quick=args.quick,
-            parts=args.parts, overwrite=args.force)
+            parts=args.parts, overwrite=args.force, command=bench_command(args))
     except NothingMeasured as e:
         raise CliError(f"--scenes: {e}", EXIT["file"]) from None
     except KeyboardInterrupt:

@@ -5,7 +5,7 @@
     whitted study --workers 4 ...            # Dask LocalCluster of 4 worker processes
     whitted study --scheduler tcp://host:8786 ...
     whitted study --report-only --out DIR    # re-write markdown, plots, HTML from DIR/study.json
-    whitted study --report-only --out DIR --readme README.md   # and DIR's block in the README
+    whitted study --report-only --out DIR --readme FILE   # and DIR's generated block in FILE
     whitted study --check-executor --workers 1 --profile tiny --out DIR   # Dask == in-process
 
 Also runnable without the CLI as ``python -m whitted.study ...``. A SCENE is a path

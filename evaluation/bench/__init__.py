@@ -82,12 +82,12 @@ def device_info(backend: str) -> dict:
 
 
 def run(out_dir, *, backend: str = "auto", scenes_dir="scenes", quick: bool = False,
-        parts=tuple(PARTS), overwrite: bool = False) -> dict:
+        parts=tuple(PARTS), overwrite: bool = False, command: str | None = None) -> dict:
     """Run the parts named in ``parts`` (in ``PARTS`` order) and write
     ``bench-<backend>.json`` and ``.md`` (``-quick`` appended to the tag when ``quick``)
     in ``out_dir``. Existing files there are replaced only when ``overwrite``, checked before
-    the study runs (``OutputExistsError``). Returns the result: device, quick, date and each
-    part's rows under its key.
+    the study runs (``OutputExistsError``). Returns the result: the ``command`` that
+    regenerates it (when given), device, quick, date and each part's rows under its key.
 
     The files are rewritten (atomically) after each part and at each part's checkpoints
     (``Context.save_rows``); on Ctrl-C (or ``timeout -s INT``) they are written with what
@@ -109,7 +109,8 @@ def run(out_dir, *, backend: str = "auto", scenes_dir="scenes", quick: bool = Fa
         check_output_file(out / f"bench-{tag}{ext}", overwrite=overwrite, flag="--force")
     info = device_info(backend)
     print(f"bench on {info.get('device')} ({backend})", flush=True)
-    result = {"device": info, "quick": quick, "date": time.strftime("%Y-%m-%d %H:%M:%S")}
+    result = {"command": command} if command else {}
+    result.update(device=info, quick=quick, date=time.strftime("%Y-%m-%d %H:%M:%S"))
 
     def save() -> None:
         write_atomic(out / f"bench-{tag}.json", json.dumps(jsonable(result), indent=1))
@@ -150,9 +151,11 @@ def run(out_dir, *, backend: str = "auto", scenes_dir="scenes", quick: bool = Fa
 
 
 def markdown(result: dict) -> str:
-    """The result of ``run`` as markdown: a header, then each part's tables."""
+    """The result of ``run`` as markdown: the command that regenerates it as a comment line
+    (when the result names one), a header, then each part's tables."""
     dev = result["device"]
-    lines = [f"# Benchmark on {dev.get('device')} ({dev['backend']})", "",
+    lines = [f"<!-- command: {result['command']} -->"] if result.get("command") else []
+    lines += [f"# Benchmark on {dev.get('device')} ({dev['backend']})", "",
              f"{result['date']}; drjit {dev.get('drjit')}, mitsuba {dev.get('mitsuba')}"
              + (f", driver {dev['driver']}" if dev.get("driver") else "")
              + ("; QUICK smoke sizes" if result.get("quick") else ""), ""]

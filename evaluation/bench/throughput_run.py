@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shlex
 import sys
 import time
 from pathlib import Path
@@ -55,7 +56,12 @@ def main(argv=None) -> int:
     except OutputError as e:
         print(f"throughput_run: {e}", file=sys.stderr)
         return 2
-    result = {"device": device_info(backend), "quick": False,
+    command = shlex.join(["python", "-m", "evaluation.bench.throughput_run", "--size",
+                          f"{w}x{h}", "--repeats", str(args.repeats), "--backend", backend]
+                         + (["--scenes", args.scenes] if args.scenes != "scenes" else [])
+                         + (["--only", args.only] if args.only else [])
+                         + ["--out", args.out, "--force"])
+    result = {"command": command, "device": device_info(backend), "quick": False,
               "date": time.strftime("%Y-%m-%d %H:%M:%S"), "throughput": [],
               "note": (f"throughput part alone at {w}x{h}, repeats {args.repeats}"
                        + (f"; {args.note}" if args.note else ""))}
