@@ -146,7 +146,7 @@ ROWS_FILE = "readme_table.toml"
 
 
 def load_rows(results: Path) -> list[Row]:
-    """The rows of ``results/readme_table.toml``, in order; raises ``ValueError`` naming the
+    """The rows of the results folder's ``readme_table.toml``, in order; raises ``ValueError`` naming the
     file and the field when a row is incomplete."""
     path = results / ROWS_FILE
     try:
