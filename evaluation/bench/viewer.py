@@ -18,6 +18,7 @@ import argparse
 import asyncio
 import json
 import os
+import shlex
 import sys
 import time
 from pathlib import Path
@@ -109,7 +110,8 @@ def markdown(result: dict) -> str:
              f"{r['render_ms']:.2f}", f"{r['encode_ms']:.2f}", f"{r['send_ms']:.2f}",
              f"{100 * r['encode_share']:.0f} %", f"{r['first_frame_ms']:.0f}",
              f"{r['load_average'][0]:.1f}"] for r in result["rows"]]
-    lines = [f"# Viewer frame rate ({dev['backend']}, {dev.get('device', '?')})", "",
+    lines = [f"<!-- command: {result['command']} -->"] if result.get("command") else []
+    lines += [f"# Viewer frame rate ({dev['backend']}, {dev.get('device', '?')})", "",
              f"{result['date']}; host {dev.get('host')}; Dr.Jit {dev.get('drjit')}. "
              "Server-side, from the camera message's arrival to the image sent (median); "
              "encode = sRGB + JPEG + base64 + JSON; first = the frame that records the "
@@ -150,8 +152,14 @@ def main(argv=None) -> int:
     except (OutputError, OSError) as e:
         print(f"viewer bench: {e}", file=sys.stderr)
         return 2
-    result = {"device": device_info(backend), "date": time.strftime("%Y-%m-%d %H:%M:%S"),
-              "note": args.note, "rows": []}
+    command = shlex.join(
+        ["python", "-m", "evaluation.bench.viewer", "--backend", backend, "--size",
+         f"{args.size[0]}x{args.size[1]}", "--frames", str(args.frames)]
+        + (["--warmup", str(args.warmup)] if args.warmup != 3 else [])
+        + (["--scenes", args.scenes] if args.scenes != "scenes" else [])
+        + (["--only", args.only] if args.only else []) + ["--out", args.out, "--force"])
+    result = {"command": command, "device": device_info(backend),
+              "date": time.strftime("%Y-%m-%d %H:%M:%S"), "note": args.note, "rows": []}
     for name in names:
         row = bench_scene(Path(args.scenes) / f"{name}.toml", backend=backend,
                           size=args.size, frames=args.frames, warmup=args.warmup)

@@ -14,7 +14,7 @@ whether the next frame records (a new setting or size), so the caller can say so
 
 ``side_by_side()`` renders the current camera in exact mode with the golden's spawn rule
 (``reference.golden.GOLDEN_SPAWN``) with ours and with the reference harness, and judges it
-with the exact rule (``evaluation.verdict.judge``, the tie mask from a second render with
+with the exact rule (``evaluation.gate.verdict.judge``, the tie mask from a second render with
 the other tie-break, as ``whitted compare`` does): ours | Mitsuba | a heat map of the
 per-pixel relative error. The render mode's depth goes to both renderers, so "primary only"
 compares primary shading. Mitsuba is imported only then; without it the call raises
@@ -470,7 +470,7 @@ class ViewSession:
         except ImportError as e:
             raise MitsubaMissing(f"side by side: Mitsuba is not installed ({e}); install "
                                  "the project's 'reference' extra") from None
-        from evaluation import verdict as vd
+        from evaluation.gate import verdict as vd
         st = replace(self.settings, spp=1, spawn=GOLDEN_SPAWN)
         w, h = self.size
         scene = self.scene_for(st)
