@@ -192,7 +192,7 @@ def test_tutorial_xml_matches_stock_mitsuba_on_the_same_file_under_the_exact_rul
     $parameters): stock Mitsuba's render of the same file, one ray per pixel centre,
     against ours with Mitsuba's spawn rule."""
     pytest.importorskip("mitsuba")
-    from evaluation.rules import EXACT_THRESHOLDS, check_exact
+    from evaluation.gate.rules import EXACT_THRESHOLDS, check_exact
     from reference.stock import render_file_exact
     from renderer.render import render
     xml = DATA / "teapot_direct.xml"
