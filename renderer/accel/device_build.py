@@ -1,0 +1,230 @@
+"""BVH build on the device (Dr.Jit, the same code on CUDA and LLVM): a Morton-code radix tree.
+
+Steps, each a few Dr.Jit kernels over all triangles or all nodes of one level:
+
+1. triangle boxes and the scene box (device reductions);
+2. 30-bit Morton codes of the box centres in the scene box, large triangles
+   (``BIG_TRIANGLE``) keyed after all others, sorted by ``dr.argsort`` (a radix sort);
+3. the tree top down, one inner-node level at a time: a node over the sorted range
+   ``[s, e]`` splits where the highest bit in which ``code[s]`` and ``code[e]`` differ
+   flips (a binary search over the range: the Karras radix-tree split), at the range's
+   middle where the codes are equal or where the radix split would need more than
+   ``MAX_LEVELS`` levels (so the traversal stack never overflows). Children of at most
+   ``leaf_size`` triangles are leaves; the others are the next level's nodes, compacted by
+   ``dr.compress`` (one count read per level, the only host round trips of the build);
+4. the child boxes bottom up, deepest level first: a leaf's box reduced over its (at most
+   ``leaf_size``) triangles, an inner child's the union of its own two child boxes.
+
+The result is a ``BVHArrays`` like ``bvh_build.build_bvh``'s (inner nodes numbered level
+by level, so every level is one contiguous run of nodes), its boxes padded on the host by
+the same ``pad_boxes``, so the traversal, the wide conversion and the refit read it as
+they read the SAH tree, and the hits are the same bit for bit.
+"""
+from __future__ import annotations
+
+import importlib
+import math
+import time
+
+import drjit as dr
+import numpy as np
+
+from .bvh_build import LEAF_SIZE, MAX_LEVELS, BVHArrays, _sah_cost, build_bvh, pad_boxes
+from .traverse import COUNT_SHIFT, LEAF_BIT, MAX_LEAF
+
+MORTON_BITS = 10                 # bits per axis: 30-bit codes
+#: Triangles whose box is larger than this fraction of the scene box's longest side (along
+#: their own longest side) sort after all others (bit 30 of the key), so the root splits
+#: them off and the small triangles' subtrees keep tight boxes (a floor or wall triangle in
+#: a Morton cell of small ones would grow every box above it). Of 1/4, 1/8, 1/16, 1/32, 1/64
+#: and none, 1/4 gives the lowest SAH cost on the bunny, Sponza and Conference
+#: (``lab/notes/device-build.md``).
+BIG_TRIANGLE = 0.25
+
+
+def _module(backend: str):
+    if backend not in ("cuda", "llvm"):
+        raise ValueError(f"backend: expected 'cuda' or 'llvm', got {backend!r}")
+    return importlib.import_module(f"drjit.{backend}")
+
+
+def _spread(x):
+    """The 10 low bits of UInt32 ``x`` spread to every third bit (Morton interleave)."""
+    x = (x | (x << 16)) & 0x030000FF
+    x = (x | (x << 8)) & 0x0300F00F
+    x = (x | (x << 4)) & 0x030C30C3
+    x = (x | (x << 2)) & 0x09249249
+    return x
+
+
+def _levels_needed(count, leaf_size: int):
+    """UInt32: inner-node levels a median-split subtree over ``count`` (UInt32) triangles
+    needs: ``ceil(log2(ceil(count / leaf_size)))``, 0 for a leaf."""
+    leaves = (count + (leaf_size - 1)) // leaf_size
+    return dr.select(leaves > 1, 32 - dr.lzcnt(dr.maximum(leaves, 1) - 1), 0)
+
+
+def _bisect(UInt32, code, bit, a, b):
+    """One bisection step of the split search: ``(a, b)`` halved towards the first code
+    in ``(a, b]`` with ``bit`` set."""
+    mid = (a + b) >> 1
+    has = (dr.gather(UInt32, code, mid) & bit) != 0
+    return dr.select(has, a, mid), dr.select(has, mid, b)
+
+
+def build_device(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm", *,
+                 leaf_size: int = LEAF_SIZE, progress=None) -> BVHArrays:
+    """Build a BVH over ``faces`` (int (F, 3)) of ``vertices`` (float (V, 3)) on ``backend``
+    ("cuda" or "llvm"; see the module docstring). ``leaf_size``: most triangles per leaf
+    (1..16). ``progress``: called as ``progress(levels_done)`` after each level. A scene of
+    at most ``leaf_size`` triangles gets ``build_bvh``'s single-leaf tree."""
+    if not 1 <= leaf_size <= MAX_LEAF:
+        raise ValueError(f"leaf_size: expected 1..{MAX_LEAF}, got {leaf_size}")
+    m = _module(backend)
+    t_start = time.perf_counter()
+    Vn = np.ascontiguousarray(np.asarray(vertices, np.float32))
+    Fn = np.asarray(faces, np.int64)
+    F = int(Fn.shape[0])
+    if F >= 1 << COUNT_SHIFT:
+        raise ValueError(f"faces: at most {1 << COUNT_SHIFT} triangles, got {F}")
+    if F <= leaf_size:
+        return build_bvh(Vn, Fn, leaf_size=leaf_size, spatial=0.0, optimize=0)
+    if MAX_LEVELS < math.ceil(math.log2(math.ceil(F / leaf_size))) + 1:
+        raise ValueError(f"faces: {F} triangles need more than {MAX_LEVELS} BVH levels")
+    Float, UInt32 = m.Float, m.UInt32
+
+    # ---- 1. triangle boxes and the scene box -----------------------------------------------
+    vx, vy, vz = (Float(np.ascontiguousarray(Vn[:, k])) for k in range(3))
+    fi = [UInt32(np.ascontiguousarray(Fn[:, k].astype(np.uint32))) for k in range(3)]
+    lo, hi = [], []
+    for axis in (vx, vy, vz):
+        p = [dr.gather(Float, axis, fi[k]) for k in range(3)]
+        lo.append(dr.minimum(dr.minimum(p[0], p[1]), p[2]))
+        hi.append(dr.maximum(dr.maximum(p[0], p[1]), p[2]))
+    dr.eval(lo, hi)
+    s_lo = [dr.min(x) for x in lo]
+    s_hi = [dr.max(x) for x in hi]
+
+    # ---- 2. Morton codes of the box centres, sorted ---------------------------------------
+    scale = float(1 << MORTON_BITS)
+    code = dr.zeros(UInt32, F)
+    for k in range(3):
+        ext = s_hi[k] - s_lo[k]
+        inv = dr.select(ext > 0, scale / dr.maximum(ext, 1e-30), 0.0)
+        c = (lo[k] + hi[k]) * 0.5
+        q = UInt32(dr.clip((c - s_lo[k]) * inv, 0.0, scale - 1.0))
+        code |= _spread(q) << (2 - k)
+    size = dr.maximum(dr.maximum(hi[0] - lo[0], hi[1] - lo[1]), hi[2] - lo[2])
+    ext = dr.maximum(dr.maximum(s_hi[0] - s_lo[0], s_hi[1] - s_lo[1]), s_hi[2] - s_lo[2])
+    code |= dr.select(size > ext * BIG_TRIANGLE, UInt32(1 << 30), 0)
+    perm = dr.argsort(code)
+    code = dr.gather(UInt32, code, perm)
+    slo = [dr.gather(Float, x, perm) for x in lo]        # triangle boxes in sorted order
+    shi = [dr.gather(Float, x, perm) for x in hi]
+    dr.eval(code, perm, slo, shi)
+    del lo, hi
+
+    # ---- 3. topology, top down ------------------------------------------------------------
+    n_max = F - 1                                        # inner nodes of a full binary tree
+    children = dr.zeros(UInt32, 2 * n_max)
+    first, count = dr.opaque(UInt32, 0, 1), dr.opaque(UInt32, F, 1)   # the root level
+    level_base, level_size = [], []
+    n_nodes, k = 0, 1
+    while k:
+        depth = len(level_base)
+        ids = dr.opaque(UInt32, n_nodes) + dr.arange(UInt32, k)
+        level_base.append(n_nodes)
+        level_size.append(k)
+        n_nodes += k
+        s, e = first, first + count - 1
+        cs, ce = dr.gather(UInt32, code, s), dr.gather(UInt32, code, e)
+        diff = cs ^ ce
+        bit = UInt32(1) << (31 - dr.lzcnt(dr.maximum(diff, 1)))
+        # code[a] lacks the bit, code[b] has it: bisect to the first index that has it
+        a, b = dr.while_loop(
+            state=(UInt32(s), UInt32(e)),
+            cond=lambda a, b: b - a > 1,
+            body=lambda a, b, bit=bit: _bisect(UInt32, code, bit, a, b),
+            label="device_build_split")
+        left = dr.select(diff != 0, b - s, count >> 1)
+        big = dr.maximum(left, count - left)
+        over = dr.opaque(UInt32, depth + 1) + _levels_needed(big, leaf_size) > MAX_LEVELS
+        left = dr.select(over, count >> 1, left)
+        dr.eval(left)
+        # children: lane 2 i + side is child ``side`` of this level's node i
+        lane = dr.arange(UInt32, 2 * k)
+        node = lane >> 1
+        side = lane & 1
+        n_first = dr.gather(UInt32, first, node)
+        n_count = dr.gather(UInt32, count, node)
+        n_left = dr.gather(UInt32, left, node)
+        c_first = dr.select(side == 0, n_first, n_first + n_left)
+        c_count = dr.select(side == 0, n_left, n_count - n_left)
+        slot = 2 * dr.gather(UInt32, ids, node) + side
+        leaf = c_count <= leaf_size
+        ref = LEAF_BIT | ((c_count - 1) << COUNT_SHIFT) | c_first
+        dr.scatter(children, ref, slot, leaf)
+        dr.eval(children, c_first, c_count, slot, leaf)
+        pend = dr.compress(~leaf)                          # the next level's nodes
+        k = dr.width(pend)
+        if k:
+            dr.scatter(children, dr.opaque(UInt32, n_nodes) + dr.arange(UInt32, k),
+                       dr.gather(UInt32, slot, pend))
+            first = dr.gather(UInt32, c_first, pend)
+            count = dr.gather(UInt32, c_count, pend)
+            dr.eval(children, first, count)
+        if progress is not None:
+            progress(len(level_base))
+    levels = len(level_base)
+
+    # ---- 4. child boxes, bottom up ---------------------------------------------------------
+    box = [dr.zeros(Float, n_nodes) for _ in range(12)]   # unpadded, as BVHArrays.boxes
+    for base, size in zip(reversed(level_base), reversed(level_size)):
+        ids = dr.opaque(UInt32, base) + dr.arange(UInt32, size)
+        out = []
+        for side in range(2):
+            ref = dr.gather(UInt32, children, 2 * ids + side)
+            is_leaf = (ref & LEAF_BIT) != 0
+            inner = ~is_leaf
+            f0 = ref & ((1 << COUNT_SHIFT) - 1)
+            cnt = ((ref >> COUNT_SHIFT) & 15) + 1
+            lo_c, hi_c = [], []
+            for a in range(3):
+                ca = dr.gather(Float, box[a], ref, inner)
+                cb = dr.gather(Float, box[6 + a], ref, inner)
+                lo_c.append(dr.select(inner, dr.minimum(ca, cb), dr.inf))
+                ca = dr.gather(Float, box[3 + a], ref, inner)
+                cb = dr.gather(Float, box[9 + a], ref, inner)
+                hi_c.append(dr.select(inner, dr.maximum(ca, cb), -dr.inf))
+            for j in range(leaf_size):
+                on = is_leaf & (cnt > j)
+                for a in range(3):
+                    lo_c[a] = dr.select(on, dr.minimum(lo_c[a],
+                                                       dr.gather(Float, slo[a], f0 + j, on)),
+                                        lo_c[a])
+                    hi_c[a] = dr.select(on, dr.maximum(hi_c[a],
+                                                       dr.gather(Float, shi[a], f0 + j, on)),
+                                        hi_c[a])
+            out += lo_c + hi_c
+        for c in range(12):
+            dr.scatter(box[c], out[c], ids)
+        dr.eval(box)
+
+    # ---- the host arrays ------------------------------------------------------------------
+    raw = np.stack([np.asarray(b.numpy(), np.float32) for b in box], axis=1)
+    ch = np.asarray(children.numpy(), np.uint32)[:2 * n_nodes].reshape(n_nodes, 2)
+    order = np.asarray(perm.numpy(), np.int64)
+    b_lo = np.array([float(x.numpy()[0]) for x in s_lo], np.float32)
+    b_hi = np.array([float(x.numpy()[0]) for x in s_hi], np.float32)
+    extent = float(np.max(b_hi - b_lo))
+    boxes = np.empty_like(raw)
+    for side in range(2):
+        c = 6 * side
+        boxes[:, c:c + 3], boxes[:, c + 3:c + 6] = pad_boxes(raw[:, c:c + 3],
+                                                              raw[:, c + 3:c + 6], extent)
+    leaf_count = int(np.count_nonzero(ch & np.uint32(LEAF_BIT)))
+    arrays = BVHArrays(boxes, ch, order, levels, leaf_count, 0.0, 0.0,
+                       (b_lo.astype(np.float64), b_hi.astype(np.float64)))
+    arrays.sah_cost = _sah_cost(arrays)
+    arrays.build_seconds = time.perf_counter() - t_start
+    return arrays
