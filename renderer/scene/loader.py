@@ -25,6 +25,7 @@ from .model import (
     FALLOFFS,
     SHADING_MODES,
     SPAWN_RULES,
+    TREE_BUILDS,
     Camera,
     Material,
     ObjectInfo,
@@ -41,7 +42,7 @@ _TOP_KEYS = ("description", "camera", "views", "render", "ambient", "lights", "m
              "objects", "physical", "check")
 _VIEW_KEYS = ("name", "position", "target", "up", "fov_y", "resolution")
 _RENDER_KEYS = ("max_depth", "spp", "exact", "shading", "background", "min_weight",
-                "ray_epsilon", "seed", "spawn")
+                "ray_epsilon", "seed", "spawn", "build")
 _LIGHT_KEYS = ("name", "position", "intensity", "falloff")
 _MATERIAL_KEYS = ("ka", "kd", "ks", "n", "k_refl", "k_refr", "ior", "combination")
 _OBJECT_KEYS = ("name", "material", "mesh", "shape", "translate", "rotate", "scale",
@@ -227,6 +228,7 @@ def _read_render(r: _Reader, data: dict, shading: str | None) -> Settings:
                      if "ray_epsilon" in rt else None),
         seed=r.integer(rt.get("seed", 0), "render.seed", lo=0),
         spawn=spawn,
+        build=r.string(rt.get("build", "auto"), "render.build", TREE_BUILDS),
     )
 
 
