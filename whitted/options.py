@@ -14,7 +14,7 @@ import argparse
 
 from evaluation import wxh
 from evaluation.verdict import EXIT_CODES
-from renderer.accel import ACCELERATORS, DEFAULT_ACCELS, DEFAULT_ROUTINE, ROUTINES
+from renderer.accel import ACCELERATORS, BUILDS, DEFAULT_ACCELS, DEFAULT_ROUTINE, ROUTINES
 from renderer.device import BACKENDS, PRECISIONS
 from renderer.effects import FLAGS, EffectSet
 from renderer.scene import SHADING_MODES, Scene, load_scene
@@ -75,12 +75,26 @@ def add_scene_options(p: argparse.ArgumentParser) -> None:
                         + "; every one gives the same pixels)")
     p.add_argument("--intersection", default=DEFAULT_ROUTINE, choices=tuple(ROUTINES),
                    help=f"ray/triangle routine (default {DEFAULT_ROUTINE})")
+    p.add_argument("--build", choices=BUILDS,
+                   help="how the BVH is built: 'sah' (host SAH: the faster tree), 'device' "
+                        "(Dr.Jit on the backend: the faster build), 'auto' (default, or the "
+                        "scene's [render] build: a cached SAH tree, else the device build "
+                        "for a few frames of a large scene)")
+    p.add_argument("--no-cache", action="store_true",
+                   help="neither read nor write the cache of built trees ($WHITTED_CACHE, "
+                        "else the user cache folder)")
     p.add_argument("--effects", default="auto", choices=("auto", "all"),
                    help="'auto': trace only the effects the scene calls for; 'all': every effect")
     p.add_argument("--effect-off", action="append", default=[], metavar="EFFECT",
                    choices=FLAGS,
                    help="force one effect off for debugging (the image then differs from the "
                         f"scene's truth); one of {', '.join(FLAGS)}")
+
+
+def cache_for_cli(args: argparse.Namespace):
+    """The tree cache the command line asks for: None with ``--no-cache``."""
+    from renderer.accel.cache import TreeCache
+    return None if getattr(args, "no_cache", False) else TreeCache()
 
 
 def load_for_cli(args: argparse.Namespace) -> tuple[Scene, list[int]]:

@@ -19,7 +19,13 @@ from renderer.outputs import check_output_file
 from renderer.render import Renderer
 from renderer.stats import format_operations
 
-from .options import CliError, add_scene_options, effects_for_cli, load_for_cli
+from .options import (
+    CliError,
+    add_scene_options,
+    cache_for_cli,
+    effects_for_cli,
+    load_for_cli,
+)
 from .progress import render_view
 
 #: ``--out`` suffixes that name one output file, and what writes them.
@@ -109,7 +115,13 @@ def cmd_render(args: argparse.Namespace) -> int:
         return render_orbit_views(scene, views, effects, args, files)
     # one upload / accelerator build for every view
     renderer = Renderer(scene, backend=args.backend, precision=args.precision,
-                        accel=args.accel, intersection=args.intersection, effects=effects)
+                        accel=args.accel, intersection=args.intersection, effects=effects,
+                        build=args.build, cache=cache_for_cli(args), frames=len(views))
+    info = renderer.arrays.accel.stats()
+    if "tree_build" in info:
+        print(f"bvh: {info['tree_build']} tree of {scene.face_count} triangles "
+              f"{'read from the cache' if info['tree_cached'] else 'built'} in "
+              f"{info['tree_seconds']:.2f} s")
     for v, f in zip(views, files):
         cam = scene.cameras[v]
         ks = render_view(renderer, v, f"{scene.name}/{cam.name}")
