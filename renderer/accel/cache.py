@@ -115,7 +115,7 @@ class TreeCache:
         p = self.path(kind, key)
         try:
             data = p.read_bytes()
-        except FileNotFoundError:
+        except (FileNotFoundError, NotADirectoryError):
             self.misses += 1
             return None
         except OSError as e:
