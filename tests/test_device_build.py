@@ -83,6 +83,29 @@ def test_device_tree_keeps_the_level_bound_on_degenerate_input():
     assert a.levels <= MAX_LEVELS
 
 
+def morton_chain(cluster=64):
+    """Clusters of ``cluster`` coincident tiny triangles whose Morton codes are 2^j, j =
+    0..29 (one bit each), plus one at the far corner: radix splits peel one cluster per
+    level (30 levels), then each cluster needs log2(cluster / 2) more: over MAX_LEVELS."""
+    tri = np.array([[0, 0, 0], [1e-5, 0, 0], [0, 1e-5, 0]])
+    pts = []
+    for j in range(30):
+        p = np.zeros(3)
+        p[2 - j % 3] = (2 ** (j // 3) + 0.5) / 1024
+        pts.append(p)
+    pts.append(np.ones(3) - 2e-5)
+    V = np.concatenate([np.tile(tri + p, (cluster, 1)) for p in pts])
+    return V, np.arange(V.shape[0]).reshape(-1, 3)
+
+
+def test_device_tree_keeps_the_level_bound_on_a_morton_chain():
+    V, faces = morton_chain()
+    a = build_device(V, faces, "llvm")
+    check_bvh(a)
+    child_boxes_nest(a, V, faces)
+    assert a.levels <= MAX_LEVELS
+
+
 def test_tiny_scenes():
     for F in (1, 2, 3):
         V, faces = soup(F, seed=F)
