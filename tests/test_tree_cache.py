@@ -191,3 +191,32 @@ def test_cli_no_cache_writes_nothing(tmp_path):
     r = subprocess.run(base + ["--out", str(tmp_path / "d")], env=env, capture_output=True,
                        text=True, timeout=300)
     assert "read from the cache" in r.stdout
+
+
+def _scene_file(tmp_path, levels=2):
+    path = tmp_path / "s.toml"
+    path.write_text(
+        "[camera]\nresolution = [8, 8]\nposition = [0, 0, 5]\ntarget = [0, 0, 0]\n"
+        "fov_y = 40.0\n[materials.m]\nkd = [0.5, 0.5, 0.5]\n"
+        f"[[objects]]\nshape = \"cube\"\nmaterial = \"m\"\nsubdivide = {levels}\n"
+        "[[objects]]\nshape = \"sphere\"\nmaterial = \"m\"\n")
+    return path
+
+
+def test_scene_load_through_the_cache_gives_the_same_scene(tmp_path):
+    from renderer.scene import load_scene
+    path = _scene_file(tmp_path)
+    ref = load_scene(path)
+    cache = TreeCache(tmp_path / "cache")
+    cold = load_scene(path, cache=cache)
+    warm = load_scene(path, cache=cache)
+    assert cache.hits >= 2 and cache.misses >= 2
+    for s in (cold, warm):
+        for f in ("vertices", "normals", "faces", "vertices64", "normals64", "face_material",
+                  "face_object"):
+            assert np.array_equal(getattr(s, f), getattr(ref, f)), f
+        assert s.objects == ref.objects
+    # a change of the cube's subdivision misses its entries (the sphere's still hits)
+    hits, misses = cache.hits, cache.misses
+    load_scene(_scene_file(tmp_path, levels=1), cache=cache)
+    assert (cache.hits, cache.misses) == (hits + 1, misses + 2)

@@ -101,7 +101,7 @@ def load_for_cli(args: argparse.Namespace) -> tuple[Scene, list[int]]:
     """The scene with the command line's overrides applied, and the selected view indices.
 
     Raises ``SceneError`` for a bad scene file or override, ``CliError`` for a bad view."""
-    scene = load_scene(args.scene, shading=args.shading)
+    scene = load_scene(args.scene, shading=args.shading, cache=cache_for_cli(args))
     scene = scene.with_overrides(spp=args.spp, max_depth=args.max_depth, size=args.size)
     return scene, select_views(scene, args.view)
 
