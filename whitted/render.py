@@ -26,7 +26,7 @@ from .options import (
     effects_for_cli,
     load_for_cli,
 )
-from .progress import render_view
+from .progress import build_bar, render_view
 
 #: ``--out`` suffixes that name one output file, and what writes them.
 FILE_SUFFIXES = {".exr": "EXR image", ".png": "sRGB PNG image", ".gif": "orbit GIF"}
@@ -114,9 +114,11 @@ def cmd_render(args: argparse.Namespace) -> int:
     if args.orbit:
         return render_orbit_views(scene, views, effects, args, files)
     # one upload / accelerator build for every view
-    renderer = Renderer(scene, backend=args.backend, precision=args.precision,
-                        accel=args.accel, intersection=args.intersection, effects=effects,
-                        build=args.build, cache=cache_for_cli(args), frames=len(views))
+    with build_bar(scene) as step:
+        renderer = Renderer(scene, backend=args.backend, precision=args.precision,
+                            accel=args.accel, intersection=args.intersection,
+                            effects=effects, build=args.build, cache=cache_for_cli(args),
+                            frames=len(views), build_progress=step)
     info = renderer.arrays.accel.stats()
     if "tree_build" in info:
         print(f"bvh: {info['tree_build']} tree of {scene.face_count} triangles "

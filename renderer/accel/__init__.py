@@ -83,14 +83,15 @@ TREE_ACCELS = ("bvh", "bvh4", "bvh8")
 def build_accelerator(name: str, scene, t: Types, *, intersection: str = DEFAULT_ROUTINE,
                       tie_break: str = "lowest", tie_window: float = 0.0,
                       tie_slack: float = 0.0, build: str = "sah", cache=None,
-                      frames: int | None = None) -> Accelerator:
+                      frames: int | None = None, progress=None) -> Accelerator:
     """Build the accelerator ``name`` (a key of ``ACCELERATORS``) for ``scene`` with the
     triangle routine ``intersection`` (a key of ``ROUTINES``). ``tie_break`` (a value of
     ``TIE_BREAKS``), ``tie_window`` and ``tie_slack`` (world-space distances) choose the
     closest hit among near-equal ones (``traverse.tie_probe``); the default, "lowest", is
     the renderer's (window and slack unused). ``build`` (``builders.BUILDS``), ``cache`` (a
     ``cache.TreeCache`` or None) and ``frames`` (frames the caller renders, None: unknown)
-    choose how the tree of a ``TREE_ACCELS`` accelerator is got (``builders.binary_tree``);
+    choose how the tree of a ``TREE_ACCELS`` accelerator is got (``builders.binary_tree``,
+    which calls ``progress(build, levels_done)`` during a build);
     ``acc.info`` then names it (``tree_build``, ``tree_cached``, ``tree_seconds``)."""
     if name not in ACCELERATORS:
         raise ValueError(f"accel: expected one of {sorted(ACCELERATORS)}, got {name!r}")
@@ -103,7 +104,8 @@ def build_accelerator(name: str, scene, t: Types, *, intersection: str = DEFAULT
     triangle_routine(intersection)
     check_build(build)
     if name in TREE_ACCELS:
-        tree, how = binary_tree(scene, t.backend, build=build, cache=cache, frames=frames)
+        tree, how = binary_tree(scene, t.backend, build=build, cache=cache, frames=frames,
+                                progress=progress)
         acc = ACCELERATORS[name].build(scene, t, intersection=intersection, binary=tree)
         acc.info.update(tree_build=how.build, tree_cached=how.cached,
                         tree_seconds=how.seconds)

@@ -73,7 +73,8 @@ def binary_tree(scene, backend: str, *, build: str = "sah", cache: TreeCache | N
                 ) -> tuple[BVHArrays, TreeInfo]:
     """``scene``'s binary tree from ``build`` (a value of ``BUILDS``) on ``backend``,
     through ``cache`` (None: no cache). ``frames``: how many frames the caller renders
-    (None: unknown), for "auto". ``progress(levels_done)``: the device build's levels."""
+    (None: unknown), for "auto". ``progress(build, levels_done)``: None, or called after
+    each level of the build that runs (at most ``MAX_LEVELS``)."""
     check_build(build)
     t0 = time.perf_counter()
     keys = {}
@@ -96,10 +97,11 @@ def binary_tree(scene, backend: str, *, build: str = "sah", cache: TreeCache | N
     if chosen == "device":
         from .device_build import build_device
         a = build_device(scene.vertices, scene.faces, backend, leaf_size=leaf_size,
-                         progress=progress)
+                         progress=progress and (lambda k: progress("device", k)))
     else:
         from .bvh_build import build_bvh
-        a = build_bvh(scene.vertices, scene.faces, leaf_size=leaf_size)
+        a = build_bvh(scene.vertices, scene.faces, leaf_size=leaf_size,
+                      progress=progress and (lambda k: progress("sah", k)))
     seconds = time.perf_counter() - t0
     if cache is not None:
         cache.put("tree", keys.get(chosen) or tree_key(scene, chosen, leaf_size),
