@@ -125,14 +125,11 @@ def build_device(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm",
     del lo, hi
 
     # ---- 3. topology, top down ------------------------------------------------------------
-    n_max = F - 1                                        # inner nodes of a full binary tree
-    children = dr.zeros(UInt32, 2 * n_max)
     first, count = dr.opaque(UInt32, 0, 1), dr.opaque(UInt32, F, 1)   # the root level
-    level_base, level_size = [], []
+    level_base, level_size, level_refs = [], [], []
     n_nodes, k = 0, 1
     while k:
         depth = len(level_base)
-        ids = dr.opaque(UInt32, n_nodes) + dr.arange(UInt32, k)
         level_base.append(n_nodes)
         level_size.append(k)
         n_nodes += k
@@ -160,59 +157,66 @@ def build_device(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm",
         n_left = dr.gather(UInt32, left, node)
         c_first = dr.select(side == 0, n_first, n_first + n_left)
         c_count = dr.select(side == 0, n_left, n_count - n_left)
-        slot = 2 * dr.gather(UInt32, ids, node) + side
         leaf = c_count <= leaf_size
-        ref = LEAF_BIT | ((c_count - 1) << COUNT_SHIFT) | c_first
-        dr.scatter(children, ref, slot, leaf)
-        dr.eval(children, c_first, c_count, slot, leaf)
+        ref = dr.select(leaf, LEAF_BIT | ((c_count - 1) << COUNT_SHIFT) | c_first, 0)
+        dr.eval(ref, c_first, c_count, leaf)
         pend = dr.compress(~leaf)                          # the next level's nodes
         k = dr.width(pend)
-        if k:
-            dr.scatter(children, dr.opaque(UInt32, n_nodes) + dr.arange(UInt32, k),
-                       dr.gather(UInt32, slot, pend))
+        if k:           # inner children: the next level's nodes, numbered in lane order
+            dr.scatter(ref, dr.opaque(UInt32, n_nodes) + dr.arange(UInt32, k), pend)
             first = dr.gather(UInt32, c_first, pend)
             count = dr.gather(UInt32, c_count, pend)
-            dr.eval(children, first, count)
+            dr.eval(ref, first, count)
+        level_refs.append(ref)
         if progress is not None:
             progress(len(level_base))
     levels = len(level_base)
 
     # ---- 4. child boxes, bottom up ---------------------------------------------------------
-    box = [dr.zeros(Float, n_nodes) for _ in range(12)]   # unpadded, as BVHArrays.boxes
-    for base, size in zip(reversed(level_base), reversed(level_size)):
-        ids = dr.opaque(UInt32, base) + dr.arange(UInt32, size)
+    # (unpadded, as BVHArrays.boxes; every inner child of a level's node is in the next level)
+    below, level_boxes = None, []
+    for depth in reversed(range(levels)):
+        size, refs = level_size[depth], level_refs[depth]
+        i = dr.arange(UInt32, size)
         out = []
         for side in range(2):
-            ref = dr.gather(UInt32, children, 2 * ids + side)
+            ref = dr.gather(UInt32, refs, 2 * i + side)
             is_leaf = (ref & LEAF_BIT) != 0
             inner = ~is_leaf
+            lo_c, hi_c = [dr.full(Float, dr.inf, size) for _ in range(3)], \
+                [dr.full(Float, -dr.inf, size) for _ in range(3)]
+            if below is not None:
+                j = ref - dr.opaque(UInt32, level_base[depth + 1])
+                for a in range(3):
+                    lo_c[a] = dr.select(inner, dr.minimum(dr.gather(Float, below[a], j, inner),
+                                                          dr.gather(Float, below[6 + a], j,
+                                                                    inner)), lo_c[a])
+                    hi_c[a] = dr.select(inner, dr.maximum(dr.gather(Float, below[3 + a], j,
+                                                                    inner),
+                                                          dr.gather(Float, below[9 + a], j,
+                                                                    inner)), hi_c[a])
             f0 = ref & ((1 << COUNT_SHIFT) - 1)
             cnt = ((ref >> COUNT_SHIFT) & 15) + 1
-            lo_c, hi_c = [], []
-            for a in range(3):
-                ca = dr.gather(Float, box[a], ref, inner)
-                cb = dr.gather(Float, box[6 + a], ref, inner)
-                lo_c.append(dr.select(inner, dr.minimum(ca, cb), dr.inf))
-                ca = dr.gather(Float, box[3 + a], ref, inner)
-                cb = dr.gather(Float, box[9 + a], ref, inner)
-                hi_c.append(dr.select(inner, dr.maximum(ca, cb), -dr.inf))
-            for j in range(leaf_size):
-                on = is_leaf & (cnt > j)
+            for jj in range(leaf_size):
+                on = is_leaf & (cnt > jj)
                 for a in range(3):
                     lo_c[a] = dr.select(on, dr.minimum(lo_c[a],
-                                                       dr.gather(Float, slo[a], f0 + j, on)),
+                                                       dr.gather(Float, slo[a], f0 + jj, on)),
                                         lo_c[a])
                     hi_c[a] = dr.select(on, dr.maximum(hi_c[a],
-                                                       dr.gather(Float, shi[a], f0 + j, on)),
+                                                       dr.gather(Float, shi[a], f0 + jj, on)),
                                         hi_c[a])
             out += lo_c + hi_c
-        for c in range(12):
-            dr.scatter(box[c], out[c], ids)
-        dr.eval(box)
+        dr.eval(out)
+        level_boxes.append(out)
+        below = out
+    level_boxes.reverse()
 
     # ---- the host arrays ------------------------------------------------------------------
-    raw = np.stack([np.asarray(b.numpy(), np.float32) for b in box], axis=1)
-    ch = np.asarray(children.numpy(), np.uint32)[:2 * n_nodes].reshape(n_nodes, 2)
+    raw = np.stack([np.concatenate([np.asarray(lb[c].numpy(), np.float32)
+                                    for lb in level_boxes]) for c in range(12)], axis=1)
+    ch = np.concatenate([np.asarray(r.numpy(), np.uint32) for r in level_refs]
+                        ).reshape(n_nodes, 2)
     order = np.asarray(perm.numpy(), np.int64)
     b_lo = np.array([float(x.numpy()[0]) for x in s_lo], np.float32)
     b_hi = np.array([float(x.numpy()[0]) for x in s_hi], np.float32)
