@@ -146,7 +146,8 @@ def render_orbit_views(scene, views, effects, args: argparse.Namespace, files) -
     frame function (renderer/orbit.py) → an animated GIF (and MP4 when imageio has ffmpeg)."""
     for v, f in zip(views, files):
         cam = scene.cameras[v]
-        res = render_orbit(scene, args.orbit, view=v, backend=args.backend,
+        sc = scene if args.build is None else scene.with_settings(build=args.build)
+        res = render_orbit(sc, args.orbit, view=v, backend=args.backend,
                            precision=args.precision, accel=args.accel,
                            intersection=args.intersection, effects=effects)
         write_gif(f["gif"], res.frames, fps=PLAYBACK_FPS, overwrite=args.overwrite)
