@@ -163,3 +163,19 @@ def test_every_tree_accelerator_takes_the_device_tree():
     for name in ("bvh", "bvh4", "bvh8"):
         acc = partial(build_accelerator, name, scene, t)(build="device")
         assert acc.info["tree_build"] == "device"
+
+
+@pytest.mark.skipif(not __import__("drjit").has_backend(__import__("drjit").JitBackend.CUDA),
+                    reason="no CUDA device")
+def test_cuda_device_tree_is_valid_and_matches_brute_force():
+    V, faces = soup(3000, seed=7)
+    a = build_device(V, faces, "cuda")
+    check_bvh(a)
+    child_boxes_nest(a, V, faces)
+    t = types("cuda")
+    scene = scene_from_arrays(V, faces)
+    ray, active = random_rays(t, 4000, seed=8)
+    ref = hits(BruteForce.build(scene, t), ray, active, t)
+    for name in ("bvh", "bvh4"):
+        acc = build_accelerator(name, scene, t, build="device")
+        assert_same_hits(hits(acc, ray, active, t), ref)
