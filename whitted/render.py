@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+import time
 from pathlib import Path
 
 from renderer.film import write_exr, write_png
@@ -96,7 +97,11 @@ def output_files(scene, views: list[int], out: Path, orbit: bool) -> list[dict]:
 
 
 def cmd_render(args: argparse.Namespace) -> int:
+    from . import STARTED
+    t_imports = time.perf_counter() - STARTED
+    t_load = time.perf_counter()
     scene, views = load_for_cli(args)
+    t_load = time.perf_counter() - t_load
     effects = effects_for_cli(scene, args)
     files = output_files(scene, views, Path(args.out), bool(args.orbit))
     refuse_existing((p for f in files for p in f.values()), args.overwrite)
@@ -124,6 +129,7 @@ def cmd_render(args: argparse.Namespace) -> int:
         print(f"bvh: {info['tree_build']} tree of {scene.face_count} triangles "
               f"{'read from the cache' if info['tree_cached'] else 'built'} in "
               f"{info['tree_seconds']:.2f} s")
+    first = None
     for v, f in zip(views, files):
         cam = scene.cameras[v]
         ks = render_view(renderer, v, f"{scene.name}/{cam.name}")
@@ -138,6 +144,11 @@ def cmd_render(args: argparse.Namespace) -> int:
               f"{', '.join(map(str, f.values()))}")
         if "operations" in ks:
             print(f"    kernels: {format_operations(ks)}, {ks['kernel_ms']:.2f} ms kernel time")
+        first = first if first is not None else time.perf_counter() - STARTED
+    tree = float(info.get("tree_seconds", 0.0))
+    print(f"timing: imports {t_imports:.2f} s, load {t_load:.2f} s, tree {tree:.2f} s, "
+          f"upload {renderer.upload_seconds - tree:.2f} s, first image at {first:.2f} s "
+          "since the command's imports began")
     return 0
 
 

@@ -7,7 +7,7 @@ Per scene (``SCENES``; quick: ``QUICK_SCENES``), in one process on the same tria
   warm-up build (kernel compilation), median of ``REPEATS``: seconds, M triangles/s;
 - the host SAH build (``bvh_build.build_bvh``, one build): seconds, M triangles/s;
 - Mitsuba's own scene build (``reference.mitsuba_scene.load_triangles``: OptiX on CUDA,
-  Embree on the CPU), first and second build;
+  Embree on the CPU, forced by a first trace: ``_mitsuba_build``), first and second build;
 - the SAH cost of both trees, and a Whitted frame (the scene's first view at
   ``Context.frame_size``², the backend's accelerator, frozen: median kernel ms) over each,
   with whether the two images are bitwise equal;
@@ -22,6 +22,7 @@ on it). Run on a GPU host with one command:
 from __future__ import annotations
 
 import os
+import re
 import statistics
 import subprocess
 import sys
@@ -46,9 +47,15 @@ def _load(ctx: Context, name: str):
     return scene, time.perf_counter() - t0
 
 
+TIMING = re.compile(r"timing: imports ([\d.]+) s, load ([\d.]+) s, tree ([\d.]+) s, "
+                    r"upload ([-\d.]+) s, first image at ([\d.]+) s")
+
+
 def _process_seconds(ctx: Context, name: str, size: int, extra: list[str], cache: Path
-                     ) -> float:
-    """Wall seconds of one ``whitted render`` process (start to exit, one image)."""
+                     ) -> tuple[float, dict]:
+    """Wall seconds of one ``whitted render`` process (start to exit, one image), and the
+    breakdown its ``timing:`` line gives (imports, load, tree, upload, first_image_at: from
+    the package's import; outside: the rest of the wall time, interpreter start and exit)."""
     with tempfile.TemporaryDirectory() as out:
         env = dict(os.environ, WHITTED_CACHE=str(cache))
         cmd = [sys.executable, "-m", "whitted", "render", str(ctx.scene_path(name)),
@@ -59,7 +66,36 @@ def _process_seconds(ctx: Context, name: str, size: int, extra: list[str], cache
         if r.returncode != 0:
             raise RuntimeError(f"{' '.join(cmd)}: exit {r.returncode}: "
                                f"{r.stderr.strip().splitlines()[-1:]}")
-        return seconds
+        m = TIMING.search(r.stdout)
+        parts = {}
+        if m:
+            parts = dict(zip(("imports", "load", "tree", "upload", "first_image_at"),
+                             map(float, m.groups())))
+            parts["outside"] = seconds - parts["first_image_at"]
+        return seconds, parts
+
+
+def _mitsuba_build(scene) -> float:
+    """Seconds of Mitsuba's scene build on ``scene``'s triangles: ``mi.load_dict`` plus the
+    first ``ray_test`` of one ray (OptiX builds its acceleration structure lazily, at the
+    first trace), minus a second, warm ``ray_test`` of the same ray."""
+    import drjit as dr
+
+    from reference.mitsuba_scene import load_triangles, rays
+    c = np.asarray(scene.vertices, np.float64).mean(axis=0)
+    ray = rays(c[None] + [0.0, 0.0, 1e3], np.array([[0.0, 0.0, -1.0]]))
+    dr.sync_thread()
+    t0 = time.perf_counter()
+    mscene, _ = load_triangles(scene.vertices, scene.faces)
+    hit = mscene.ray_test(ray)
+    dr.eval(hit)
+    dr.sync_thread()
+    first = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    hit = mscene.ray_test(ray)
+    dr.eval(hit)
+    dr.sync_thread()
+    return max(first - (time.perf_counter() - t0), 0.0)
 
 
 def build_row(ctx: Context, name: str) -> dict:
@@ -67,7 +103,6 @@ def build_row(ctx: Context, name: str) -> dict:
     import drjit as dr
 
     from reference import mitsuba_variant
-    from reference.mitsuba_scene import load_triangles
     from renderer.accel.bvh_build import build_bvh
     from renderer.accel.device_build import build_device
 
@@ -90,8 +125,8 @@ def build_row(ctx: Context, name: str) -> dict:
     row["sah_mtris_s"] = F / sah.build_seconds / 1e6
     row["sah_sah_cost"], row["sah_levels"] = sah.sah_cost, sah.levels
     mitsuba_variant("cuda_ad_rgb" if ctx.backend == "cuda" else "llvm_ad_rgb")
-    _, row["mitsuba_build_s"] = load_triangles(scene.vertices, scene.faces)
-    _, row["mitsuba_build_again_s"] = load_triangles(scene.vertices, scene.faces)
+    row["mitsuba_build_s"] = _mitsuba_build(scene)
+    row["mitsuba_build_again_s"] = _mitsuba_build(scene)
     row["mitsuba_mtris_s"] = F / row["mitsuba_build_again_s"] / 1e6
     row["speedup_vs_sah"] = row["sah_s"] / row["device_s"]
     row["vs_mitsuba"] = row["mitsuba_build_again_s"] / row["device_s"]
@@ -109,10 +144,10 @@ def build_row(ctx: Context, name: str) -> dict:
     size = 64 if ctx.quick else PROCESS_SIZE
     row["process_size"] = size
     with tempfile.TemporaryDirectory() as cache:
-        row["process_sah_nocache_s"] = _process_seconds(
-            ctx, name, size, ["--build", "sah", "--no-cache"], Path(cache))
-        row["process_cold_s"] = _process_seconds(ctx, name, size, [], Path(cache))
-        row["process_cached_s"] = _process_seconds(ctx, name, size, [], Path(cache))
+        for key, extra in (("sah_nocache", ["--build", "sah", "--no-cache"]), ("cold", []),
+                           ("cached", [])):
+            row[f"process_{key}_s"], row[f"process_{key}_parts"] = _process_seconds(
+                ctx, name, size, extra, Path(cache))
     return row
 
 
@@ -153,6 +188,21 @@ def markdown(rows: list[dict]) -> list[str]:
     out += table("Time to first image: one `whitted render` process, start to exit",
                  ["scene", "size", "SAH, no cache s", "auto, cold cache s",
                   "auto, cached s"], "lrrrr", cells)
+    cells = []
+    for r in rows:
+        for key, label in (("sah_nocache", "SAH, no cache"), ("cold", "auto, cold"),
+                           ("cached", "auto, cached")):
+            p = r.get(f"process_{key}_parts") or {}
+            if p:
+                frame = (p["first_image_at"] - p["imports"] - p["load"] - p["tree"]
+                         - p["upload"])
+                cells.append([r["scene"], label, f"{r[f'process_{key}_s']:.2f}"]
+                             + [f"{p[k]:.2f}" for k in ("outside", "imports", "load", "tree",
+                                                         "upload")] + [f"{frame:.2f}"])
+    out += table("Where a `whitted render` process spends its time (s; `outside`: interpreter "
+                 "start and exit, `frame`: the rest up to the first image, compilation "
+                 "included)", ["scene", "run", "wall", "outside", "imports", "load", "tree",
+                               "upload", "frame"], "llrrrrrrr", cells)
     return out
 
 
