@@ -187,7 +187,7 @@ def test_cli_no_cache_writes_nothing(tmp_path):
     r = subprocess.run(base + ["--out", str(tmp_path / "b")], env=env, capture_output=True,
                        text=True, timeout=300)
     assert r.returncode == 0, r.stderr
-    assert len(list((tmp_path / "c").iterdir())) == 1
+    assert len(list((tmp_path / "c").glob("tree-*.bin"))) == 1
     r = subprocess.run(base + ["--out", str(tmp_path / "d")], env=env, capture_output=True,
                        text=True, timeout=300)
     assert "read from the cache" in r.stdout

@@ -120,6 +120,9 @@ def build_row(ctx: Context, name: str) -> dict:
     row["device_s"] = statistics.median(times)
     row["device_mtris_s"] = F / row["device_s"] / 1e6
     row["device_sah_cost"], row["device_levels"] = dev.sah_cost, dev.levels
+    phases = {}
+    build_device(scene.vertices, scene.faces, ctx.backend, phases=phases)
+    row["device_phases_s"] = phases          # one more build, waiting at each phase's end
     sah = build_bvh(scene.vertices, scene.faces)
     row["sah_s"] = sah.build_seconds
     row["sah_mtris_s"] = F / sah.build_seconds / 1e6
@@ -176,6 +179,11 @@ def markdown(rows: list[dict]) -> list[str]:
     out = table("Build: device (Dr.Jit) vs host SAH vs Mitsuba's scene build, one process",
                 ["scene", "triangles", "device s", "device M/s", "SAH s", "SAH M/s",
                  "Mitsuba s (1st / 2nd)", "Mitsuba M/s", "load avg"], "lrrrrrrrr", cells)
+    names = list(rows[0].get("device_phases_s", {})) if rows else []
+    cells = [[r["scene"]] + [f"{1e3 * r['device_phases_s'].get(n, 0.0):.1f}" for n in names]
+             for r in rows if r.get("device_phases_s")]
+    out += table("Device build by phase (ms; one build that waits at each phase's end)",
+                 ["scene"] + names, "l" + "r" * len(names), cells)
     cells = [[r["scene"], f"{r['device_sah_cost']:.2f}", f"{r['sah_sah_cost']:.2f}",
               f"{r['device_levels']} / {r['sah_levels']}", f"{r['frame_ms_device']:.3f}",
               f"{r['frame_ms_sah']:.3f}", f"{r['frame_ratio']:.2f}",

@@ -16,9 +16,10 @@ Steps, each a few Dr.Jit kernels over all triangles or all nodes of one level:
    ``leaf_size``) triangles, an inner child's the union of its own two child boxes.
 
 The result is a ``BVHArrays`` like ``bvh_build.build_bvh``'s (inner nodes numbered level
-by level, so every level is one contiguous run of nodes), its boxes padded on the host by
-the same ``pad_boxes``, so the traversal, the wide conversion and the refit read it as
-they read the SAH tree, and the hits are the same bit for bit.
+by level, so every level is one contiguous run of nodes), its boxes padded on the device by
+``pad_boxes``'s rule (the same float32 operations) and its SAH cost summed there, so the
+traversal, the wide conversion and the refit read it as they read the SAH tree, and the
+hits are the same bit for bit.
 """
 from __future__ import annotations
 
@@ -29,8 +30,9 @@ import time
 import drjit as dr
 import numpy as np
 
-from .bvh_build import LEAF_SIZE, MAX_LEVELS, BVHArrays, _sah_cost, build_bvh, pad_boxes
+from .bvh_build import C_TRAV, LEAF_SIZE, MAX_LEVELS, BVHArrays, build_bvh
 from .traverse import COUNT_SHIFT, LEAF_BIT, MAX_LEAF
+from .triangle import unit_roundoff
 
 MORTON_BITS = 10                 # bits per axis: 30-bit codes
 #: Triangles whose box is larger than this fraction of the scene box's longest side (along
@@ -64,6 +66,14 @@ def _levels_needed(count, leaf_size: int):
     return dr.select(leaves > 1, 32 - dr.lzcnt(dr.maximum(leaves, 1) - 1), 0)
 
 
+def _phase(phases: dict, name: str, t_phase: list) -> None:
+    """Wait for the device, add the seconds since ``t_phase[0]`` to ``phases[name]``."""
+    dr.sync_thread()
+    now = time.perf_counter()
+    phases[name] = phases.get(name, 0.0) + now - t_phase[0]
+    t_phase[0] = now
+
+
 def _bisect(UInt32, code, bit, a, b):
     """One bisection step of the split search: ``(a, b)`` halved towards the first code
     in ``(a, b]`` with ``bit`` set."""
@@ -73,11 +83,14 @@ def _bisect(UInt32, code, bit, a, b):
 
 
 def build_device(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm", *,
-                 leaf_size: int = LEAF_SIZE, progress=None) -> BVHArrays:
+                 leaf_size: int = LEAF_SIZE, progress=None,
+                 phases: dict | None = None) -> BVHArrays:
     """Build a BVH over ``faces`` (int (F, 3)) of ``vertices`` (float (V, 3)) on ``backend``
     ("cuda" or "llvm"; see the module docstring). ``leaf_size``: most triangles per leaf
-    (1..16). ``progress``: called as ``progress(levels_done)`` after each level. A scene of
-    at most ``leaf_size`` triangles gets ``build_bvh``'s single-leaf tree."""
+    (1..16). ``progress``: called as ``progress(levels_done)`` after each level.
+    ``phases``: None, or a dict that gets the seconds of each phase (the build then waits
+    for the device at each phase's end, which costs a little). A scene of at most
+    ``leaf_size`` triangles gets ``build_bvh``'s single-leaf tree."""
     if not 1 <= leaf_size <= MAX_LEAF:
         raise ValueError(f"leaf_size: expected 1..{MAX_LEAF}, got {leaf_size}")
     m = _module(backend)
@@ -92,6 +105,7 @@ def build_device(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm",
     if MAX_LEVELS < math.ceil(math.log2(math.ceil(F / leaf_size))) + 1:
         raise ValueError(f"faces: {F} triangles need more than {MAX_LEVELS} BVH levels")
     Float, UInt32 = m.Float, m.UInt32
+    t_phase = [t_start]
 
     # ---- 1. triangle boxes and the scene box -----------------------------------------------
     vx, vy, vz = (Float(np.ascontiguousarray(Vn[:, k])) for k in range(3))
@@ -102,6 +116,8 @@ def build_device(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm",
         lo.append(dr.minimum(dr.minimum(p[0], p[1]), p[2]))
         hi.append(dr.maximum(dr.maximum(p[0], p[1]), p[2]))
     dr.eval(lo, hi)
+    if phases is not None:
+        _phase(phases, "triangle boxes", t_phase)
     s_lo = [dr.min(x) for x in lo]
     s_hi = [dr.max(x) for x in hi]
 
@@ -123,6 +139,8 @@ def build_device(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm",
     shi = [dr.gather(Float, x, perm) for x in hi]
     dr.eval(code, perm, slo, shi)
     del lo, hi
+    if phases is not None:
+        _phase(phases, "Morton codes and sort", t_phase)
 
     # ---- 3. topology, top down ------------------------------------------------------------
     first, count = dr.opaque(UInt32, 0, 1), dr.opaque(UInt32, F, 1)   # the root level
@@ -171,6 +189,8 @@ def build_device(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm",
         if progress is not None:
             progress(len(level_base))
     levels = len(level_base)
+    if phases is not None:
+        _phase(phases, "topology", t_phase)
 
     # ---- 4. child boxes, bottom up ---------------------------------------------------------
     # (unpadded, as BVHArrays.boxes; every inner child of a level's node is in the next level)
@@ -212,23 +232,52 @@ def build_device(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm",
         below = out
     level_boxes.reverse()
 
+    if phases is not None:
+        _phase(phases, "boxes bottom up", t_phase)
+
+    # ---- 5. padded boxes and references in the host layout, on the device -----------------
+    N = n_nodes
+    extent = dr.maximum(dr.maximum(s_hi[0] - s_lo[0], s_hi[1] - s_lo[1]), s_hi[2] - s_lo[2])
+    u32 = float(32 * unit_roundoff(False))
+    boxes_d = dr.zeros(Float, 12 * N)
+    refs_d = dr.zeros(UInt32, 2 * N)
+    area = dr.zeros(m.Float64, 1)
+    for depth in range(levels):
+        base, size = dr.opaque(UInt32, level_base[depth]), level_size[depth]
+        i = dr.arange(UInt32, size)
+        ids = base + i
+        lb, refs = level_boxes[depth], level_refs[depth]
+        for side in range(2):
+            ref = dr.gather(UInt32, refs, 2 * i + side)
+            padded = []
+            for a in range(3):             # pad_boxes: 32 roundoff x (magnitude + extent)
+                lo_a, hi_a = lb[6 * side + a], lb[6 * side + 3 + a]
+                e = (dr.maximum(abs(lo_a), abs(hi_a)) + extent) * u32
+                padded.append((lo_a - e, hi_a + e))
+            for a in range(3):
+                dr.scatter(boxes_d, padded[a][0], 12 * ids + 6 * side + a)
+                dr.scatter(boxes_d, padded[a][1], 12 * ids + 6 * side + 3 + a)
+            d = [m.Float64(padded[a][1] - padded[a][0]) for a in range(3)]
+            half = d[0] * d[1] + d[1] * d[2] + d[2] * d[0]
+            weight = dr.select((ref & LEAF_BIT) != 0,
+                               m.Float64(((ref >> COUNT_SHIFT) & 15) + 1), 1.0)
+            area += dr.sum(half * weight)
+        dr.scatter(refs_d, refs, 2 * base + dr.arange(UInt32, 2 * size))
+    dr.eval(boxes_d, refs_d, area)
+
     # ---- the host arrays ------------------------------------------------------------------
-    raw = np.stack([np.concatenate([np.asarray(lb[c].numpy(), np.float32)
-                                    for lb in level_boxes]) for c in range(12)], axis=1)
-    ch = np.concatenate([np.asarray(r.numpy(), np.uint32) for r in level_refs]
-                        ).reshape(n_nodes, 2)
+    boxes = np.asarray(boxes_d.numpy(), np.float32).reshape(N, 12)
+    ch = np.asarray(refs_d.numpy(), np.uint32).reshape(N, 2)
     order = np.asarray(perm.numpy(), np.int64)
     b_lo = np.array([float(x.numpy()[0]) for x in s_lo], np.float32)
     b_hi = np.array([float(x.numpy()[0]) for x in s_hi], np.float32)
-    extent = float(np.max(b_hi - b_lo))
-    boxes = np.empty_like(raw)
-    for side in range(2):
-        c = 6 * side
-        boxes[:, c:c + 3], boxes[:, c + 3:c + 6] = pad_boxes(raw[:, c:c + 3],
-                                                              raw[:, c + 3:c + 6], extent)
     leaf_count = int(np.count_nonzero(ch & np.uint32(LEAF_BIT)))
-    arrays = BVHArrays(boxes, ch, order, levels, leaf_count, 0.0, 0.0,
-                       (b_lo.astype(np.float64), b_hi.astype(np.float64)))
-    arrays.sah_cost = _sah_cost(arrays)
+    bounds = (b_lo.astype(np.float64), b_hi.astype(np.float64))
+    dd = bounds[1] - bounds[0]
+    root = float(dd[0] * dd[1] + dd[1] * dd[2] + dd[2] * dd[0])
+    sah = (C_TRAV * root + float(area.numpy()[0])) / root if root > 0 else 0.0
+    arrays = BVHArrays(boxes, ch, order, levels, leaf_count, sah, 0.0, bounds)
     arrays.build_seconds = time.perf_counter() - t_start
+    if phases is not None:
+        _phase(phases, "host layout and copy", t_phase)
     return arrays
