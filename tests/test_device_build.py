@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 from accel_util import assert_same_hits, hits, random_rays, scene_from_arrays, soup
 
-import evaluation.hard_cases as hard_cases
+import evaluation.hard.runners as hard_runners
+from evaluation.hard.cases import Config, load_cases
 from renderer.accel import ACCELERATORS, BruteForce, build_accelerator
 from renderer.accel.bvh_build import MAX_LEVELS, check_bvh
 from renderer.accel.device_build import build_device
@@ -145,10 +146,9 @@ def test_hard_cases_through_the_device_tree(monkeypatch, case):
         built.append(acc.info.get("tree_build"))
         return acc
 
-    monkeypatch.setattr(hard_cases, "build_accelerator", device_accel)
-    cfg = hard_cases.Config(backend="llvm", precisions=("float32",),
-                            accels=("bvh", "bvh4"), rays=4000)
-    rows = hard_cases.run_suite(cfg, [case], hard_cases.load_cases())
+    monkeypatch.setattr(hard_runners, "build_accelerator", device_accel)
+    cfg = Config(backend="llvm", precisions=("float32",), accels=("bvh", "bvh4"), rays=4000)
+    rows = hard_runners.run_suite(cfg, [case], load_cases())
     red = [f"{r.case} | {r.variant} | {r.criterion} | {r.measured}" for r in rows
            if not r.passed]
     assert rows and not red, "red rows:\n" + "\n".join(red)
