@@ -17,7 +17,7 @@ Per scene (``SCENES``; quick: ``QUICK_SCENES``), in one process on the same tria
 
 Each row carries the 1-minute load average before it ran (a shared CPU's numbers depend
 on it). Run on a GPU host with one command:
-``python -m whitted bench --backend cuda --parts build --out results/<host>/build``.
+``python -m whitted bench --backend cuda --parts build --out DIR``.
 """
 from __future__ import annotations
 

@@ -10,7 +10,7 @@ and code is there (verified: a bad entry is rebuilt with one warning), else buil
 stored. The "auto" rule, measured (``lab/notes/device-build.md``): an SAH tree already in
 the cache is taken (it costs nothing and traces fastest); otherwise a caller that renders
 at most ``AUTO_MAX_FRAMES`` frames of a scene of at least ``AUTO_MIN_TRIANGLES`` triangles
-gets the device tree (its build is 10-30x faster, which outweighs its slower traversal
+gets the device tree (its much faster build outweighs its slower traversal
 over so few frames), every other caller (a study, a bench, an unknown number of frames)
 the SAH tree.
 """
