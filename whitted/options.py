@@ -14,7 +14,7 @@ import argparse
 
 from evaluation import wxh
 from evaluation.gate.verdict import EXIT_CODES
-from renderer.accel import ACCELERATORS, DEFAULT_ACCELS, DEFAULT_ROUTINE, ROUTINES
+from renderer.accel import ACCELERATORS, BUILDS, DEFAULT_ACCELS, DEFAULT_ROUTINE, ROUTINES
 from renderer.device import BACKENDS, PRECISIONS
 from renderer.effects import FLAGS, EffectSet
 from renderer.scene import SHADING_MODES, Scene, load_scene
@@ -77,6 +77,14 @@ def add_scene_options(p: argparse.ArgumentParser) -> None:
                         + "; every one gives the same pixels)")
     p.add_argument("--intersection", default=DEFAULT_ROUTINE, choices=tuple(ROUTINES),
                    help=f"ray/triangle routine (default {DEFAULT_ROUTINE})")
+    p.add_argument("--build", choices=BUILDS,
+                   help="how the BVH is built: 'sah' (host SAH: the faster tree), 'device' "
+                        "(Dr.Jit on the backend: the faster build), 'auto' (default, or the "
+                        "scene's [render] build: a cached SAH tree, else the device build "
+                        "for a few frames of a large scene)")
+    p.add_argument("--no-cache", action="store_true",
+                   help="neither read nor write the cache of built trees ($WHITTED_CACHE, "
+                        "else the user cache folder)")
     p.add_argument("--effects", default="auto", choices=("auto", "all"),
                    help="'auto': trace only the effects the scene calls for; 'all': every effect")
     p.add_argument("--effect-off", action="append", default=[], metavar="EFFECT",
@@ -99,22 +107,28 @@ def add_import_options(p: argparse.ArgumentParser) -> None:
                         "documented approximation instead of refusing them")
 
 
-def read_scene(args: argparse.Namespace, path=None) -> Scene:
+def read_scene(args: argparse.Namespace, path=None, *, cache=None) -> Scene:
     """``load_scene`` of ``path`` (default ``args.scene``) with the options of
-    ``add_import_options`` and ``--shading``."""
+    ``add_import_options``, ``--shading`` and the tree cache ``cache``."""
     from renderer.scene.mitsuba_xml import parse_defines
     return load_scene(args.scene if path is None else path,
                       shading=getattr(args, "shading", None),
                       camera=getattr(args, "camera", None),
                       defines=parse_defines(getattr(args, "defines", [])),
-                      approximate=getattr(args, "approximate", False))
+                      approximate=getattr(args, "approximate", False), cache=cache)
+
+
+def cache_for_cli(args: argparse.Namespace):
+    """The tree cache the command line asks for: None with ``--no-cache``."""
+    from renderer.accel.cache import TreeCache
+    return None if getattr(args, "no_cache", False) else TreeCache()
 
 
 def load_for_cli(args: argparse.Namespace) -> tuple[Scene, list[int]]:
     """The scene with the command line's overrides applied, and the selected view indices.
 
     Raises ``SceneError`` for a bad scene file or override, ``CliError`` for a bad view."""
-    scene = read_scene(args)
+    scene = read_scene(args, cache=cache_for_cli(args))
     scene = scene.with_overrides(spp=args.spp, max_depth=args.max_depth, size=args.size)
     return scene, select_views(scene, args.view)
 

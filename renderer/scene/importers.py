@@ -44,7 +44,8 @@ AUTO_SIZE, AUTO_FOV = (256, 256), 40.0
 
 
 def load_scene(path, *, shading: str | None = None, camera: str | None = None,
-               defines: dict[str, str] | None = None, approximate: bool = False) -> Scene:
+               defines: dict[str, str] | None = None, approximate: bool = False,
+               cache=None) -> Scene:
     """Read any scene file by its suffix (``SCENE_FORMATS``).
 
     shading: "classic" | "physical" overrides the file's mode (``loader.load_scene``).
@@ -53,6 +54,7 @@ def load_scene(path, *, shading: str | None = None, camera: str | None = None,
     defines: Mitsuba XML parameters (``-D name=value``) overriding ``<default>`` values.
     approximate: Mitsuba XML only: render elements outside the model's subset by their
         documented approximation (one warning each) instead of refusing them.
+    cache: a ``renderer.accel.cache.TreeCache`` (None: none), as ``loader.load_scene``.
     Raises ``SceneError`` (file, field or line, what was expected) for malformed input.
     """
     path = Path(path)
@@ -63,15 +65,15 @@ def load_scene(path, *, shading: str | None = None, camera: str | None = None,
         raise SceneError(f"{path}: -D {next(iter(defines))}=...: parameters are for Mitsuba "
                          "XML scenes only")
     if suffix == ".toml":
-        scene = load_toml(path, shading=shading)
+        scene = load_toml(path, shading=shading, cache=cache)
     elif suffix == ".obj":
-        scene = load_obj_scene(path, shading=shading)
+        scene = load_obj_scene(path, shading=shading, cache=cache)
     elif suffix == ".ply":
-        scene = load_ply_scene(path, shading=shading)
+        scene = load_ply_scene(path, shading=shading, cache=cache)
     elif suffix == ".xml":
         from .mitsuba_xml import load_xml
         scene = load_xml(path, shading=shading, defines=defines or {},
-                         approximate=approximate)
+                         approximate=approximate, cache=cache)
     else:
         raise SceneError(f"{path}: unsupported scene format {path.suffix!r}, expected one of "
                          f"{', '.join(SCENE_FORMATS)}")
@@ -91,7 +93,7 @@ NORMAL_SOURCES = ("averaged", "file")
 IMPORT_KINDS = ("obj+mtl", "obj+normals", "ply+normals")
 
 
-def load_toml(path, *, shading: str | None = None) -> Scene:
+def load_toml(path, *, shading: str | None = None, cache=None) -> Scene:
     """``loader.load_scene``; for a file whose objects use ``OBJECT_IMPORT_KEYS``, the same
     reading (the loader's table readers, in its order) with those objects built here
     (``_import_object``)."""
@@ -100,7 +102,7 @@ def load_toml(path, *, shading: str | None = None) -> Scene:
     objs = data.get("objects")
     if not isinstance(objs, list) or not any(
             isinstance(o, dict) and set(o) & set(OBJECT_IMPORT_KEYS) for o in objs):
-        return loader.load_scene(path, shading=shading)
+        return loader.load_scene(path, shading=shading, cache=cache)
     r = loader._Reader(path)
     r.keys(data, loader._TOP_KEYS, "")
     if "description" in data:
@@ -128,7 +130,7 @@ def load_toml(path, *, shading: str | None = None) -> Scene:
             ot.setdefault("material", _PLACEHOLDER)
         plain.append(ot)
     parts, sources = loader._read_objects(r, {"objects": plain},
-                                          {**index, _PLACEHOLDER: placeholder})
+                                          {**index, _PLACEHOLDER: placeholder}, cache)
     check = loader._read_check(r, data)
     out, normals, names = [], [], {p.name for p in parts}
     for i, (ot, part) in enumerate(zip(objs, parts)):
@@ -143,7 +145,7 @@ def load_toml(path, *, shading: str | None = None) -> Scene:
             normals.append(None)
     scene = assemble(path, out, normals, cameras=cameras, settings=settings, lights=lights,
                      materials=materials, ambient=look.ambient,
-                     sources=[path.resolve(), *sources])
+                     sources=[path.resolve(), *sources], cache=cache)
     return replace(scene, check=check)
 
 
@@ -297,7 +299,7 @@ def _clean(path: Path, name: str, world: np.ndarray, faces: np.ndarray,
 
 
 def assemble(path: Path, parts: list, normals: list, *, cameras, settings, lights,
-             materials, ambient, sources) -> Scene:
+             materials, ambient, sources, cache=None) -> Scene:
     """The scene of ``parts`` (``loader._Part``, already ``_clean``) with ``normals[k]``
     (float64 (V, 3) world-space file normals of part k, or None: averaged) in place of the
     averaged normals. Unit-length; a zero file normal falls back to the averaged one."""
@@ -307,7 +309,7 @@ def assemble(path: Path, parts: list, normals: list, *, cameras, settings, light
             raise SceneError(f"{path}: object {part.name!r} has no triangles left (all "
                              "zero-area or empty)")
     scene = loader._assemble(r, parts, cameras, settings, lights, materials, ambient,
-                             sources)
+                             sources, cache=cache)
     n64, n32 = scene.normals64.copy(), scene.normals.copy()
     for obj, fn in zip(scene.objects, normals):
         if fn is None:
@@ -433,7 +435,7 @@ def _settings(shading: str | None) -> Settings:
     return Settings(shading=shading or "classic")
 
 
-def load_obj_scene(path, *, shading: str | None = None) -> Scene:
+def load_obj_scene(path, *, shading: str | None = None, cache=None) -> Scene:
     """An OBJ file (+ MTL) as a scene: its groups as objects (``obj_parts``), a framed
     camera and a default light (module docstring). Classic shading unless ``shading``."""
     path = Path(path)
@@ -445,7 +447,8 @@ def load_obj_scene(path, *, shading: str | None = None) -> Scene:
     except meshio.MeshError as e:
         raise SceneError(str(e)) from None
     scene = assemble(path, parts, normals, cameras=[], settings=_settings(shading),
-                     lights=[], materials=materials, ambient=np.zeros(3), sources=files)
+                     lights=[], materials=materials, ambient=np.zeros(3), sources=files,
+                     cache=cache)
     return _frame_and_light(scene, path)
 
 
@@ -466,7 +469,7 @@ def ply_part(path: Path, m: np.ndarray | None = None, *, material: int = 0,
     return loader._Part(name, "ply", material, not flat, world, faces), fn, ply
 
 
-def load_ply_scene(path, *, shading: str | None = None) -> Scene:
+def load_ply_scene(path, *, shading: str | None = None, cache=None) -> Scene:
     """A PLY file as a scene of one smooth object (file normals when present, else
     averaged), a framed camera and a default light. Vertex colours, which the model cannot
     vary across a surface, become the material's kd as their mean (one warning)."""
@@ -485,5 +488,6 @@ def load_ply_scene(path, *, shading: str | None = None) -> Scene:
                       f"{np.round(mean, 3).tolist()}): the model has no per-vertex colour",
                       stacklevel=2)
     scene = assemble(path, [part], [fn], cameras=[], settings=_settings(shading), lights=[],
-                     materials=[material], ambient=np.zeros(3), sources=[path.resolve()])
+                     materials=[material], ambient=np.zeros(3), sources=[path.resolve()],
+                     cache=cache)
     return _frame_and_light(scene, path)

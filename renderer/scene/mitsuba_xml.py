@@ -560,7 +560,7 @@ class _Build:
 
 
 def load_xml(path, *, shading: str | None = None, defines: dict | None = None,
-             approximate: bool = False) -> Scene:
+             approximate: bool = False, cache=None) -> Scene:
     """Read a Mitsuba 3 XML scene (module docstring) as a ``Scene``. Raises SceneError
     whose message starts with ``<file>:<line>:``."""
     path = Path(path)
@@ -612,7 +612,7 @@ def load_xml(path, *, shading: str | None = None, defines: dict | None = None,
                         background=b.background)
     scene = importers.assemble(path, b.parts, b.normals, cameras=b.cameras,
                                settings=settings, lights=lights, materials=b.materials,
-                               ambient=b.ambient, sources=ctx.sources)
+                               ambient=b.ambient, sources=ctx.sources, cache=cache)
     return importers._frame_and_light(scene, path)
 
 
