@@ -539,34 +539,45 @@ def _assemble(r: _Reader, parts: list[_Part], cameras, settings, lights, materia
               sources) -> Scene:
     """The flat scene arrays: zero-area triangles dropped, vertices compacted per object,
     vertex normals averaged."""
-    objects, all_v, all_n, all_f, f_mat, f_obj = [], [], [], [], [], []
+    objects, all_v, all_n, all_n64, all_f, f_mat, f_obj = [], [], [], [], [], [], []
     v_base = f_base = 0
     for k, part in enumerate(parts):
         name, kind, mat, smooth, world, faces = (part.name, part.kind, part.material,
                                                  part.smooth, part.world, part.faces)
         where = f"objects[{k}]"
-        # Zero-area test on the float32 positions the renderer will see (float64 arithmetic).
-        p = world.astype(np.float32).astype(np.float64)
-        cross = np.cross(p[faces[:, 1]] - p[faces[:, 0]], p[faces[:, 2]] - p[faces[:, 0]])
-        area2 = np.linalg.norm(cross, axis=1)
-        keep = area2 > 0
+        # Zero-area test on the positions each precision renders (float64 arithmetic): a
+        # triangle is dropped only where it has no area in either, so a float64 render far
+        # from the origin keeps the small triangles that float32's grid collapses (those
+        # never hit in float32: ``triangle.pack`` stores them degenerate).
+        p32 = world.astype(np.float32).astype(np.float64)
+        cross32 = np.cross(p32[faces[:, 1]] - p32[faces[:, 0]],
+                           p32[faces[:, 2]] - p32[faces[:, 0]])
+        cross = np.cross(world[faces[:, 1]] - world[faces[:, 0]],
+                         world[faces[:, 2]] - world[faces[:, 0]])
+        area32, area2 = np.linalg.norm(cross32, axis=1), np.linalg.norm(cross, axis=1)
+        keep = (area32 > 0) | (area2 > 0)
         dropped = int((~keep).sum())
         if dropped:
             warnings.warn(f"{r.path}: {where} ({name!r}): dropped {dropped} zero-area "
                           f"triangle{'s' if dropped > 1 else ''} of {len(faces)}", stacklevel=3)
-        faces, cross, area2 = faces[keep], cross[keep], area2[keep]
+        faces = faces[keep]
+        cross32, area32, cross, area2 = cross32[keep], area32[keep], cross[keep], area2[keep]
         if len(faces) == 0:
             raise r.error(where, f"object {name!r} has no triangles left (all zero-area or "
                                  "empty mesh)")
         used, faces = np.unique(faces, return_inverse=True)   # compact to used vertices
         faces = faces.reshape(-1, 3)
         verts = world[used]
-        normals = _vertex_normals(verts, faces, cross / area2[:, None])
+        # vertex normals of each precision from its own face normals (a face without area
+        # in one precision does not count there)
+        normals = _vertex_normals(verts, faces, _unit_rows(cross32, area32))
+        normals64 = _vertex_normals(verts, faces, _unit_rows(cross, area2))
         objects.append(ObjectInfo(name=name, kind=kind, material=mat, first_face=f_base,
                                   face_count=len(faces), first_vertex=v_base,
                                   vertex_count=len(verts), smooth=smooth))
         all_v.append(verts)
         all_n.append(normals)
+        all_n64.append(normals64)
         all_f.append(faces + v_base)
         f_mat.append(np.full(len(faces), mat, np.int32))
         f_obj.append(np.full(len(faces), k, np.int32))
@@ -582,12 +593,17 @@ def _assemble(r: _Reader, parts: list[_Part], cameras, settings, lights, materia
         vertices=cat(all_v, (0, 3), np.float32),
         normals=cat(all_n, (0, 3), np.float32),
         vertices64=cat(all_v, (0, 3), np.float64),
-        normals64=cat(all_n, (0, 3), np.float64),
+        normals64=cat(all_n64, (0, 3), np.float64),
         faces=cat(all_f, (0, 3), np.int32),
         face_material=cat(f_mat, (0,), np.int32),
         face_object=cat(f_obj, (0,), np.int32),
         ambient=ambient, name=r.path.stem, path=r.path, source_files=sources,
     )
+
+
+def _unit_rows(v: np.ndarray, length: np.ndarray) -> np.ndarray:
+    """Rows of ``v`` divided by ``length`` (0 where the length is 0)."""
+    return np.where(length[:, None] > 0, v / np.where(length > 0, length, 1.0)[:, None], 0.0)
 
 
 def _vertex_normals(verts: np.ndarray, faces: np.ndarray, face_n: np.ndarray) -> np.ndarray:

@@ -279,11 +279,13 @@ class Scene:
         reference and the BVH's binning read).
     normals: float32 (V, 3) unit vertex normals (average of adjacent face normals within
         the object); present for every vertex, used only for smooth objects.
-    vertices64, normals64: float64 (V, 3) the same before rounding to float32 (the loader
-        keeps them, so a float64 render sees the exact transformed positions), or None
+    vertices64, normals64: float64 (V, 3) the positions before rounding to float32 and the
+        normals averaged from their faces (the loader keeps them, so a float64 render sees
+        the exact transformed geometry), or None
         (then ``positions(True)`` is ``vertices`` widened). Read both through
         ``positions(double)`` / ``normals_of(double)``.
-    faces: int32 (F, 3) global vertex indices; no zero-area triangles (dropped at load).
+    faces: int32 (F, 3) global vertex indices; no triangle without area in both precisions
+        (dropped at load; one with area in float64 only never hits in float32).
     face_material: int32 (F,) index into ``materials``.
     face_object: int32 (F,) index into ``objects``.
     cameras: the views; ``cameras[0]`` is the default.
@@ -314,11 +316,16 @@ class Scene:
         # A copy made with ``replace(scene, vertices=...)`` (moved, scaled) keeps the old
         # float64 arrays: they no longer round to the new float32 ones, so drop them (float64
         # renders then widen the float32 positions) rather than render stale geometry.
-        for hi, lo in (("vertices64", "vertices"), ("normals64", "normals")):
-            v64, v32 = getattr(self, hi), getattr(self, lo)
-            if v64 is not None and (v64.shape != np.shape(v32) or not np.array_equal(
-                    v64.astype(np.float32), np.asarray(v32, np.float32))):
-                setattr(self, hi, None)
+        # The float64 normals go with the float64 vertices: they are averaged from the
+        # float64 face normals, so they need not round to the float32 ones (far from the
+        # origin a face can have area in float64 only).
+        v64 = self.vertices64
+        if v64 is not None and (v64.shape != np.shape(self.vertices) or not np.array_equal(
+                v64.astype(np.float32), np.asarray(self.vertices, np.float32))):
+            self.vertices64 = None
+        if self.vertices64 is None or (self.normals64 is not None
+                                       and self.normals64.shape != np.shape(self.normals)):
+            self.normals64 = None
 
     # ---- derived facts -----------------------------------------------------------------------
     @property
