@@ -492,10 +492,25 @@ def _camera(r: _Reader, defaults: dict, view: dict, where: str, i: int, in_views
     return Camera(position=pos, target=target, up=up, fov_y=fov, width=w, height=h, name=name)
 
 
+def _sin_cos_degrees(deg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(sin, cos)`` of angles in degrees, exact (0, ±1) at multiples of 90°: ``cos(90°)``
+    computed from ``np.radians`` is 6e-17, which tilts a wall rotated upright by a float64
+    ulp, so the floor it stands on pokes through it and a float64 shadow ray from the
+    floor's edge is blocked by the wall. Other angles are ``np.sin``/``np.cos`` as given."""
+    deg = np.asarray(deg, np.float64)
+    s, c = np.sin(np.radians(deg)), np.cos(np.radians(deg))
+    quarter = np.mod(deg, 360.0) / 90.0
+    right = quarter == np.round(quarter)
+    k = np.mod(np.round(quarter), 4).astype(int)
+    s = np.where(right, np.array([0.0, 1.0, 0.0, -1.0])[k], s)
+    c = np.where(right, np.array([1.0, 0.0, -1.0, 0.0])[k], c)
+    return s, c
+
+
 def _rotation(deg: np.ndarray) -> np.ndarray:
-    """Rotation by deg[0] about x, then deg[1] about y, then deg[2] about z."""
-    cx, cy, cz = np.cos(np.radians(deg))
-    sx, sy, sz = np.sin(np.radians(deg))
+    """Rotation by deg[0] about x, then deg[1] about y, then deg[2] about z
+    (``_sin_cos_degrees``: right angles exact)."""
+    (sx, sy, sz), (cx, cy, cz) = _sin_cos_degrees(deg)
     rx = np.array([[1, 0, 0], [0, cx, -sx], [0, sx, cx]])
     ry = np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
     rz = np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1]])
