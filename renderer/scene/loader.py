@@ -212,7 +212,7 @@ def _read_render(r: _Reader, data: dict, shading: str | None) -> Settings:
     exact = r.boolean(rt["exact"], "render.exact") if "exact" in rt else spp == 1
     max_depth = r.integer(rt.get("max_depth", 5), "render.max_depth", lo=0)
     spawn = r.string(rt.get("spawn", "scale-free"), "render.spawn", SPAWN_RULES)
-    if spawn != "scale-free" and "ray_epsilon" in rt:
+    if "spawn" in rt and "ray_epsilon" in rt:     # either rule, named or the default's
         raise SceneError(f"{r.path}: render.spawn: {spawn!r} and render.ray_epsilon (an "
                          "absolute offset) exclude each other", field="render.spawn")
     try:
