@@ -5,8 +5,9 @@ Every kernel module takes its types from a ``Types`` bundle instead of hard-codi
 is present, LLVM otherwise); ``types("llvm")`` forces the CPU backend. ``precision`` selects
 float32 (default) or float64 for every floating-point array, so the same code renders in
 double precision. The LLVM backend is refused before any kernel where the libLLVM Dr.Jit
-loaded cannot run it (``llvm_problem``: one line with the fix). The renderer takes its reciprocals from here (``rcp``, ``rsqrt``,
-``normalize``): Dr.Jit's own are float32-accurate for float64 arrays on CUDA.
+loaded cannot run it (``llvm_problem``: one line with the fix). The renderer takes its
+reciprocals from here (``rcp``, ``rsqrt``, ``normalize``): Dr.Jit's own are float32-accurate
+for float64 arrays on CUDA.
 """
 from __future__ import annotations
 

@@ -6,7 +6,8 @@ mode, accelerator, triangle routine or effect shows up on the command line witho
 here. ``--spp``, ``--max-depth`` and ``--size`` go through ``Scene.with_overrides``, the one
 place that validates them (``--spp`` alone also sets exact mode to ``spp == 1``); a bad value
 there is a ``SceneError`` naming the option as typed (``overrides_for_cli``), which
-``whitted.cli.main`` prints as one ``error:`` line (exit code 2). ``EXIT`` is the table of exit codes (``whitted.cli``).
+``whitted.cli.main`` prints as one ``error:`` line (exit code 2). ``EXIT`` is the table of
+exit codes (``whitted.cli``).
 """
 from __future__ import annotations
 
