@@ -97,11 +97,31 @@ def types(backend: str = "auto", precision: str = "float32") -> Types:
     )
 
 
+#: Byte alignment of the host buffers device arrays are made from (``host_array``).
+HOST_ALIGN = 64
+
+
+def host_array(x, dtype=None) -> np.ndarray:
+    """A C-contiguous copy of ``x`` (as ``dtype``) starting at a ``HOST_ALIGN``-byte
+    boundary, for ``t.Float(...)``-style uploads. On LLVM Dr.Jit reads a numpy array's own
+    memory and marks a kernel input whose address is not aligned to the vector width
+    (``align 1`` instead of ``align 4``/``32`` in the IR): the traced kernel, and its
+    hash, then depended on where numpy's allocator put the array (it moved with
+    ``PYTHONHASHSEED``), so a warm run could compile again. Aligned, the kernel is the
+    same in every run."""
+    x = np.asarray(x, dtype=dtype)
+    buf = np.empty(x.nbytes + HOST_ALIGN, np.uint8)
+    start = (-buf.ctypes.data) % HOST_ALIGN
+    out = buf[start:start + x.nbytes].view(x.dtype).reshape(x.shape)
+    out[...] = x
+    return out
+
+
 def array3(t: Types, rows) -> object:
     """``t.Array3f`` of width N from host rows (anything numpy reads as (N, 3) or (3,))."""
-    x = np.ascontiguousarray(np.asarray(rows, np.float64).reshape(-1, 3),
-                             dtype=np.float64 if t.is_double else np.float32)
-    return t.Array3f(t.Float(x[:, 0]), t.Float(x[:, 1]), t.Float(x[:, 2]))
+    x = np.asarray(rows, np.float64).reshape(-1, 3)
+    fdt = np.float64 if t.is_double else np.float32
+    return t.Array3f(*(t.Float(host_array(x[:, k], fdt)) for k in range(3)))
 
 
 # ---- reciprocals that keep float64 float64 on CUDA --------------------------------------

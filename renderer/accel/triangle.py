@@ -26,7 +26,7 @@ from __future__ import annotations
 import drjit as dr
 import numpy as np
 
-from ..device import Types, array3, rcp
+from ..device import Types, array3, host_array, rcp
 from .base import DeviceTriangles, gather_floats
 
 #: Floats per packed triangle.
@@ -336,9 +336,9 @@ def upload_triangles(scene, t: Types, order: np.ndarray | None = None,
     else:
         n0 = n1 = n2 = t.Array3f(0, 0, 0)
     fdt = np.float64 if t.is_double else np.float32
-    tri_data = t.Float(packed.astype(fdt).reshape(-1))
+    tri_data = t.Float(host_array(packed.reshape(-1), fdt))
     tris = DeviceTriangles(
         ng=array3(t, ng), n0=n0, n1=n1, n2=n2,
-        material=t.UInt32(scene.face_material[order].astype(np.uint32)),
-        smooth=t.Bool(smooth), order=t.UInt32(order.astype(np.uint32)))
+        material=t.UInt32(host_array(scene.face_material[order], np.uint32)),
+        smooth=t.Bool(host_array(smooth, bool)), order=t.UInt32(host_array(order, np.uint32)))
     return tri_data, tris
