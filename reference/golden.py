@@ -509,7 +509,7 @@ def render_goldens(scene_paths, *, force: bool = False, spp: int = CONVERGED_SPP
     follows the camera's aspect); converged_size: the same for converged goldens (None:
     ``size``). bundled: allow ``root`` to be the bundled store (a developer action).
     report: called with one line per golden kept or written. executor: an
-    ``evaluation.executor`` object (``.map(fn, items)`` yielding ``(index, result)``, e.g.
+    ``evaluation.gate.executor`` object (``.map(fn, items)`` yielding ``(index, result)``, e.g.
     Dask workers, one GPU each) to render the jobs (``golden_jobs``) on; None: here, one
     after another. The files are the same either way. Returns the written EXR paths (in
     job order).

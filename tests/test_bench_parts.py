@@ -186,30 +186,6 @@ def test_reflection_batch_hit_or_miss_is_the_float64_answer():
             differ.sum(), t_mi[differ], dist)
 
 
-def test_probe_runner_refuses_bad_input_and_stops_cleanly(tmp_path, monkeypatch, capsys):
-    """``part.run_probe`` (the probes' command line): an existing result without --force and
-    an unknown scene are one line and exit 2 before anything runs; Ctrl-C in the second
-    scene is exit 130 with the first scene's rows on disk, written whole."""
-    from evaluation.bench.part import run_probe
-    monkeypatch.chdir(ROOT)
-    out = tmp_path / "probe.json"
-    out.write_text("keep")
-    calls = []
-    probe = lambda name: calls.append(name) or [{"scene": name}]  # noqa: E731
-    assert run_probe(out, False, ["cornell_box"], probe, {}) == 2
-    assert out.read_text() == "keep" and not calls
-    assert "exists (pass --force" in capsys.readouterr().err
-    assert run_probe(out, True, ["cornell_box", "no_such_scene"], probe, {}) == 2
-    assert "no_such_scene" in capsys.readouterr().err and not calls
-
-    def interrupted(name):
-        if name == "bunny":
-            raise KeyboardInterrupt
-        return [{"scene": name}]
-    assert run_probe(out, True, ["cornell_box", "bunny"], interrupted, {"backend": "x"}) == 130
-    assert json.loads(out.read_text()) == {"backend": "x", "rows": [{"scene": "cornell_box"}]}
-
-
 def test_throughput_run_refuses_bad_input_in_one_line(tmp_path, capsys):
     """``evaluation.bench.throughput_run``: an existing result without --force is one line
     and exit 2 (the file kept); a bad --size or an unknown scene is argparse's one-line

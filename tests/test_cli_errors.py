@@ -118,9 +118,9 @@ def test_version():
 
 
 def test_one_exit_code_table():
-    """``options.EXIT`` (every command) and ``evaluation.verdict.EXIT_CODES`` (check and
+    """``options.EXIT`` (every command) and ``evaluation.gate.verdict.EXIT_CODES`` (check and
     compare's verdicts) agree, and ``whitted --help`` shows every code."""
-    from evaluation.verdict import EXIT_CODES
+    from evaluation.gate.verdict import EXIT_CODES
     from whitted.cli import build_parser
     from whitted.options import EXIT
     assert (EXIT["ok"], EXIT["warn"], EXIT["fail"], EXIT["size"]) == tuple(

@@ -17,7 +17,7 @@ with ``register(subparsers)``, which sets ``func``; the options they share are i
 run, so ``render`` works with only the core dependencies installed.
 
 Exit codes: one table for every command, ``options.EXIT``, defined from the verdict codes
-``evaluation.verdict.EXIT_CODES`` (OpenImageIO ``idiff``'s style: 0 pass, 1 warn, 2 fail or
+``evaluation.gate.verdict.EXIT_CODES`` (OpenImageIO ``idiff``'s style: 0 pass, 1 warn, 2 fail or
 bad request, 3 size, 4 missing/stale golden or file error, 130 Ctrl-C);
 ``options.EXIT_CODE_HELP`` is the table ``whitted --help`` shows. ``check`` and ``compare``
 exit with the largest code of their verdicts.

@@ -8,7 +8,7 @@ Mitsuba's image comes from the stored golden (``--golden``, the default; exact m
 up by content in ``--goldens DIR`` or the configured store, then the bundled one) or is
 rendered now through the reference harness (``--live``, needs Mitsuba). Each view gets the
 verdict of ``whitted check`` (the exact rule with the scene's thresholds: our image and its
-tie mask from a second render with ``tie_break="other"``, ``evaluation.rules.tie_probe``) and
+tie mask from a second render with ``tie_break="other"``, ``evaluation.gate.rules.tie_probe``) and
 the command
 exits with its code (0 pass, 1 warn, 2 fail, 3 size mismatch, 4 missing or stale golden); a
 converged ``--live`` render has no variance to test against and gets no verdict. The report
@@ -23,8 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
-from evaluation import verdict as vd
-from evaluation.report import ReportEntry, format_metrics_table, write_report
+from evaluation.gate import verdict as vd
+from evaluation.gate.report import ReportEntry, format_metrics_table, write_report
 from reference import golden
 from reference.mitsuba_scene import render_mitsuba
 from renderer.outputs import check_output_dir
@@ -53,8 +53,8 @@ def register(subparsers) -> None:
                         "$WHITTED_GOLDENS or [tool.whitted] goldens in pyproject.toml)")
     p.add_argument("--force", action="store_true", help="replace an existing report folder")
     p.add_argument("--study", type=Path, action="append",
-                   help="accuracy-vs-time study folder (whitted study --out, e.g. "
-                        "results/study/cpu) to carry as the report's 'Accuracy vs time' page "
+                   help="accuracy-vs-time study folder (whitted study --out) to carry as the "
+                        "report's 'Accuracy vs time' page "
                         "(repeatable)")
     p.set_defaults(source="golden", func=cmd_compare)
 

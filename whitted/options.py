@@ -14,7 +14,7 @@ from __future__ import annotations
 import argparse
 
 from evaluation import wxh
-from evaluation.verdict import EXIT_CODES
+from evaluation.gate.verdict import EXIT_CODES
 from renderer.accel import ACCELERATORS, DEFAULT_ACCELS, DEFAULT_ROUTINE, ROUTINES
 from renderer.device import BACKENDS, PRECISIONS
 from renderer.effects import FLAGS, EffectSet
@@ -22,7 +22,7 @@ from renderer.scene import SHADING_MODES, Scene, SceneError, load_scene
 
 from .data import scene_arg
 
-#: Exit codes of every subcommand: the verdict codes of ``evaluation.verdict.EXIT_CODES``
+#: Exit codes of every subcommand: the verdict codes of ``evaluation.gate.verdict.EXIT_CODES``
 #: (OpenImageIO ``idiff``'s: 0 pass, 1 warn, 2 fail, 3 size, 4 missing/stale golden or file
 #: error), a bad request sharing FAIL's 2 (argparse's own usage code), and 130 for Ctrl-C.
 EXIT = {"ok": EXIT_CODES["PASS"], "warn": EXIT_CODES["WARN"], "fail": EXIT_CODES["FAIL"],

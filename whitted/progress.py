@@ -57,9 +57,8 @@ def render_view(renderer, view: int, label: str) -> dict:
     """``renderer.render(view)`` with a bar over its bands and the ``STOP`` request
     honoured between bands. Returns ``renderer.stats.kernel_operations``'s dict (the
     RenderResult under ``"result"``) for a one-band render; a banded render runs without
-    Dr.Jit's kernel history (measured on LLVM, glass bunny 128², 16 spp: with it on, the
-    main thread waited up to 2.7 s for the interpreter lock during a band, 0.1 s without;
-    the wait delays Ctrl-C), so its dict holds only ``"result"``."""
+    Dr.Jit's kernel history (with it on, the main thread waits for the interpreter lock
+    during a band, which delays Ctrl-C), so its dict holds only ``"result"``."""
     if len(renderer.bands(view)) == 1:
         return kernel_operations(lambda: renderer.render(view, stop=STOP.is_set))
     return {"result": _render_bands(renderer, view, label)}

@@ -82,8 +82,8 @@ def register(subparsers) -> None:
 
 
 def cmd_reference(args: argparse.Namespace) -> int:
-    from evaluation.executor import make_executor, visible_gpus
-    from evaluation.verdict import plan_for
+    from evaluation.gate.executor import make_executor, visible_gpus
+    from evaluation.gate.verdict import plan_for
 
     store, source = (args.goldens, "--goldens") if args.goldens else \
         golden.configured_store()
