@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import drjit as dr
 import numpy as np
 
-from ..device import Types, types
+from ..device import Types, host_array, types
 
 
 @dataclass
@@ -176,7 +176,8 @@ def as_pairs(t: Types, words: np.ndarray):
     # a fresh copy: ``words`` may be a view of a Dr.Jit array's memory (``.numpy()`` on
     # LLVM), and a second array on the same memory confuses ``dr.freeze``, which tells
     # its inputs apart by address (it then compiled float ops on the UInt64 view)
-    w = np.array(words, dtype=np.uint32, order="C", copy=True)
+    # (``host_array``: aligned, so the traced kernel does not depend on the address)
+    w = host_array(words, np.uint32)
     return array_type(t, "UInt64")(w.view(np.uint64).reshape(-1))
 
 

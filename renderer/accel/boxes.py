@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 import drjit as dr
 import numpy as np
 
-from ..device import Types
+from ..device import Types, host_array
 from .base import Accelerator, DeviceTriangles, Ray, array_type, gather_floats
 from .bvh_build import pad_boxes
 from .traverse import (
@@ -80,7 +80,8 @@ class ObjectBoxes(Accelerator):
             boxes[k, 0:3], boxes[k, 4:7] = pad_boxes(p.min(axis=0), p.max(axis=0), ext)
             ranges[k] = (f0, fc)
         tri_data, tris = upload_triangles(scene, t, routine=intersection)
-        out = cls(t.Float(boxes.reshape(-1)), t.UInt32(ranges.reshape(-1)), tri_data, tris,
+        out = cls(t.Float(host_array(boxes.reshape(-1))), t.UInt32(host_array(ranges.reshape(-1))),
+                  tri_data, tris,
                   backend=t.backend, precision=t.precision,
                   intersection=intersection,
                   reach=origin_reach(scene, intersection))

@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 import drjit as dr
 import numpy as np
 
-from ..device import Types
+from ..device import Types, host_array
 from . import traverse
 from .base import (
     Accelerator,
@@ -160,7 +160,8 @@ class BVH(Accelerator):
         if uses_pairs(t):
             nodes, children = as_pairs(t, boxes.view(np.uint32)), as_pairs(t, a.children)
         else:
-            nodes, children = t.Float(boxes.reshape(-1)), t.UInt32(a.children.reshape(-1))
+            nodes = t.Float(host_array(boxes.reshape(-1)))
+            children = t.UInt32(host_array(a.children.reshape(-1)))
         tri_trav = traversal_triangles(t, tri_data)
         dr.eval(nodes, children, tri_data, tri_trav, tris)
         fsize = 8 if t.is_double else 4

@@ -49,13 +49,30 @@ TIE_BRANCH_BACKENDS = ("llvm", "cuda")
 FAR_FIRST = True
 
 
+#: A probe's hit at ``t <= ORIGIN_OPS · u · max|o|`` (``u`` the unit roundoff, ``o`` the
+#: ray's origin) lies at the ray's origin within the rounding of the point the ray left:
+#: a spawned ray re-hitting its own surface, or a surface through its origin. That is no
+#: tie: the probe leaves the renderer's answer there (``at_origin``).
+ORIGIN_OPS = 64
+
+
 class Probe(NamedTuple):
     """A pass of ``tie_probe`` / ``tie_probe_p``: the nearest hit's triangle (UInt32 per
-    ray, an index in the accelerator's order like ``ClosestHit.prim``; None for any-hit)
-    and the slack (float, a world-space distance; negative narrows) of the inside test."""
+    ray, an index in the accelerator's order like ``ClosestHit.prim``; None for any-hit),
+    the slack (float, a world-space distance; negative narrows) of the inside test, and
+    ``origin`` (Float per ray, ``at_origin``): hits at ``t <= origin`` keep the routine's
+    own inside test when the slack narrows and do not count when it widens."""
 
     nearest: object
     slack: float
+    origin: object = 0.0
+
+
+def at_origin(o):
+    """``ORIGIN_OPS · u · max|o|`` per ray: the distance along a ray from ``o`` within
+    which a hit is at the origin for the tie probe (``Probe.origin``)."""
+    mag = dr.maximum(dr.maximum(dr.abs(o.x), dr.abs(o.y)), dr.abs(o.z))
+    return mag * (ORIGIN_OPS * unit_roundoff(dr.type_v(mag) == dr.VarType.Float64))
 
 
 @dataclass
@@ -183,7 +200,11 @@ def triangle_step(t: Types, routine, o, d, tri_data, order, i, t_max, rec: Close
     th, u, v, h = routine(o, d, *tri)
     if probe is not None:
         e1, e2 = edges_of(tri, layout)
-        h = probe_inside(th, u, v, e1, e2, probe.slack)
+        inside = probe_inside(th, u, v, e1, e2, probe.slack)
+        near = th <= probe.origin
+        # at the origin the routine's answer stands: a narrowed test keeps its hit, a
+        # widened one adds none (a re-hit of the surface the ray left is no tie)
+        h = dr.select(near, h, inside) if probe.slack < 0 else inside & ~near
     if active is not True:
         h &= active
     if any_hit:
@@ -261,8 +282,10 @@ def tie_probe(traverse, ray: Ray, active, tie_break: str, window: float,
         return first
     limit = first.t + window
     limit = dr.select(first.found & (limit < ray.t_max), limit, first.t)
-    other = traverse(Ray(o=ray.o, d=ray.d, t_max=limit), first.found & active,
-                     Probe(nearest=first.prim, slack=slack))
+    origin = at_origin(ray.o)
+    other = traverse(Ray(o=ray.o, d=ray.d, t_max=limit),
+                     first.found & (first.t > origin) & active,
+                     Probe(nearest=first.prim, slack=slack, origin=origin))
     keep = ~other.found
     return ClosestHit(t=dr.select(keep, first.t, other.t), u=dr.select(keep, first.u, other.u),
                       v=dr.select(keep, first.v, other.v),
@@ -279,8 +302,9 @@ def tie_probe_p(traverse, ray: Ray, active, tie_break: str, slack: float):
     found = traverse(ray, active, None)
     if tie_break == "lowest":
         return found
-    narrow = traverse(ray, active & found, Probe(nearest=None, slack=-slack))
-    wide = traverse(ray, active & ~found, Probe(nearest=None, slack=slack))
+    origin = at_origin(ray.o)
+    narrow = traverse(ray, active & found, Probe(nearest=None, slack=-slack, origin=origin))
+    wide = traverse(ray, active & ~found, Probe(nearest=None, slack=slack, origin=origin))
     return dr.select(found, narrow, wide)
 
 

@@ -26,7 +26,7 @@ from __future__ import annotations
 import drjit as dr
 import numpy as np
 
-from ..device import Types, array3, rcp
+from ..device import Types, array3, host_array, rcp
 from .base import DeviceTriangles, gather_floats
 
 #: Floats per packed triangle.
@@ -280,22 +280,26 @@ def pack(vertices: np.ndarray, faces: np.ndarray, layout: str = "edges") -> np.n
     """float64 (F, STRIDE) packed rows of the triangles ``faces`` (int (F, 3)) of
     ``vertices`` (float (V, 3)); the caller casts to the precision in use. ``layout``
     (``layout_of``): "edges" stores ``v0, v1 - v0, v2 - v0`` (the edges are differences of
-    float64 vertices, rounded once by that cast); "vertices" stores ``p0, p1, p2`` and the
-    unit normal ``normalize((p1 - p0) x (p2 - p0))`` (zero for a degenerate triangle)."""
+    float64 vertices, rounded once by that cast; zero for a triangle without area, which
+    then never hits); "vertices" stores ``p0, p1, p2`` and the unit normal
+    ``normalize((p1 - p0) x (p2 - p0))`` (zero for a triangle without area: never hits)."""
     if layout not in ("edges", "vertices"):
         raise ValueError(f"layout: expected 'edges' or 'vertices', got {layout!r}")
     V = np.asarray(vertices).astype(np.float64)
     p0, p1, p2 = (V[faces[:, k]] for k in range(3))
     packed = np.zeros((faces.shape[0], STRIDE), np.float64)
     packed[:, 0:3] = p0
+    n = np.cross(p1 - p0, p2 - p0)
+    length = np.linalg.norm(n, axis=1, keepdims=True)
     if layout == "edges":
-        packed[:, 3:6] = p1 - p0
-        packed[:, 6:9] = p2 - p0
+        # a triangle without area in these vertices (kept for the other precision, where it
+        # has some) gets zero edges: det = 0, so it never hits
+        flat = length == 0
+        packed[:, 3:6] = np.where(flat, 0.0, p1 - p0)
+        packed[:, 6:9] = np.where(flat, 0.0, p2 - p0)
     else:
         packed[:, 3:6] = p1
         packed[:, 6:9] = p2
-        n = np.cross(p1 - p0, p2 - p0)
-        length = np.linalg.norm(n, axis=1, keepdims=True)
         packed[:, 9:12] = np.where(length > 0, n / np.where(length > 0, length, 1.0), 0.0)
     return packed
 
@@ -332,9 +336,9 @@ def upload_triangles(scene, t: Types, order: np.ndarray | None = None,
     else:
         n0 = n1 = n2 = t.Array3f(0, 0, 0)
     fdt = np.float64 if t.is_double else np.float32
-    tri_data = t.Float(packed.astype(fdt).reshape(-1))
+    tri_data = t.Float(host_array(packed.reshape(-1), fdt))
     tris = DeviceTriangles(
         ng=array3(t, ng), n0=n0, n1=n1, n2=n2,
-        material=t.UInt32(scene.face_material[order].astype(np.uint32)),
-        smooth=t.Bool(smooth), order=t.UInt32(order.astype(np.uint32)))
+        material=t.UInt32(host_array(scene.face_material[order], np.uint32)),
+        smooth=t.Bool(host_array(smooth, bool)), order=t.UInt32(host_array(order, np.uint32)))
     return tri_data, tris

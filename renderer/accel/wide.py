@@ -42,7 +42,7 @@ from dataclasses import dataclass, field, replace
 import drjit as dr
 import numpy as np
 
-from ..device import Types
+from ..device import Types, host_array
 from . import traverse
 from .base import (
     Accelerator,
@@ -436,10 +436,10 @@ class WideBVH(Accelerator):
         fdt = np.float64 if t.is_double else np.float32
         pairs = uses_pairs(t)
         if quantized:
-            nodes = as_pairs(t, qwords) if pairs else t.UInt32(qwords.reshape(-1))
+            nodes = as_pairs(t, qwords) if pairs else t.UInt32(host_array(qwords.reshape(-1)))
         else:
-            nodes = t.Float(w.boxes.astype(fdt).reshape(-1))
-        refs = as_pairs(t, w.refs) if pairs else t.UInt32(w.refs.reshape(-1))
+            nodes = t.Float(host_array(w.boxes.reshape(-1), fdt))
+        refs = as_pairs(t, w.refs) if pairs else t.UInt32(host_array(w.refs.reshape(-1)))
         tri_trav = traversal_triangles(t, tri_data)
         dr.eval(nodes, refs, tri_data, tri_trav, tris)
         fsize = 8 if t.is_double else 4

@@ -119,12 +119,23 @@ def precision_limits(double: bool) -> tuple[float, float]:
     return math.sqrt(fmax / 16.0), math.sqrt(float(np.finfo(np.float32).max))
 
 
+def size_limit(double: bool) -> float:
+    """The smallest extent a scene may have in the precision: ``cbrt(tiny / eps)`` (float32
+    4.6e-11, float64 1.0e-97). The intersection routines multiply three lengths of the
+    scene (a triple product, an edge function times a distance); below this their product
+    is subnormal and loses the precision's relative accuracy (at 1e-18 in float32, 10 % of
+    the ray/triangle answers were wrong)."""
+    f = np.finfo(np.float64 if double else np.float32)
+    return float(np.cbrt(float(f.tiny) / float(f.eps)))
+
+
 def check_ranges(scene: "Scene", precision: str = "float32") -> None:
     """Numerical guard before upload: every vertex, camera and light position within the
     precision's coordinate limit and every light intensity within its intensity limit
-    (``precision_limits``; float32: 4.6e18 and 1.8e19; float64: 3.4e153 and 1.8e19).
-    Raises SceneError naming the file and the field (a float32 1e39 intensity would
-    otherwise become inf and NaN pixels)."""
+    (``precision_limits``; float32: 4.6e18 and 1.8e19; float64: 3.4e153 and 1.8e19), and
+    a scene with triangles at least ``size_limit`` across (float32: 4.6e-11). Raises
+    SceneError naming the file and the field (a float32 1e39 intensity would otherwise
+    become inf and NaN pixels)."""
     double = precision == "float64"
     c_lim, i_lim = precision_limits(double)
     src = f"{scene.path}: " if scene.path is not None else f"scene {scene.name!r}: "
@@ -150,6 +161,15 @@ def check_ranges(scene: "Scene", precision: str = "float32") -> None:
         if v.size and np.max(np.abs(v)) > c_lim:
             fail(f"objects[{k}] ({obj.name!r}) vertices", "coordinate",
                  float(np.max(np.abs(v))), c_lim)
+    if scene.face_count:
+        used = V[scene.faces.reshape(-1)]
+        extent = float(np.max(used.max(axis=0) - used.min(axis=0)))
+        s_lim = size_limit(double)
+        if extent < s_lim:
+            f = "objects vertices"
+            raise SceneError(f"{src}{f}: the scene is {extent:.3g} across, under the "
+                             f"{precision} limit {s_lim:.3g} (products of its lengths "
+                             f"underflow){hint}", field=f)
 
 
 @dataclass(frozen=True)
@@ -284,11 +304,13 @@ class Scene:
         reference and the BVH's binning read).
     normals: float32 (V, 3) unit vertex normals (average of adjacent face normals within
         the object); present for every vertex, used only for smooth objects.
-    vertices64, normals64: float64 (V, 3) the same before rounding to float32 (the loader
-        keeps them, so a float64 render sees the exact transformed positions), or None
+    vertices64, normals64: float64 (V, 3) the positions before rounding to float32 and the
+        normals averaged from their faces (the loader keeps them, so a float64 render sees
+        the exact transformed geometry), or None
         (then ``positions(True)`` is ``vertices`` widened). Read both through
         ``positions(double)`` / ``normals_of(double)``.
-    faces: int32 (F, 3) global vertex indices; no zero-area triangles (dropped at load).
+    faces: int32 (F, 3) global vertex indices; no triangle without area in both precisions
+        (dropped at load; one with area in float64 only never hits in float32).
     face_material: int32 (F,) index into ``materials``.
     face_object: int32 (F,) index into ``objects``.
     cameras: the views; ``cameras[0]`` is the default.
@@ -319,11 +341,16 @@ class Scene:
         # A copy made with ``replace(scene, vertices=...)`` (moved, scaled) keeps the old
         # float64 arrays: they no longer round to the new float32 ones, so drop them (float64
         # renders then widen the float32 positions) rather than render stale geometry.
-        for hi, lo in (("vertices64", "vertices"), ("normals64", "normals")):
-            v64, v32 = getattr(self, hi), getattr(self, lo)
-            if v64 is not None and (v64.shape != np.shape(v32) or not np.array_equal(
-                    v64.astype(np.float32), np.asarray(v32, np.float32))):
-                setattr(self, hi, None)
+        # The float64 normals go with the float64 vertices: they are averaged from the
+        # float64 face normals, so they need not round to the float32 ones (far from the
+        # origin a face can have area in float64 only).
+        v64 = self.vertices64
+        if v64 is not None and (v64.shape != np.shape(self.vertices) or not np.array_equal(
+                v64.astype(np.float32), np.asarray(self.vertices, np.float32))):
+            self.vertices64 = None
+        if self.vertices64 is None or (self.normals64 is not None
+                                       and self.normals64.shape != np.shape(self.normals)):
+            self.normals64 = None
 
     # ---- derived facts -----------------------------------------------------------------------
     @property
