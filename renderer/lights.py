@@ -15,11 +15,10 @@ point light's values bit for bit. ``sample_hash`` gives the samples' random numb
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import drjit as dr
-
-import math
 
 from .device import Types, array3, normalize, rcp, rsqrt
 from .scene import Scene
