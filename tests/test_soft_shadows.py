@@ -125,7 +125,7 @@ def test_tiny_sphere_converges_to_the_point_light(backend):
 def test_bad_light_fields_name_the_field(tmp_path):
     src = (ROOT / "scenes/cornell_soft.toml").read_text()
     for old, new, field in (("radius = 0.15", "radius = -1.0", "lights[0].radius"),
-                            ("shadow_samples = 16", "shadow_samples = 5",
+                            ("shadow_samples = 4", "shadow_samples = 5",
                              "render.shadow_samples"),
                             ('type = "sphere"', 'type = "disk"', "lights[0].type"),
                             ("radius = 0.15", "radius = 0.15\nedge_u = [1, 0, 0]",
