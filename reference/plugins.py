@@ -402,7 +402,7 @@ def _define_plugins() -> dict[str, type]:
                     else mi.Bool(True)
                 for _ in range(self.shadow_samples):
                     ds, spec = em.sample_direction(si, sampler.next_2d(hit), hit)
-                    ok = hit & outside & (ds.pdf > 0) & (dr.max(spec) > 0)
+                    ok = hit & outside & (ds.pdf > 0) & (_hmax(spec) > 0)
                     if self.shading == "physical":
                         Li = spec
                     else:

@@ -67,6 +67,8 @@ def add_scene_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--spp", type=int,
                    help="samples per pixel (a perfect square; implies converged mode)")
     p.add_argument("--max-depth", type=int, help="override the specular depth limit")
+    p.add_argument("--shadow-samples", type=int,
+                   help="shadow rays per light with extent per hit (a perfect square)")
     add_backend_option(p)
     p.add_argument("--precision", default=PRECISIONS[0], choices=PRECISIONS)
     p.add_argument("--accel", choices=tuple(ACCELERATORS),
@@ -88,7 +90,8 @@ def load_for_cli(args: argparse.Namespace) -> tuple[Scene, list[int]]:
 
     Raises ``SceneError`` for a bad scene file or override, ``CliError`` for a bad view."""
     scene = load_scene(args.scene, shading=args.shading)
-    scene = scene.with_overrides(spp=args.spp, max_depth=args.max_depth, size=args.size)
+    scene = scene.with_overrides(spp=args.spp, max_depth=args.max_depth, size=args.size,
+                                 shadow_samples=getattr(args, "shadow_samples", None))
     return scene, select_views(scene, args.view)
 
 
