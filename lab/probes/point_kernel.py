@@ -32,7 +32,7 @@ def main(out: str) -> None:
             for v in range(len(sc.cameras)):
                 r = Renderer(sc, backend="llvm")
                 ca = r.camera(v)
-                k = kernel_operations(lambda: r.frame(ca, 32, 32))
+                k = kernel_operations(lambda r=r, ca=ca: r.frame(ca, 32, 32))
                 img = np.ascontiguousarray(k["result"].numpy(), np.float32)
                 rows[f"{name}/{shading}/{v}"] = {
                     "kernels": k["kernels"], "operations": k["operations"],
