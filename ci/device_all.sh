@@ -23,9 +23,9 @@ for s in "$@"; do
              --out "$out/hard" --overwrite ;;
     bench) step bench 300 env OUT="$out/bench" bash ci/device.sh bench --parts throughput ;;
     peer)  step peer 280 env OUT="$out/peer" bash ci/device.sh bench --parts peer ;;
-    frames) step frames 150 bash ci/device.sh py -m evaluation.bench.probe_frame --backend cuda \
+    frames) step frames 150 bash ci/device.sh py lab/probes/probe_frame.py --backend cuda \
               --out "$out/frames" --force ;;
-    routine) step routine 200 bash ci/device.sh py -m evaluation.routine_cost --backend cuda \
+    routine) step routine 200 bash ci/device.sh py lab/probes/routine_cost.py --backend cuda \
                --out "$out/routine" ;;
     study) step study 420 env OUT="$out" TOTAL_S=400 bash ci/device_study.sh h200 ;;
     *) echo "unknown step $s" >&2; exit 2 ;;

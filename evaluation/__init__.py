@@ -1,12 +1,16 @@
-"""How well and how fast: our renderer measured against Mitsuba 3.
+"""How well and how fast: our renderer measured against Mitsuba 3, one sub-package per job.
 
-``metrics`` (image differences and the statistical test), ``rules`` (the golden regression
-cases as data, each with its comparison rule and thresholds), ``report`` (the side-by-side
-HTML report) and ``bench`` (the timing study as a registry of parts).
+- ``gate``: where a verdict is made: rules and thresholds, metrics, verdicts and exit codes,
+  the HTML report, the pytest plugin, the executor;
+- ``bench``: where a timing is taken: the timing study as a registry of parts;
+- ``study``: accuracy against time, factor by factor (points, run, report, README block);
+- ``hard``: the hard-case stress suite (case table, scenes, rays, runners, report);
+- ``meta``: the checks of the rules (mutation, null test, tie count, speckles).
 
 ``evaluation`` may import ``renderer`` and ``reference``; neither imports ``evaluation``.
 No module here imports ``mitsuba`` when it is imported: functions that need the Mitsuba peer
-reach it through ``reference`` when they run.
+reach it through ``reference`` when they run. Experiments are not here: they live in ``lab/``
+at the repository root, which no package imports.
 """
 from __future__ import annotations
 

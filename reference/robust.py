@@ -1,5 +1,5 @@
 """Mitsuba renders with a choice of Embree's intersection mode, for the hard-case parity
-check (issue 10 case 14, ``evaluation.hard_cases.case_mitsuba_parity``).
+check (``evaluation.hard.runners.case_mitsuba_parity``).
 
 Mitsuba 3's CPU (LLVM) variants trace with Embree, by default in its fast mode, which is not
 watertight: a ray through a shared edge or a vertex can pass between the triangles. The

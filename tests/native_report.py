@@ -10,10 +10,11 @@ its default mode; and in its robust mode, ``reference.robust``) at ``size`` x ``
 ours (LLVM, float32, BVH, default routine) with each spawn rule
 (``renderer.scene.SPAWN_RULES``). Printed: the share of pixels within 1e-3 (max over RGB) of
 Mitsuba, the same with the exact rule's edge ties set aside
-(``evaluation.agreement.edge_mask``), the number of pixels over 1e-3 that are not edge ties;
+(``evaluation.gate.agreement.edge_mask``), the number of pixels over 1e-3 that are not edge ties;
 then, on ``--pixels`` sampled pixels (``oracle.sample_pixels``), the share within 1e-3 of the
 float64 oracle (offsets -> 0) of each image, on all of them and on those whose tree touches
-glass. (The measurement behind results/offsets/glass_bunny_vs_mitsuba_native*.txt.)
+glass. (The measurement behind
+lab/notes/data/issue10-ray-offsets/glass_bunny_vs_mitsuba_native*.txt.)
 """
 from __future__ import annotations
 
@@ -42,7 +43,7 @@ def main(argv=None) -> int:
     ap.add_argument("--pixels", type=int, default=200)
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args(argv)
-    from evaluation.agreement import edge_mask
+    from evaluation.gate.agreement import edge_mask
     from reference import mitsuba_variant
     from reference.mitsuba_scene import render_mitsuba
     from reference.robust import render_exact_mode

@@ -16,9 +16,9 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def test_parts_have_unique_names_and_keys_in_study_order():
-    assert list(PARTS) == ["throughput", "seed", "whitted", "peer", "effects"]
+    assert list(PARTS) == ["throughput", "seed", "whitted", "peer", "effects", "build"]
     assert [p.key for p in PARTS.values()] == ["throughput", "seed_table", "whitted", "peer",
-                                               "effects"]
+                                               "effects", "build"]
     assert all(name == p.name for name, p in PARTS.items())
 
 
@@ -26,6 +26,13 @@ def test_parts_have_unique_names_and_keys_in_study_order():
                          ids=lambda p: p.parent.name)
 def test_stored_results_render_to_the_stored_markdown(stored):
     assert markdown(json.loads(stored.read_text())) == stored.with_suffix(".md").read_text()
+
+
+def test_build_part_renders_its_stored_rows():
+    from evaluation.bench.build import markdown as build_markdown
+    rows = json.loads((ROOT / "results/cpu/build/bench-llvm.json").read_text())["build"]
+    text = "\n".join(build_markdown(rows))
+    assert "Time to first image" in text and all(r["scene"] in text for r in rows)
 
 
 def test_unknown_part_is_refused_before_anything_runs(tmp_path):
@@ -184,30 +191,6 @@ def test_reflection_batch_hit_or_miss_is_the_float64_answer():
         dist = np.einsum("ij,ij->i", o[differ] - P[:, 0], ng)
         assert differ.sum() > 0 and np.all(t_mi[differ] == 0) and np.all(dist == 0), (
             differ.sum(), t_mi[differ], dist)
-
-
-def test_probe_runner_refuses_bad_input_and_stops_cleanly(tmp_path, monkeypatch, capsys):
-    """``part.run_probe`` (the probes' command line): an existing result without --force and
-    an unknown scene are one line and exit 2 before anything runs; Ctrl-C in the second
-    scene is exit 130 with the first scene's rows on disk, written whole."""
-    from evaluation.bench.part import run_probe
-    monkeypatch.chdir(ROOT)
-    out = tmp_path / "probe.json"
-    out.write_text("keep")
-    calls = []
-    probe = lambda name: calls.append(name) or [{"scene": name}]  # noqa: E731
-    assert run_probe(out, False, ["cornell_box"], probe, {}) == 2
-    assert out.read_text() == "keep" and not calls
-    assert "exists (pass --force" in capsys.readouterr().err
-    assert run_probe(out, True, ["cornell_box", "no_such_scene"], probe, {}) == 2
-    assert "no_such_scene" in capsys.readouterr().err and not calls
-
-    def interrupted(name):
-        if name == "bunny":
-            raise KeyboardInterrupt
-        return [{"scene": name}]
-    assert run_probe(out, True, ["cornell_box", "bunny"], interrupted, {"backend": "x"}) == 130
-    assert json.loads(out.read_text()) == {"backend": "x", "rows": [{"scene": "cornell_box"}]}
 
 
 def test_throughput_run_refuses_bad_input_in_one_line(tmp_path, capsys):

@@ -8,7 +8,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from evaluation.metrics import z_test
+from evaluation.gate.metrics import z_test
 from reference.mitsuba_scene import render_converged_with_variance, to_mitsuba_dict
 from renderer.render import render
 from renderer.scene import load_scene

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from evaluation import verdict as vd
+from evaluation.gate import verdict as vd
 from reference import golden
 from renderer.film import read_exr_layers, write_exr
 from renderer.scene import SceneError, load_scene

@@ -33,7 +33,7 @@ def test_jobs_are_plain_picklable_specs(tmp_path):
 
 def test_dask_workers_write_byte_identical_goldens(tmp_path):
     pytest.importorskip("dask.distributed")
-    from evaluation.executor import DaskExecutor
+    from evaluation.gate.executor import DaskExecutor
     path = _scene(tmp_path)
     kw = dict(size=16, converged_size=8, spp=8, batches=2, modes=("exact", "converged"),
               shadings=("classic",), progress=False)

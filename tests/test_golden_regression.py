@@ -1,9 +1,9 @@
-"""Our renderer against Mitsuba's golden images, pixel by pixel (cases: evaluation/rules.py),
-through the project's pytest plugin (``evaluation/pytest_plugin.py``): one test per scene x
+"""Our renderer against Mitsuba's golden images, pixel by pixel (cases: evaluation/gate/rules.py),
+through the project's pytest plugin (``evaluation/gate/pytest_plugin.py``): one test per scene x
 view x shading x mode, judged exactly as ``whitted check`` judges it.
 
 Exact mode: the same rays in both renderers, so only rounding and geometric ties may differ
-(rule: ``evaluation.rules.check_exact``; ties found by our tie probe, not by looking at the
+(rule: ``evaluation.gate.rules.check_exact``; ties found by our tie probe, not by looking at the
 images). Converged mode: a per-value Welch t-test of our mean and our own variance (16
 renders of ours) against the golden's mean and variance (``check_converged``).
 The last tests break our renderer on purpose (wrong ior, reflection forced off, the other
@@ -18,7 +18,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from evaluation.rules import (
+from evaluation.gate.rules import (
     CONVERGED_SCENES,
     CONVERGED_THRESHOLDS,
     EXACT_THRESHOLDS,
@@ -65,9 +65,10 @@ KNOWN_FAILURES = {
                    "at the rest: ill-conditioned pixels, no bias of either renderer",
 }
 #: No exact case is excused for the offset rule: ours renders with the rule the golden records
-#: (Mitsuba's own spawn_ray, evaluation.verdict._ours). Under our default scale-free rule six
+#: (Mitsuba's own spawn_ray, evaluation.gate.verdict._ours). Under our default scale-free rule six
 #: cases differed at 1-4 glass pixels where the float64 oracle sides with ours
-#: (results/offsets/hard_pixels_vs_oracle.txt); tests/test_oracle.py holds that part.
+#: (lab/notes/data/issue10-ray-offsets/hard_pixels_vs_oracle.txt); tests/test_oracle.py holds
+#: that part.
 
 
 @pytest.mark.whitted(scenes=[ROOT / s for s in GOLDEN_SCENES], modes=["exact"],

@@ -18,7 +18,8 @@ def _python(code: str) -> str:
 def test_evaluation_and_reference_import_without_mitsuba():
     out = _python(
         "import sys\n"
-        "import evaluation, evaluation.metrics, evaluation.rules, evaluation.report\n"
+        "import evaluation, evaluation.gate.metrics, evaluation.gate.rules\n"
+        "import evaluation.gate.report, evaluation.gate.verdict\n"
         "import evaluation.bench\n"
         "import reference, reference.golden, reference.mitsuba_scene\n"
         "print(sorted(m for m in sys.modules if m.split('.')[0] == 'mitsuba'))\n")
@@ -49,3 +50,20 @@ def test_register_is_explicit_and_idempotent():
     assert out.splitlines() == ["refused: True",
                                 "True ['whitted', 'whitted_material', 'whitted_phong']",
                                 "True"]
+
+
+def test_importing_the_product_registers_no_triangle_routine():
+    """Every module of the four packages imported: ``ROUTINES`` holds the renderer's own
+    routines only (the wrong-on-purpose variants of the experiments live in ``lab/``)."""
+    out = _python(
+        "import importlib, pkgutil\n"
+        "from renderer.accel import triangle\n"
+        "before = sorted(triangle.ROUTINES)\n"
+        "for top in ('renderer', 'reference', 'evaluation', 'whitted'):\n"
+        "    pkg = importlib.import_module(top)\n"
+        "    for m in pkgutil.walk_packages(pkg.__path__, top + '.'):\n"
+        "        if m.name != 'whitted.__main__':\n"
+        "            importlib.import_module(m.name)\n"
+        "import renderer.accel as A\n"
+        "print(before == sorted(triangle.ROUTINES) == sorted(A.ROUTINES), before)\n")
+    assert out == "True ['moller_trumbore', 'watertight']"

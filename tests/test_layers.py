@@ -2,8 +2,9 @@
 
 ``renderer`` (the Dr.Jit tracer) imports none of the others and never Mitsuba;
 ``reference`` (the Mitsuba side) may import ``renderer`` (scenes) but not ``evaluation`` or
-``whitted``; ``evaluation`` not ``whitted``. Checked on the source with ``ast``, so a lazy
-import inside a function counts too.
+``whitted``; ``evaluation`` not ``whitted``. None of them imports ``lab`` (the experiments at the
+repository root, never installed). Checked on the source with ``ast``, so a lazy import inside a
+function counts too.
 """
 from __future__ import annotations
 
@@ -14,9 +15,10 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 FORBIDDEN = {
-    "renderer": {"mitsuba", "reference", "evaluation", "whitted"},
-    "reference": {"evaluation", "whitted"},
-    "evaluation": {"whitted"},
+    "renderer": {"mitsuba", "reference", "evaluation", "whitted", "lab"},
+    "reference": {"evaluation", "whitted", "lab"},
+    "evaluation": {"whitted", "lab"},
+    "whitted": {"lab"},
 }
 
 

@@ -1,8 +1,8 @@
-"""Metrics of evaluation/metrics.py on synthetic images with known answers."""
+"""Metrics of evaluation/gate/metrics.py on synthetic images with known answers."""
 import numpy as np
 import pytest
 
-from evaluation import metrics
+from evaluation.gate import metrics
 
 
 def _image(seed=0, h=16, w=24, lo=0.05, hi=0.9):

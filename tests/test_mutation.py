@@ -1,6 +1,6 @@
 """The mutation check runs: a no-change control survives, planted bugs are caught.
 
-The full list (``python -m evaluation.mutation``) takes tens of minutes on 2 cores; here a
+The full list (``python -m evaluation.meta.mutation``) takes tens of minutes on 2 cores; here a
 subset in CI: the control, a camera bug, the missing edge slack (cracks at the room's
 corners that the old image-space edge rule passed) and the unweighted background (only the
 case scenes have a non-black background).
@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import pytest
 
-from evaluation.mutation import BY_NAME, MUTANTS, module_file, patch_source, run, score
+from evaluation.meta.mutation import BY_NAME, MUTANTS, module_file, patch_source, run, score
 
 
 def test_every_mutant_applies_exactly_once():

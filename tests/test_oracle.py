@@ -164,11 +164,11 @@ def test_sample_pixels():
 
 VIEWS = [(name, shading, v) for name in report.GOLDEN_SCENES for shading in report.SHADINGS
          for v in range(3)]
-# Lowest fraction within 1e-3 measured (seed 0, 200 pixels per view, results/offsets/
-# oracle_golden_scenes.md), rounded down. Ours (scale-free offsets, ~1e-7): 1.000 on every
-# view. Mitsuba (si.spawn_ray, offset (1 + max|x|) x 8.9e-5): cornell_box 1.000,
-# cornell_sphere 0.980, platonic_solids 0.975 (physical "low" and "left": physical
-# radiance is larger, so the same shift crosses 1e-3 more often).
+# Lowest fraction within 1e-3 measured (seed 0, 200 pixels per view, lab/notes/data/
+# issue10-ray-offsets/oracle_golden_scenes.md), rounded down. Ours (scale-free offsets,
+# ~1e-7): 1.000 on every view. Mitsuba (si.spawn_ray, offset (1 + max|x|) x 8.9e-5):
+# cornell_box 1.000, cornell_sphere 0.980, platonic_solids 0.975 (physical "low" and "left":
+# physical radiance is larger, so the same shift crosses 1e-3 more often).
 MIN_WITHIN = {
     "ours_float32": {"cornell_box": 0.995, "cornell_sphere": 0.995, "platonic_solids": 0.995,
                      "analytic_quad": 1.0},

@@ -9,12 +9,13 @@ import numpy as np
 
 from evaluation.bench.peer import deepest, peer_compiles, peer_note, plan, whitted_frame_peer
 from evaluation.bench.peer import markdown as peer_markdown
-from evaluation.rules import EXACT_THRESHOLDS, check_exact
+from evaluation.gate.rules import EXACT_THRESHOLDS, check_exact
 from reference import mitsuba_variant
 from reference.mitsuba_scene import render_exact
 from reference.peer import load_peer
 from renderer.render import Renderer
 from renderer.scene import load_scene
+from renderer.stats import kernel_launches
 
 ROOT = Path(__file__).resolve().parent.parent
 #: One process renders with one Mitsuba variant: the one the harness picks (LLVM on CI).
@@ -28,12 +29,7 @@ def _scene(name: str, depth: int, size: int):
 
 
 def _jit_kernels(fn) -> int:
-    dr.sync_thread()
-    with dr.scoped_set_flag(dr.JitFlag.KernelHistory, True):
-        dr.kernel_history()
-        fn()
-        dr.sync_thread()
-        hist = dr.kernel_history()
+    _, hist, _ = kernel_launches(fn)
     return sum(1 for h in hist if h.get("type") == dr.KernelType.JIT)
 
 

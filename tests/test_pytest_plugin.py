@@ -1,4 +1,4 @@
-"""The pytest plugin (``evaluation/pytest_plugin.py``, entry point ``pytest11``): a user's
+"""The pytest plugin (``evaluation/gate/pytest_plugin.py``, entry point ``pytest11``): a user's
 folder of scenes and golden store become one test per scene view x shading x mode, with the
 verdict as the outcome, and ``--junitxml`` lists them."""
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The HTML/PNG report of evaluation/report.py, checked in headless Chromium."""
+"""The HTML/PNG report of evaluation/gate/report.py, checked in headless Chromium."""
 import html
 import json
 import os
@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from evaluation import metrics
-from evaluation.report import ReportEntry, format_metrics_table, write_report
+from evaluation.gate import metrics
+from evaluation.gate.report import ReportEntry, format_metrics_table, write_report
 from renderer.film import srgb_encode
 
 CHROMIUM = Path("/usr/bin/chromium")

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import renderer.lights as lights_module
-from evaluation.rules import (
+from evaluation.gate.rules import (
     CONVERGED_THRESHOLDS,
     OUR_SEED,
     check_converged,

@@ -15,7 +15,7 @@ import pytest
 
 # ---- project imports (the one block to rename at merge) ------------------------------------
 from evaluation import study
-from evaluation.executor import InProcess, make_executor
+from evaluation.gate.executor import InProcess, make_executor
 from renderer.accel import ACCELERATORS
 from renderer.render import Renderer
 
@@ -201,7 +201,7 @@ def test_de2000_is_skipped_with_a_note_without_colour_science(monkeypatch):
 
 
 def test_gpu_assignment_one_gpu_per_worker_rank():
-    from evaluation.executor import gpu_for_worker, visible_gpus
+    from evaluation.gate.executor import gpu_for_worker, visible_gpus
     smi = "GPU 0: NVIDIA H200 (UUID: a)\nGPU 1: NVIDIA H200 (UUID: b)\n" \
           "GPU 2: NVIDIA H200 (UUID: c)\nGPU 3: NVIDIA H200 (UUID: d)\n"
     assert visible_gpus({}, smi) == ["0", "1", "2", "3"]
@@ -218,7 +218,7 @@ def test_gpu_assignment_one_gpu_per_worker_rank():
 def test_dask_workers_each_see_their_own_gpu():
     # No GPU here: fake two and check what each worker process sees before any task runs.
     pytest.importorskip("dask.distributed")
-    from evaluation.executor import DaskExecutor
+    from evaluation.gate.executor import DaskExecutor
     with DaskExecutor(workers=2, gpus=["0", "1"]) as ex:
         env = ex.worker_env()
         assert sorted(env.items()) == [(0, "0"), (1, "1")]
@@ -233,7 +233,7 @@ def _cuda_env(_):
 
 
 def test_report_carries_the_study_page(tiny, tmp_path):
-    from evaluation.report import ReportEntry, write_report
+    from evaluation.gate.report import ReportEntry, write_report
     out, _ = tiny
     img = np.zeros((4, 4, 3), np.float32)
     index = write_report(tmp_path / "rep", [ReportEntry("box / front", img, img)], title="t",

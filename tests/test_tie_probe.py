@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from util import camera, diffuse_scene, light, make_scene, material, quad
 
-from evaluation.rules import tie_probe
+from evaluation.gate.rules import tie_probe
 from renderer.accel import ACCELERATORS, ROUTINES
 from renderer.render import render
 

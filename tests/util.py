@@ -47,10 +47,10 @@ def make_scene(objects, *, materials, lights=(), camera=None, settings=None, amb
                name="test") -> Scene:
     """objects: list of (vertices (V,3), faces (F,3), material index[, smooth]).
 
-    ``evaluation.hard_cases.mesh_scene`` (the one builder of in-memory scenes), with this
+    ``evaluation.hard.scenes.mesh_scene`` (the one builder of in-memory scenes), with this
     module's defaults: a 16x16 camera, objects of kind "test", and no float64 vertices (a
     float64 render sees the float32 positions widened, as for a scene built in code)."""
-    from evaluation.hard_cases import mesh_scene
+    from evaluation.hard.scenes import mesh_scene
 
     if camera is None:
         camera = Camera(position=np.array([0, 0, 5.0]), target=np.zeros(3),

@@ -17,7 +17,7 @@ import json
 import sys
 from pathlib import Path
 
-from evaluation import verdict as vd
+from evaluation.gate import verdict as vd
 from reference import MODES
 from reference import golden as golden_store
 from renderer.accel import ACCELERATORS
@@ -111,7 +111,7 @@ def write_outputs(args, verdicts, title: str) -> None:
     if args.junit:
         vd.write_junit(verdicts, args.junit)
     if args.report is not None:
-        from evaluation.report import write_report
+        from evaluation.gate.report import write_report
 
         entries = vd.report_entries(verdicts)
         notes = [(v.status, v.name, v.reason) for v in verdicts if v.ours is None]

@@ -8,7 +8,7 @@ Mitsuba's image comes from the stored golden (``--golden``, the default; exact m
 up by content in ``--goldens DIR`` or the configured store, then the bundled one) or is
 rendered now through the reference harness (``--live``, needs Mitsuba). Each view gets the
 verdict of ``whitted check`` (the exact rule with the scene's thresholds: our image and its
-tie mask from a second render with ``tie_break="other"``, ``evaluation.rules.tie_probe``) and
+tie mask from a second render with ``tie_break="other"``, ``evaluation.gate.rules.tie_probe``) and
 the command
 exits with its code (0 pass, 1 warn, 2 fail, 3 size mismatch, 4 missing or stale golden); a
 converged ``--live`` render has no variance to test against and gets no verdict. The report
@@ -23,15 +23,22 @@ from pathlib import Path
 
 import numpy as np
 
-from evaluation import verdict as vd
-from evaluation.report import ReportEntry, format_metrics_table, write_report
+from evaluation.gate import verdict as vd
+from evaluation.gate.report import ReportEntry, format_metrics_table, write_report
 from reference import golden
 from reference.mitsuba_scene import render_mitsuba
 from renderer.outputs import check_output_dir
 from renderer.render import Renderer
 from renderer.stats import format_operations
 
-from .options import EXIT, CliError, add_scene_options, effects_for_cli, load_for_cli
+from .options import (
+    EXIT,
+    CliError,
+    add_scene_options,
+    cache_for_cli,
+    effects_for_cli,
+    load_for_cli,
+)
 from .progress import render_view
 
 
@@ -53,8 +60,8 @@ def register(subparsers) -> None:
                         "$WHITTED_GOLDENS or [tool.whitted] goldens in pyproject.toml)")
     p.add_argument("--force", action="store_true", help="replace an existing report folder")
     p.add_argument("--study", type=Path, action="append",
-                   help="accuracy-vs-time study folder (whitted study --out, e.g. "
-                        "results/study/cpu) to carry as the report's 'Accuracy vs time' page "
+                   help="accuracy-vs-time study folder (whitted study --out) to carry as the "
+                        "report's 'Accuracy vs time' page "
                         "(repeatable)")
     p.set_defaults(source="golden", func=cmd_compare)
 
@@ -119,15 +126,18 @@ def cmd_compare(args: argparse.Namespace) -> int:
     print(f"effects: {effects}")
 
     # one upload / accelerator build for every view
+    cache = cache_for_cli(args)
     renderer = Renderer(scene, backend=args.backend, precision=args.precision,
-                        accel=args.accel, intersection=args.intersection, effects=effects)
+                        accel=args.accel, intersection=args.intersection, effects=effects,
+                        build=args.build, cache=cache, frames=len(views))
     stores = golden.search_stores(args.goldens)
     th = vd.thresholds_for(scene, "exact")
     # the tie probe (exact mode): the same scene with the other tie-break, for the tie mask
     d = float(th["tie_slack"].value) * scene.diagonal
     probe = Renderer(scene, backend=args.backend, precision=args.precision,
                      accel=args.accel, intersection=args.intersection, effects=effects,
-                     tie_break="other", tie_window=d, tie_slack=d) if s.exact else None
+                     tie_break="other", tie_window=d, tie_slack=d, build=args.build,
+                     cache=cache, frames=len(views)) if s.exact else None
     entries, verdicts = [], []
     for v in views:
         cam = scene.cameras[v]

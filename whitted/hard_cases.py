@@ -1,5 +1,5 @@
-"""``whitted hard-cases``: run the hard-case stress suite (``evaluation.hard_cases``, cases
-in ``tests/hard/cases.toml``) and write its table (case, criterion, measured, pass) as
+"""``whitted hard-cases``: run the hard-case stress suite (``evaluation.hard``, cases
+in ``evaluation/hard/cases.toml``) and write its table (case, criterion, measured, pass) as
 markdown, JSON and an HTML page with each case's image into ``--out``. Exit status 0 only
 when every row passes (1 otherwise).
 
@@ -36,7 +36,7 @@ def _csv(choices):
 
 def register(subparsers) -> None:
     """Add the ``hard-cases`` subcommand."""
-    from evaluation.hard_cases import CASES
+    from evaluation.hard.runners import CASES
     p = subparsers.add_parser("hard-cases", help="run the hard-case stress suite → table "
                                                  "(markdown, JSON, HTML); exit 0 iff all pass")
     p.add_argument("--out", type=Path, required=True, help="report folder (created)")
@@ -57,7 +57,9 @@ def register(subparsers) -> None:
 
 
 def cmd_hard_cases(args: argparse.Namespace) -> int:
-    from evaluation.hard_cases import Config, run_suite, write_report
+    from evaluation.hard.cases import Config
+    from evaluation.hard.report import write_report
+    from evaluation.hard.runners import run_suite
     from renderer.device import types
     out = Path(args.out)
     if (out / "hard_cases.json").exists() and not args.overwrite:

@@ -8,6 +8,7 @@ thread ends at the next band.
 """
 from __future__ import annotations
 
+import contextlib
 import sys
 import threading
 import time
@@ -53,13 +54,37 @@ def bar(total: int, label: str, *, unit: str = "row", file=None):
     return _PlainBar(total, label, file)
 
 
+@contextlib.contextmanager
+def build_bar(scene, min_triangles: int = 100_000):
+    """A bar over the levels of a BVH build (at most ``MAX_LEVELS``) for scenes of at least
+    ``min_triangles`` triangles; yields the ``build_progress`` callback (None for smaller
+    scenes, whose build is quick)."""
+    from renderer.accel.bvh_build import MAX_LEVELS
+    if scene.face_count < min_triangles:
+        yield None
+        return
+    state = {}
+
+    def step(build: str, levels: int) -> None:
+        if "bar" not in state:
+            state["bar"] = bar(MAX_LEVELS, f"{scene.name}: {build} BVH build", unit="level")
+            state["n"] = 0
+        if levels > state["n"]:
+            state["bar"].update(levels - state["n"])
+            state["n"] = levels
+    try:
+        yield step
+    finally:
+        if "bar" in state:
+            state["bar"].close()
+
+
 def render_view(renderer, view: int, label: str) -> dict:
     """``renderer.render(view)`` with a bar over its bands and the ``STOP`` request
     honoured between bands. Returns ``renderer.stats.kernel_operations``'s dict (the
     RenderResult under ``"result"``) for a one-band render; a banded render runs without
-    Dr.Jit's kernel history (measured on LLVM, glass bunny 128², 16 spp: with it on, the
-    main thread waited up to 2.7 s for the interpreter lock during a band, 0.1 s without;
-    the wait delays Ctrl-C), so its dict holds only ``"result"``."""
+    Dr.Jit's kernel history (with it on, the main thread waits for the interpreter lock
+    during a band, which delays Ctrl-C), so its dict holds only ``"result"``."""
     if len(renderer.bands(view)) == 1:
         return kernel_operations(lambda: renderer.render(view, stop=STOP.is_set))
     return {"result": _render_bands(renderer, view, label)}

@@ -1,15 +1,17 @@
 """``whitted study``: the accuracy-vs-time study (``evaluation.study``).
 
-    whitted study [SCENE ...] --out results/study/cpu --profile cpu --backend llvm
-    whitted study --profile gpu --backend cuda --out results/study/h200 --budget-minutes 7
+    whitted study [SCENE ...] --out out/study-cpu --profile cpu --backend llvm
+    whitted study --profile gpu --backend cuda --out out/study-gpu --budget-minutes 7
     whitted study --workers 4 ...            # Dask LocalCluster of 4 worker processes
     whitted study --scheduler tcp://host:8786 ...
     whitted study --report-only --out DIR    # re-write markdown, plots, HTML from DIR/study.json
-    whitted study --report-only --out DIR --readme README.md   # and DIR's block in the README
+    whitted study --report-only --out DIR --readme FILE   # and DIR's generated block in FILE
     whitted study --check-executor --workers 1 --profile tiny --out DIR   # Dask == in-process
 
-Also runnable without the CLI as ``python -m whitted.study ...``. A SCENE is a path, a
-name under ``scenes/`` or ``PATH@OFFSET`` (the scene translated far from the origin).
+Also runnable without the CLI as ``python -m whitted.study ...``. A SCENE is a path
+(relative to the current folder), a bundled scene's name (``cornell_box``; also the
+repository's form ``scenes/cornell_box.toml``, so the defaults work in an installed copy) or
+either with ``@OFFSET`` (the scene translated far from the origin).
 """
 from __future__ import annotations
 
@@ -23,7 +25,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("scenes", nargs="*", default=list(SEED_SCENES),
                    help="scene files, names or PATH@OFFSET (default: the seed scenes and "
                         "the glass bunny)")
-    p.add_argument("--out", type=Path, default=Path("results/study/run"),
+    p.add_argument("--out", type=Path, default=Path("out/study"),
                    help="results folder (study.json is resumed if present)")
     p.add_argument("--profile", default="cpu", choices=sorted(PROFILES),
                    help="sweep size: gpu (full), cpu (grid to 64 spp, 3 repeats), tiny (CI)")
@@ -50,6 +52,29 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="run the sweep in-process and on --workers Dask workers (default 1) "
                         "into OUT/in-process and OUT/dask; exit 1 unless the JSON agrees "
                         "minus timings")
+
+
+def resolve_scenes(texts) -> list[str]:
+    """Each SCENE argument as the study takes it: an existing file as typed; otherwise a
+    bundled scene by its name (``whitted.data.bundled_scenes``); ``@OFFSET`` kept. A SCENE
+    that is neither is a ``CliError`` (``EXIT["file"]``) before anything runs."""
+    from .data import bundled_scenes
+    from .options import EXIT, CliError
+    out = []
+    for text in texts:
+        path, at, offset = str(text).partition("@")
+        p = Path(path)
+        if not p.is_file():
+            stem = p.stem if p.suffix == ".toml" else p.name
+            bundled = bundled_scenes().get(stem)
+            if bundled is None or len(p.parts) > 2 or (len(p.parts) == 2
+                                                       and p.parts[0] != "scenes"):
+                raise CliError(f"{text}: no such scene file or bundled scene", EXIT["file"])
+            p = bundled
+            if p.is_relative_to(Path.cwd()):        # a checkout's scenes/, as typed there
+                p = p.relative_to(Path.cwd())
+        out.append(f"{p}{at}{offset}")
+    return out
 
 
 def run(args) -> int:
@@ -96,6 +121,7 @@ def run(args) -> int:
         changes["grid"] = False
     changes.pop("name")
     profile = replace(prof, **changes) if changes else args.profile
+    args.scenes = resolve_scenes(args.scenes)
     if args.check_executor:
         ok = study.executor_check(args.scenes, args.out, profile=profile, backend=args.backend,
                                   workers=args.workers or 1)
@@ -122,7 +148,12 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="whitted study", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     add_arguments(p)
-    return run(p.parse_args(argv))
+    from .options import CliError
+    try:
+        return run(p.parse_args(argv))
+    except CliError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return e.code
 
 
 if __name__ == "__main__":

@@ -19,6 +19,8 @@ a module of this package:
   Mitsuba peer (``reference.peer``: one kernel, frozen) at equal depth, 512² and 1024², with
   the depth at which the peer's unrolled tree stops compiling (probed in subprocesses).
 - ``effects`` (``effects.py``): the scene's specialised kernel vs the all-effects kernel.
+- ``build`` (``build.py``): the device BVH build vs the host SAH build vs Mitsuba's scene
+  build, the two trees' SAH cost and frames, and a process's time to its first image.
 
 A new part is one module defining ``PART = Part(name, key, run, markdown)`` (``part.py``)
 and one entry in ``PARTS`` below.
@@ -34,14 +36,20 @@ from pathlib import Path
 
 from renderer.outputs import check_output_file
 
-from . import effects, peer, seed_table, throughput, whitted_frame
+from . import build, effects, peer, seed_table, throughput, whitted_frame
 from .part import Context, Part, jsonable, write_atomic
 
-__all__ = ["PARTS", "Context", "Part", "device_info", "markdown", "run"]
+__all__ = ["PARTS", "Context", "NothingMeasured", "Part", "device_info", "markdown", "run"]
 
 #: The study's parts by name, in the order they run and appear in the markdown.
 PARTS: dict[str, Part] = {p.name: p for p in (throughput.PART, seed_table.PART,
-                                               whitted_frame.PART, peer.PART, effects.PART)}
+                                               whitted_frame.PART, peer.PART, effects.PART,
+                                               build.PART)}
+
+
+class NothingMeasured(Exception):
+    """No part asked for found a scene of its own in the scenes folder: the run measured
+    nothing and wrote no result."""
 
 
 def device_info(backend: str) -> dict:
@@ -77,16 +85,18 @@ def device_info(backend: str) -> dict:
 
 
 def run(out_dir, *, backend: str = "auto", scenes_dir="scenes", quick: bool = False,
-        parts=tuple(PARTS), overwrite: bool = False) -> dict:
+        parts=tuple(PARTS), overwrite: bool = False, command: str | None = None) -> dict:
     """Run the parts named in ``parts`` (in ``PARTS`` order) and write
     ``bench-<backend>.json`` and ``.md`` (``-quick`` appended to the tag when ``quick``)
     in ``out_dir``. Existing files there are replaced only when ``overwrite``, checked before
-    the study runs (``OutputExistsError``). Returns the result: device, quick, date and each
-    part's rows under its key.
+    the study runs (``OutputExistsError``). Returns the result: the ``command`` that
+    regenerates it (when given), device, quick, date and each part's rows under its key.
 
     The files are rewritten (atomically) after each part and at each part's checkpoints
     (``Context.save_rows``); on Ctrl-C (or ``timeout -s INT``) they are written with what
     was measured and ``"interrupted"`` naming the part, and the interrupt is re-raised.
+    Nothing is written until a part has rows; when no part finds a scene of its own in
+    ``scenes_dir``, ``NothingMeasured`` is raised and no file is written.
 
     ``quick`` shrinks every size (for a smoke run on a CPU): 1920×1080 → 320×180,
     512² → 128², 20 frozen frames → 5.
@@ -102,16 +112,21 @@ def run(out_dir, *, backend: str = "auto", scenes_dir="scenes", quick: bool = Fa
         check_output_file(out / f"bench-{tag}{ext}", overwrite=overwrite, flag="--force")
     info = device_info(backend)
     print(f"bench on {info.get('device')} ({backend})", flush=True)
-    result = {"device": info, "quick": quick, "date": time.strftime("%Y-%m-%d %H:%M:%S")}
+    result = {"command": command} if command else {}
+    result.update(device=info, quick=quick, date=time.strftime("%Y-%m-%d %H:%M:%S"))
 
     def save() -> None:
         write_atomic(out / f"bench-{tag}.json", json.dumps(jsonable(result), indent=1))
         write_atomic(out / f"bench-{tag}.md", markdown(result))
 
+    def measured() -> bool:
+        return any(result.get(p.key) for p in PARTS.values())
+
     def checkpoint(key: str):
         def keep(rows: list[dict]) -> None:
             result[key] = list(rows)
-            save()
+            if measured():
+                save()
         return keep
 
     part = None
@@ -122,22 +137,28 @@ def run(out_dir, *, backend: str = "auto", scenes_dir="scenes", quick: bool = Fa
                               quick=quick, checkpoint=checkpoint(part.key),
                               overwrite=overwrite)
                 result[part.key] = part.run(ctx)
-                save()
+                if measured():
+                    save()
     except KeyboardInterrupt:
         result["interrupted"] = f"in part {part.name}" if part else "before the first part"
         save()
         print(f"interrupted {result['interrupted']}: wrote what was measured to "
               f"{out / f'bench-{tag}.json'} and .md", flush=True)
         raise
+    if not measured():
+        raise NothingMeasured(f"no scene of the parts {', '.join(parts)} in {scenes_dir}: "
+                              "nothing measured, nothing written")
     save()
     print(f"wrote {out / f'bench-{tag}.json'} and .md", flush=True)
     return result
 
 
 def markdown(result: dict) -> str:
-    """The result of ``run`` as markdown: a header, then each part's tables."""
+    """The result of ``run`` as markdown: the command that regenerates it as a comment line
+    (when the result names one), a header, then each part's tables."""
     dev = result["device"]
-    lines = [f"# Benchmark on {dev.get('device')} ({dev['backend']})", "",
+    lines = [f"<!-- command: {result['command']} -->"] if result.get("command") else []
+    lines += [f"# Benchmark on {dev.get('device')} ({dev['backend']})", "",
              f"{result['date']}; drjit {dev.get('drjit')}, mitsuba {dev.get('mitsuba')}"
              + (f", driver {dev['driver']}" if dev.get("driver") else "")
              + ("; QUICK smoke sizes" if result.get("quick") else ""), ""]

@@ -44,14 +44,15 @@ from pathlib import Path
 
 import numpy as np
 
+from evaluation.gate.metrics import image_difference
+from evaluation.gate.rules import EXACT_THRESHOLDS, check_exact, tie_probe
+
 from .. import SEED_SCENES
-from ..metrics import image_difference
-from ..rules import EXACT_THRESHOLDS, check_exact, tie_probe
 from .frames import frozen_frame_ms
 from .part import Context, Part, table
 
 ROOT = Path(__file__).resolve().parents[2]
-#: The scenes of issue 12, goal 3: the seed scenes and the glass bunny.
+#: The scenes of the peer comparison: the seed scenes and the glass bunny.
 PEER_SCENES = SEED_SCENES + ("glass_bunny",)
 #: The depth every scene is compared at (the peer compiles it on every backend).
 BASE_DEPTH = 2
@@ -73,7 +74,7 @@ class Plan:
 
 def plan(ctx: Context, n_scenes: int = len(PEER_SCENES)) -> Plan:
     """The part's plan on ``ctx``'s backend. CUDA: probes at depths 3-5, 45 s each, all at
-    once (the whole part fits in ~5 minutes on an H200); LLVM: 3-6, 120 s each, as many at
+    once (the whole part fits in about 5 minutes on a GPU); LLVM: 3-6, 120 s each, as many at
     once as there are cores; quick: depth 3 only, 60 s, 128²/256² frames at depth 2 and
     128² beyond. Full runs time the deeper rows at 1024²."""
     cores = os.cpu_count() or 1
@@ -117,17 +118,15 @@ def peer_frame_ms(scene, *, backend: str, frames: int = 20, warmup: int = 3) -> 
     import drjit as dr
 
     from reference.peer import load_peer
-    from renderer.stats import kernel_ms
+    from renderer.stats import kernel_launches, kernel_ms
     peer = load_peer(scene, backend=backend)
     pos = peer.positions()
-    dr.sync_thread()
-    with dr.scoped_set_flag(dr.JitFlag.KernelHistory, True):
-        dr.kernel_history()
-        t0 = time.perf_counter()
+
+    def frame():
         img = peer.frame(pos)
-        dr.sync_thread()
-        traced_ms = (time.perf_counter() - t0) * 1e3
-        hist = dr.kernel_history()
+        dr.eval(img)
+        return img
+    img, hist, traced_ms = kernel_launches(frame)
     traced = np.asarray(img.numpy(), np.float32)
     run_frozen = peer.frozen()
     timing = kernel_ms(lambda: run_frozen(pos), warmup=warmup, repeats=frames)
@@ -142,7 +141,7 @@ def peer_frame_ms(scene, *, backend: str, frames: int = 20, warmup: int = 3) -> 
 def agreement(ours: np.ndarray, peer: np.ndarray, ties: np.ndarray | None = None) -> dict:
     """Peer vs ours: the bench's image difference, the fraction of pixels whose channels all
     agree within 1e-3 (absolute), and the harness's exact-mode rule (``check_exact``, the
-    peer in the golden's place; ``ties``: our tie mask, ``evaluation.rules.tie_probe``,
+    peer in the golden's place; ``ties``: our tie mask, ``evaluation.gate.rules.tie_probe``,
     without which no pixel is excused)."""
     d = image_difference(ours, peer)
     err = np.abs(np.asarray(ours, np.float64) - np.asarray(peer, np.float64)).max(-1)
@@ -155,7 +154,7 @@ def agreement(ours: np.ndarray, peer: np.ndarray, ties: np.ndarray | None = None
 
 
 def tie_mask(scene, backend: str, accel: str | None) -> np.ndarray:
-    """Our tie mask of ``scene``'s first view (``evaluation.rules.tie_probe``; untimed)."""
+    """Our tie mask of ``scene``'s first view (``evaluation.gate.rules.tie_probe``; untimed)."""
     return tie_probe(scene, 0, backend=backend, accel=accel)[1]
 
 
@@ -284,21 +283,16 @@ def peer_compiles(scene, depth: int, timeout_s: float, *, backend: str = "llvm",
 
 def _probe_main(path: str, depth: int, backend: str, size: int) -> None:
     """Subprocess side of ``peer_compiles``: one traced peer frame; prints one JSON line."""
-    import drjit as dr
 
     from reference.peer import load_peer
     from renderer.scene import load_scene
+    from renderer.stats import kernel_launches
     sc = _at(load_scene(path), depth, size)
     peer = load_peer(sc, backend=backend)
     pos = peer.positions()
-    with dr.scoped_set_flag(dr.JitFlag.KernelHistory, True):
-        dr.kernel_history()
-        t0 = time.perf_counter()
-        peer.frame(pos)
-        dr.sync_thread()
-        first = time.perf_counter() - t0
-        ops = sum(int(h.get("operation_count", 0)) for h in dr.kernel_history())
-    print(json.dumps({"first_frame_s": first, "operations": ops}))
+    _, hist, wall_ms = kernel_launches(lambda: peer.frame(pos))
+    ops = sum(int(h.get("operation_count", 0)) for h in hist)
+    print(json.dumps({"first_frame_s": wall_ms * 1e-3, "operations": ops}))
 
 
 def deepest(probes: list[dict]) -> int:

@@ -36,6 +36,7 @@ from renderer.accel import ACCELERATORS, Ray, build_accelerator
 from renderer.accel.bvh_build import build_bvh
 from renderer.accel.order import SortedQueries
 from renderer.device import array3, types
+from renderer.stats import kernel_launches
 
 from .. import SEED_SCENES
 from .part import Context, Part, jsonable, table
@@ -45,7 +46,7 @@ ACCELS = ("bvh", "bvh4", "bvh8")     # binary, and the wide BVHs collapsed from 
 BATCHES = ("primary", "shadow", "incoherent", "reflection")
 #: Variants of an accelerator of ``ACCELS``: queries for evaluated batches, the rays sorted
 #: first (``renderer.accel.order.SortedQueries``; CPU only: on the GPU the sort costs more
-#: than it saves, ``results/h200/throughput/ray-sort.md``) and lanes that take the next ray
+#: than it saves, ``lab/notes/ray-sort.md``) and lanes that take the next ray
 #: when theirs is done (``traverse.refill_traversal``, ``REFILL`` rays per lane by
 #: backend); and the BVH built without spatial splits (``build_bvh(spatial=0)``; only in
 #: scenes where the default build cuts references), to show what the splits gain or cost.
@@ -59,8 +60,8 @@ VARIANT_BATCHES = {"sort": ("incoherent", "reflection"),
 EAGER = ("sort", "refill")            # kinds that launch kernels while tracing
 #: Variants shown beside the contenders but never "best": the renderer does not build them.
 NOT_CONTENDERS = ("bvh-nosplit",)
-#: Rays per lane of the refill variant: on an H200 16 per thread beat 8 on every incoherent
-#: batch (1.04-1.10x; ``results/h200/throughput/refill-count.md``).
+#: Rays per lane of the refill variant by backend: on CUDA 16 per thread beat 8 on every
+#: incoherent batch (``lab/notes/refill-count.md``).
 REFILL = {"llvm": 32, "cuda": 16}
 SEED = 12                           # the incoherent batch's random generator
 #: Offset of the host-side reflection batch's origins (fraction of the scene diagonal): both
@@ -202,16 +203,12 @@ def _timed(fns: dict, repeats: int, warmup: int = 2, eager=()) -> dict:
     kern = {k: [] for k in fns}
     wall = {k: [] for k in fns}
     cpu = {k: [] for k in fns}
-    dr.kernel_history()
-    with dr.scoped_set_flag(dr.JitFlag.KernelHistory, True):
-        for _ in range(repeats):
-            for k, fn in fns.items():
-                dr.kernel_history()
-                t0 = time.perf_counter()
-                cpu[k].append(once(fn, k in eager) * 1e3)
-                wall[k].append((time.perf_counter() - t0) * 1e3)
-                hist = [h for h in dr.kernel_history() if "execution_time" in h]
-                kern[k].append(sum(h["execution_time"] for h in hist))
+    for _ in range(repeats):
+        for k, fn in fns.items():
+            cpu_s, hist, ms = kernel_launches(lambda fn=fn, k=k: once(fn, k in eager))
+            cpu[k].append(cpu_s * 1e3)
+            wall[k].append(ms)
+            kern[k].append(sum(h["execution_time"] for h in hist if "execution_time" in h))
     return {k: {"kernel_ms": statistics.median(kern[k]), "kernel_ms_min": min(kern[k]),
                 "cpu_ms": statistics.median(cpu[k]), "cpu_ms_min": min(cpu[k]),
                 "wall_ms": statistics.median(wall[k]), "repeats": repeats} for k in fns}

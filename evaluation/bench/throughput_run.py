@@ -1,5 +1,5 @@
 """The throughput part alone at a chosen batch size: ``python -m
-evaluation.bench.throughput_run --size 640x360 --repeats 5 --out results/cpu``.
+evaluation.bench.throughput_run --size 640x360 --repeats 5 --out out/throughput``.
 
 Writes ``bench-<backend>-throughput.json`` / ``.md`` in the format of ``evaluation.bench.run``
 (so ``markdown(json)`` reproduces the ``.md``), each row with the load average measured
@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shlex
 import sys
 import time
 from pathlib import Path
@@ -32,7 +33,7 @@ def main(argv=None) -> int:
     ap.add_argument("--backend", default="llvm")
     ap.add_argument("--scenes", default="scenes")
     ap.add_argument("--only", default="", help="comma-separated scene names (default all)")
-    ap.add_argument("--out", default="results/cpu")
+    ap.add_argument("--out", default="out/throughput")
     ap.add_argument("--note", default="")
     ap.add_argument("--force", action="store_true")
     args = ap.parse_args(argv)
@@ -55,7 +56,12 @@ def main(argv=None) -> int:
     except OutputError as e:
         print(f"throughput_run: {e}", file=sys.stderr)
         return 2
-    result = {"device": device_info(backend), "quick": False,
+    command = shlex.join(["python", "-m", "evaluation.bench.throughput_run", "--size",
+                          f"{w}x{h}", "--repeats", str(args.repeats), "--backend", backend]
+                         + (["--scenes", args.scenes] if args.scenes != "scenes" else [])
+                         + (["--only", args.only] if args.only else [])
+                         + ["--out", args.out, "--force"])
+    result = {"command": command, "device": device_info(backend), "quick": False,
               "date": time.strftime("%Y-%m-%d %H:%M:%S"), "throughput": [],
               "note": (f"throughput part alone at {w}x{h}, repeats {args.repeats}"
                        + (f"; {args.note}" if args.note else ""))}

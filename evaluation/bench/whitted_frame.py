@@ -1,7 +1,7 @@
 """Part ``whitted``: our frozen Whitted frame at the scene's own depth vs Mitsuba's image.
 
 Mitsuba renders with the reference harness's integrator (exact mode, same resolution and
-depth); the two images' difference is reported (``evaluation.metrics.image_difference``)
+depth); the two images' difference is reported (``evaluation.gate.metrics.image_difference``)
 and a PNG strip ours | Mitsuba | outlier pixels is written per scene. Ours is timed (frozen
 and traced); the harness's integrator is not: it is a wavefront reference (a kernel per
 tree level, host syncs), not a speed peer. The speed comparison is the ``peer`` part
@@ -14,8 +14,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from evaluation.gate.metrics import image_difference, outlier_mask
+
 from .. import SEED_SCENES
-from ..metrics import image_difference, outlier_mask
 from .frames import frozen_frame_ms
 from .part import Context, Part, table
 

@@ -6,8 +6,8 @@ from dataclasses import replace
 
 import numpy as np
 
-from evaluation.agreement import EDGE_TOL
-from evaluation.agreement import neighbour_range as _neighbour_range
+from evaluation.gate.agreement import EDGE_TOL
+from evaluation.gate.agreement import neighbour_range as _neighbour_range
 
 #: float32 unit roundoff.
 U32 = 2.0 ** -24

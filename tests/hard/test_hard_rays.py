@@ -10,7 +10,7 @@ from util_hard import CI, assert_green, rows_of
 
 import renderer.accel.bvh as bvh_module
 import renderer.accel.triangle as triangle
-from evaluation.hard_cases import Config
+from evaluation.hard.cases import Config
 from renderer.accel import ACCELERATORS
 
 

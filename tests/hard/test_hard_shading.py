@@ -4,7 +4,7 @@ from __future__ import annotations
 import pytest
 from util_hard import assert_green, rows_of
 
-from evaluation.hard_cases import Config
+from evaluation.hard.cases import Config
 
 
 def test_tir_at_the_critical_angle():

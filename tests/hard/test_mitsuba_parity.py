@@ -1,6 +1,6 @@
 """Hard case 14 in CI (LLVM, float32): ours against Mitsuba 3 with Embree in its fast
 (default) and robust (``embree_use_robust_intersections``) modes
-(``evaluation.hard_cases.case_mitsuba_parity``).
+(``evaluation.hard.runners.case_mitsuba_parity``).
 
 Measured: rays aimed at case 1's vertices and edge midpoints far from the origin: ours and
 robust Embree miss 0, fast Embree 200 of 12840 and 937 of 19200 (random interior rays 4 of

@@ -1,5 +1,5 @@
 """Hard case 7 in CI (float32, LLVM): the shadow terminator of a low-polygon sphere with
-interpolated normals under grazing light (``evaluation.hard_cases.case_terminator``).
+interpolated normals under grazing light (``evaluation.hard.runners.case_terminator``).
 
 Measured (both routines): no speckle where the facet faces the light; terminator pixels over
 the three light angles 362 untreated and 34 with Hanika's point on the 80-face sphere, 202
@@ -11,7 +11,8 @@ import warnings
 import numpy as np
 from util_hard import CI, assert_green, rows_of
 
-from evaluation.hard_cases import _render, facing_light, terminator_scene
+from evaluation.hard.runners import facing_light, render_image
+from evaluation.hard.scenes import terminator_scene
 from renderer.effects import EffectSet
 from renderer.render import render
 from renderer.scene import load_scene
@@ -32,9 +33,9 @@ def test_shadow_terminator():
 def _speckles(scene, routine):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        off = _render(scene, CI, "bvh", routine, "float32",
+        off = render_image(scene, CI, "bvh", routine, "float32",
                       EffectSet.from_scene(scene).without("shadows"))
-    on = _render(scene, CI, "bvh", routine, "float32")
+    on = render_image(scene, CI, "bvh", routine, "float32")
     lost = (off.max(-1) > 0) & (on.max(-1) < 0.5 * off.max(-1))
     return int((lost & facing_light(scene, CI, routine, "float32")).sum())
 

@@ -1,7 +1,8 @@
 """Shared set-up of the hard-case tests: the CI subset is float32 on LLVM."""
 from __future__ import annotations
 
-from evaluation.hard_cases import Config, load_cases, run_suite
+from evaluation.hard.cases import Config, load_cases
+from evaluation.hard.runners import run_suite
 
 CI = Config(backend="llvm", precisions=("float32",))
 
