@@ -128,6 +128,28 @@ def block_pixel(q, width: int, rows: int, block: tuple[int, int]):
     return x, by * bh + yy
 
 
+def ray_keys(width: int, height: int, t: Types, *, spp: int = 1, seed: int = 0,
+             first_row=None, rows: int | None = None, block: tuple[int, int] | None = None):
+    """UInt32 random key of each ray of ``primary_rays`` (same arguments, same order): the
+    low 32 bits of ``seed + k`` xor its high 32 bits, ``k`` the ray's row-major number in
+    the whole image, so a ray keeps its key in any batching, tile or block order and
+    batches seeded ``n`` rays apart (``evaluation.rules.render_batches``) share no key."""
+    n_rows = height if rows is None else rows
+    n = width * n_rows * spp
+    idx = dr.arange(t.UInt32, n)
+    slot = idx // spp if spp > 1 else idx
+    s = idx - slot * spp if spp > 1 else dr.zeros(t.UInt32, n)
+    if block is None:
+        x, y = slot % width, slot // width
+    else:
+        x, y = block_pixel(slot, width, n_rows, block)
+    if first_row is not None:
+        y = y + first_row
+    UInt64 = dr.uint64_array_t(t.UInt32)
+    v = UInt64(seed) + UInt64(y * width + x) * spp + UInt64(s)
+    return t.UInt32(v & 0xFFFFFFFF) ^ t.UInt32(v >> 32)
+
+
 def primary_rays(cam: CameraArrays, width: int, height: int, t: Types, *,
                  spp: int = 1, exact: bool = True, seed: int = 0, first_row=None,
                  rows: int | None = None, block: tuple[int, int] | None = None):

@@ -14,7 +14,7 @@ import drjit as dr
 import numpy as np
 
 from .accel import DEFAULT_ROUTINE, build_accelerator, default_accel
-from .camera import BLOCKS, CameraArrays, camera_arrays, primary_rays
+from .camera import BLOCKS, CameraArrays, camera_arrays, primary_rays, ray_keys
 from .device import Types, array3, types
 from .effects import EffectSet
 from .film import develop
@@ -57,7 +57,11 @@ def make_frame_fn(t: Types, effects: EffectSet, options: TraceOptions, *, spp: i
               first_row=None, rows: int | None = None):
         o, d = primary_rays(cam, width, height, t, spp=spp, exact=exact, seed=seed,
                             first_row=first_row, rows=rows, block=block)
-        radiance = trace(arrays, o, d, t, effects, options)
+        key = None
+        if effects.soft_shadows:
+            key = ray_keys(width, height, t, spp=spp, seed=seed, first_row=first_row,
+                           rows=rows, block=block)
+        radiance = trace(arrays, o, d, t, effects, options, key)
         return develop(radiance, width, height if rows is None else rows, spp, t, block)
     return frame
 
@@ -75,6 +79,8 @@ class Renderer:
       effects: EffectSet to trace (default: derived from the scene).
       spp, exact: override ``scene.settings`` as ``Scene.with_overrides`` does (``spp``
           alone sets ``exact = spp == 1``; ``exact`` alone takes spp 1 or the scene's).
+      shadow_samples: override ``settings.shadow_samples`` (shadow rays per light with
+          extent, k*k).
       freeze: wrap the frame function in ``dr.freeze`` (default False).
       tie_break, tie_window, tie_slack: which hit wins among hits as near as the nearest
           within the distances ``tie_window`` (along the ray) and ``tie_slack`` (off an edge)
@@ -97,10 +103,12 @@ class Renderer:
                  effects: EffectSet | None = None, spp: int | None = None,
                  exact: bool | None = None, freeze: bool = False, tie_break: str = "lowest",
                  tie_window: float = 0.0, tie_slack: float = 0.0, build: str | None = None,
-                 cache=None, frames: int | None = None, build_progress=None):
+                 cache=None, frames: int | None = None, build_progress=None,
+                 shadow_samples: int | None = None):
         if not scene.cameras:
             raise ValueError(f"scene {scene.name!r}: cameras: at least one camera is required")
-        s = scene.with_overrides(spp=spp, exact=exact).settings
+        scene = scene.with_overrides(spp=spp, exact=exact, shadow_samples=shadow_samples)
+        s = scene.settings
         self.scene = scene
         self.t: Types = types(backend, precision)
         check_ranges(scene, precision)
@@ -125,7 +133,8 @@ class Renderer:
         self.upload_seconds = time.perf_counter() - t0
         self.options = TraceOptions(n_lights=len(scene.lights), max_depth=int(s.max_depth),
                                     min_weight=float(s.min_weight), eps=scene.ray_offset,
-                                    spawn=s.spawn, terminator=s.terminator)
+                                    spawn=s.spawn, terminator=s.terminator,
+                                    shadow_samples=int(s.shadow_samples))
         self.accel_name = accel
         frame_fn = make_frame_fn(t, self.effects, self.options, spp=self.spp, exact=self.exact,
                                  seed=int(s.seed))

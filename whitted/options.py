@@ -70,6 +70,8 @@ def add_scene_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--spp", type=int,
                    help="samples per pixel (a perfect square; implies converged mode)")
     p.add_argument("--max-depth", type=int, help="override the specular depth limit")
+    p.add_argument("--shadow-samples", type=int,
+                   help="shadow rays per light with extent per hit (a perfect square)")
     add_backend_option(p)
     p.add_argument("--precision", default=PRECISIONS[0], choices=PRECISIONS)
     p.add_argument("--accel", choices=tuple(ACCELERATORS),
@@ -129,7 +131,8 @@ def cache_for_cli(args: argparse.Namespace):
 #: command line.
 OVERRIDE_OPTIONS = {"settings.spp": ("--spp", "spp"), "settings.exact": ("--spp", "spp"),
                     "settings.max_depth": ("--max-depth", "max_depth"),
-                    "size": ("--size", "size"), "settings.seed": ("--seed", "seed")}
+                    "size": ("--size", "size"), "settings.seed": ("--seed", "seed"),
+                    "settings.shadow_samples": ("--shadow-samples", "shadow_samples")}
 
 
 def overrides_for_cli(scene: Scene, **overrides) -> Scene:
@@ -153,7 +156,8 @@ def load_for_cli(args: argparse.Namespace) -> tuple[Scene, list[int]]:
     Raises ``SceneError`` for a bad scene file or override (naming the option as typed),
     ``CliError`` for a bad view."""
     scene = read_scene(args, cache=cache_for_cli(args))
-    scene = overrides_for_cli(scene, spp=args.spp, max_depth=args.max_depth, size=args.size)
+    scene = overrides_for_cli(scene, spp=args.spp, max_depth=args.max_depth, size=args.size,
+                              shadow_samples=getattr(args, "shadow_samples", None))
     return scene, select_views(scene, args.view)
 
 

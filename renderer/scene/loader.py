@@ -43,8 +43,12 @@ _TOP_KEYS = ("description", "camera", "views", "render", "ambient", "lights", "m
              "objects", "physical", "check")
 _VIEW_KEYS = ("name", "position", "target", "up", "fov_y", "resolution")
 _RENDER_KEYS = ("max_depth", "spp", "exact", "shading", "background", "min_weight",
-                "ray_epsilon", "seed", "spawn", "build")
-_LIGHT_KEYS = ("name", "position", "intensity", "falloff")
+                "ray_epsilon", "seed", "spawn", "build", "shadow_samples")
+_LIGHT_KEYS = ("name", "position", "intensity", "falloff", "type", "radius", "center",
+               "corner", "edge_u", "edge_v", "two_sided")
+#: Keys each light type reads besides name, intensity and falloff.
+_LIGHT_TYPE_KEYS = {"point": ("position",), "sphere": ("position", "center", "radius"),
+                    "rectangle": ("center", "corner", "edge_u", "edge_v", "two_sided")}
 _MATERIAL_KEYS = ("ka", "kd", "ks", "n", "k_refl", "k_refr", "ior", "combination")
 _OBJECT_KEYS = ("name", "material", "mesh", "shape", "translate", "rotate", "scale",
                 "matrix", "smooth", "flip_normals", "subdivide")
@@ -232,9 +236,19 @@ def _read_render(r: _Reader, data: dict, shading: str | None) -> Settings:
         ray_epsilon=(r.number(rt["ray_epsilon"], "render.ray_epsilon", lo=0.0, lo_open=True)
                      if "ray_epsilon" in rt else None),
         seed=r.integer(rt.get("seed", 0), "render.seed", lo=0),
-        spawn=spawn,
+        spawn=spawn, shadow_samples=_shadow_samples(r, rt),
         build=r.string(rt.get("build", "auto"), "render.build", TREE_BUILDS),
     )
+
+
+def _shadow_samples(r: _Reader, rt: dict) -> int:
+    """``render.shadow_samples``: a perfect square >= 1 (default 1)."""
+    n = r.integer(rt.get("shadow_samples", 1), "render.shadow_samples", lo=1)
+    try:
+        validate_settings(shadow_samples=n, where="render")
+    except SceneError as e:
+        raise SceneError(f"{r.path}: {e}", field=e.field) from None
+    return n
 
 
 # ---- ambient and [physical] ------------------------------------------------------------------
@@ -290,28 +304,72 @@ def _read_views(r: _Reader, data: dict) -> list[Camera]:
 # ---- [[lights]] ------------------------------------------------------------------------------
 def _read_lights(r: _Reader, data: dict, mode: str, light_scale: np.ndarray
                  ) -> list[PointLight]:
-    """Point lights; in physical mode inverse-square only, intensities times
-    ``light_scale``."""
+    """Lights (``type`` "point", the default, "sphere" or "rectangle"; docs/MODEL.md); in
+    physical mode inverse-square only, intensities times ``light_scale``. A sphere of
+    ``radius = 0`` is a point light."""
     lights = []
     for i, lt in enumerate(r.array_of_tables(data.get("lights", []), "lights")):
         where = f"lights[{i}]"
         r.keys(lt, _LIGHT_KEYS, where)
-        for req in ("position", "intensity"):
-            if req not in lt:
-                raise r.error(f"{where}.{req}", "missing (required)")
+        kind = r.string(lt.get("type", "point"), f"{where}.type", tuple(_LIGHT_TYPE_KEYS))
+        for key in lt:
+            if key not in ("name", "intensity", "falloff", "type") \
+                    and key not in _LIGHT_TYPE_KEYS[kind]:
+                raise r.error(f"{where}.{key}", f"not a key of a {kind!r} light (keys: "
+                              f"{', '.join(_LIGHT_TYPE_KEYS[kind])})")
+        if "intensity" not in lt:
+            raise r.error(f"{where}.intensity", "missing (required)")
         falloff_default = "none" if mode == "classic" else "inverse_square"
         falloff = r.string(lt.get("falloff", falloff_default), f"{where}.falloff", FALLOFFS)
         if mode == "physical" and falloff != "inverse_square":
             raise r.error(f"{where}.falloff", "physical shading needs 'inverse_square' "
-                          "point lights (Mitsuba's point emitter); remove the key or use "
+                          "lights (Mitsuba's point and area emitters); remove the key or use "
                           "classic shading")
         intensity = r.color(lt["intensity"], f"{where}.intensity")
         if mode == "physical":
             intensity = intensity * light_scale
-        lights.append(PointLight(position=r.vector(lt["position"], f"{where}.position"),
-                                 intensity=intensity, falloff=falloff,
-                                 name=r.string(lt.get("name", f"light{i}"), f"{where}.name")))
+        name = r.string(lt.get("name", f"light{i}"), f"{where}.name")
+        common = dict(intensity=intensity, falloff=falloff, name=name)
+        if kind == "rectangle":
+            lights.append(_read_rectangle(r, lt, where, common))
+            continue
+        if kind == "sphere" and "position" in lt and "center" in lt:
+            raise r.error(f"{where}.center", "give the centre once (center or position)")
+        pos_key = "center" if "center" in lt else "position"
+        if pos_key not in lt:
+            raise r.error(f"{where}.position", "missing (required)")
+        position = r.vector(lt[pos_key], f"{where}.{pos_key}")
+        radius = r.number(lt.get("radius", 0.0), f"{where}.radius", lo=0.0) \
+            if kind == "sphere" else 0.0
+        if kind == "sphere" and "radius" not in lt:
+            raise r.error(f"{where}.radius", "missing (required for a sphere light)")
+        if radius > 0:
+            lights.append(PointLight(position=position, shape="sphere", radius=radius,
+                                     **common))
+        else:
+            lights.append(PointLight(position=position, **common))
     return lights
+
+
+def _read_rectangle(r: _Reader, lt: dict, where: str, common: dict) -> PointLight:
+    """A rectangle light: ``edge_u``, ``edge_v`` and its ``center`` or ``corner`` (one of
+    them), ``two_sided`` (false)."""
+    for req in ("edge_u", "edge_v"):
+        if req not in lt:
+            raise r.error(f"{where}.{req}", "missing (required for a rectangle light)")
+    eu = r.vector(lt["edge_u"], f"{where}.edge_u")
+    ev = r.vector(lt["edge_v"], f"{where}.edge_v")
+    if ("center" in lt) == ("corner" in lt):
+        raise r.error(f"{where}.center", "give exactly one of center and corner")
+    if "center" in lt:
+        centre = r.vector(lt["center"], f"{where}.center")
+    else:
+        centre = r.vector(lt["corner"], f"{where}.corner") + 0.5 * (eu + ev)
+    if not np.linalg.norm(np.cross(eu, ev)) > 0:
+        raise r.error(f"{where}.edge_v", "parallel to edge_u (the rectangle has no area)")
+    two = r.boolean(lt.get("two_sided", False), f"{where}.two_sided")
+    return PointLight(position=centre, shape="rectangle", edge_u=eu, edge_v=ev,
+                      two_sided=two, **common)
 
 
 # ---- [materials.<name>] ----------------------------------------------------------------------
