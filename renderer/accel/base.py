@@ -28,31 +28,9 @@ import drjit as dr
 import numpy as np
 
 from ..device import Types, types
-
-
-@dataclass
-class Ray:
-    """A batch of rays. o, d: Array3f (N,) origin and direction; t_max: Float, the end of
-    the ray interval (0, t_max) in units of ``d``."""
-
-    o: object
-    d: object
-    t_max: object
-
-
-@dataclass
-class ClosestHit:
-    """Result of a closest-hit query (arrays of the ray batch's width).
-
-    t: Float ray parameter; u, v: Float barycentrics of v1, v2; prim: UInt32 index into
-    the accelerator's ``DeviceTriangles`` (undefined where not found); found: Bool.
-    """
-
-    t: object
-    u: object
-    v: object
-    prim: object
-    found: object
+from .query import ClosestHit as ClosestHit
+from .query import Ray as Ray
+from .query import tie_probe, tie_probe_p
 
 
 @dataclass
@@ -109,13 +87,11 @@ class Accelerator:
 
     def intersect(self, ray: Ray, active=True) -> ClosestHit:
         """Closest hit in ``(0, ray.t_max)`` (under ``tie_break``)."""
-        from .traverse import tie_probe  # traverse imports this module
         return tie_probe(lambda r, a, pr: self._traverse(r, a, False, pr), ray, active,
                          self.tie_break, self.tie_window, self.tie_slack)
 
     def intersect_p(self, ray: Ray, active=True):
         """Any hit in ``(0, ray.t_max)`` (shadow rays); stops at the first hit."""
-        from .traverse import tie_probe_p
         return tie_probe_p(lambda r, a, pr: self._traverse(r, a, True, pr), ray, active,
                            self.tie_break, self.tie_slack)
 

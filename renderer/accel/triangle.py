@@ -82,17 +82,19 @@ def _gamma(n: int, double: bool) -> float:
     return n * u / (1 - n * u)
 
 
-def _edges_float64(x0, y0, x1, y1, x2, y2, e0, e1, e2):
-    """The three edge functions recomputed in float64 from float32 coordinates: the
-    products are exact there, so the one rounding of the difference keeps the sign."""
+def _edges_float64(xy, e):
+    """The three edge functions recomputed in float64 from the float32 sheared vertices
+    ``xy = (x0, y0, x1, y1, x2, y2)``: the products are exact there, so the one rounding
+    of the difference keeps the sign. ``e``: the float32 edge functions (unused)."""
+    x0, y0, x1, y1, x2, y2 = xy
     Float = type(x0)
     F64 = dr.float64_array_t(Float)
     X0, Y0, X1, Y1, X2, Y2 = (F64(c) for c in (x0, y0, x1, y1, x2, y2))
     return (Float(X1 * Y2 - Y1 * X2), Float(X2 * Y0 - Y2 * X0), Float(X0 * Y1 - Y0 * X1))
 
 
-def _edges_as_they_are(x0, y0, x1, y1, x2, y2, e0, e1, e2):
-    return e0, e1, e2
+def _edges_as_they_are(xy, e):
+    return e
 
 
 def _rotate(v, zx, zy):
@@ -154,7 +156,8 @@ def _watertight_bind(o, d):
         x0, y0 = dr.fma(sx, z0, x0), dr.fma(sy, z0, y0)
         x1, y1 = dr.fma(sx, z1, x1), dr.fma(sy, z1, y1)
         x2, y2 = dr.fma(sx, z2, x2), dr.fma(sy, z2, y2)
-        return _watertight_tail(a0, a1, a2, n, d_, x0, y0, x1, y1, x2, y2, double, t_min)
+        return _watertight_tail((a0, a1, a2), n, d_, (x0, y0, x1, y1, x2, y2), double,
+                                t_min)
     bound.layout = "vertices"
     return bound
 
@@ -169,9 +172,11 @@ def bind_routine(routine, o, d):
     return routine if bind is None else bind(o, d)
 
 
-def _watertight_tail(a0, a1, a2, n, d, x0, y0, x1, y1, x2, y2, double, t_min):
-    """The rest of ``watertight`` from the sheared 2-D vertices ``(x_k, y_k)`` and the
-    translated vertices ``a_k = p_k - o``."""
+def _watertight_tail(a, n, d, xy, double, t_min):
+    """The rest of ``watertight`` from the translated vertices ``a = (a0, a1, a2)``,
+    ``a_k = p_k - o``, and the sheared 2-D vertices ``xy = (x0, y0, x1, y1, x2, y2)``."""
+    a0, a1, a2 = a
+    x0, y0, x1, y1, x2, y2 = xy
     # ---- edge functions (exact sign), float64 where one is exactly 0 in float32 ----------
     e0 = difference_of_products(x1, y2, y1, x2)
     e1 = difference_of_products(x2, y0, y2, x0)
@@ -179,8 +184,7 @@ def _watertight_tail(a0, a1, a2, n, d, x0, y0, x1, y1, x2, y2, double, t_min):
     if not double:
         # a symbolic branch: the float64 products cost ~40 % of the test when evaluated
         # on every lane, and an exactly-zero edge function is rare
-        e0, e1, e2 = dr.if_stmt((x0, y0, x1, y1, x2, y2, e0, e1, e2),
-                                (e0 == 0) | (e1 == 0) | (e2 == 0),
+        e0, e1, e2 = dr.if_stmt((xy, (e0, e1, e2)), (e0 == 0) | (e1 == 0) | (e2 == 0),
                                 _edges_float64, _edges_as_they_are)
     mixed = ((e0 < 0) | (e1 < 0) | (e2 < 0)) & ((e0 > 0) | (e1 > 0) | (e2 > 0))
     det = e0 + e1 + e2
