@@ -40,11 +40,9 @@ from .scene import Camera, SceneError, validate_settings
 #: Dr.Jit's (and the original PCG32's) default stream, ``PCG32(initseq=...)``.
 PCG32_DEFAULT_STREAM = 0xDA3E39CB94B95BDB
 #: The renderer's pixel block per backend (``Renderer`` frames): 4 × 8 pixels, a warp of 32
-#: lanes on CUDA, two packets of 16 (AVX-512) on LLVM. Whitted frames at depth 2, 1024²,
-#: frozen, kernel time against row-major order (``evaluation.bench.probe_frame``, H200):
-#: glass bunny 2.25 → 1.47 ms, Platonic solids 0.80 → 0.63, Cornell spheres 0.60 → 0.50,
-#: Cornell box 0.30 → 0.27 (blocks of 8 × 4 and 16 × 2 gain less). LLVM, 512² (2-core
-#: EPYC): 1.07–1.13x on the spheres, bunny and solids, the Cornell box within noise.
+#: lanes on CUDA, two packets of 16 (AVX-512) on LLVM. Whitted frames in these blocks take
+#: less kernel time than in row-major order on both backends, and more than in blocks of
+#: 8 × 4 or 16 × 2 (``lab/notes/accel-decisions.md``).
 BLOCKS = {"cuda": (4, 8), "llvm": (4, 8)}
 
 

@@ -31,7 +31,7 @@ class BruteForce(Accelerator):
     backend: str = "llvm"
     precision: str = "float32"
     intersection: str = DEFAULT_ROUTINE
-    tie_break: str = "lowest"          # traverse.TIE_BREAKS; "other" only probes ties
+    tie_break: str = "lowest"          # query.TIE_BREAKS; "other" only probes ties
     tie_window: float = 0.0            # t window (world units) of tie_break "other"
     tie_slack: float = 0.0             # edge slack (world units) of tie_break "other"
     info: dict = field(default_factory=dict, repr=False)

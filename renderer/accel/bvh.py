@@ -2,7 +2,7 @@
 
 Node layout on the device (``load_node``): ``nodes`` Float, 12 per inner node (child A lo
 xyz, hi xyz, child B lo xyz, hi xyz, as ``BVHArrays.boxes``), ``children`` UInt32, 2 per
-inner node (the node references of ``renderer.accel.traverse``).
+inner node (the node references of ``renderer.accel.layout``).
 
 Traversal is one symbolic loop per query with a per-ray stack of ``STACK_SIZE`` UInt32
 (``dr.alloc_local``). The stack is kept at 32 entries = 128 bytes because larger local
@@ -137,7 +137,7 @@ class BVH(Accelerator):
     backend: str = "llvm"
     precision: str = "float32"
     intersection: str = DEFAULT_ROUTINE
-    tie_break: str = "lowest"          # traverse.TIE_BREAKS; "other" only probes ties
+    tie_break: str = "lowest"          # query.TIE_BREAKS; "other" only probes ties
     tie_window: float = 0.0            # t window (world units) of tie_break "other"
     tie_slack: float = 0.0             # edge slack (world units) of tie_break "other"
     info: dict = field(default_factory=dict, repr=False)

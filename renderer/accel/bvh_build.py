@@ -4,7 +4,7 @@ All nodes of one level are split at once with segmented numpy operations, no
 per-triangle Python loop. The result (``BVHArrays``) is a flat array of *inner* nodes; each
 node stores the boxes of BOTH children (so one fetch gives everything a traversal step
 needs) and two child references (an inner-node index or a packed leaf, see
-``renderer.accel.traverse``). Triangles are reordered so that each leaf is a contiguous
+``renderer.accel.layout``). Triangles are reordered so that each leaf is a contiguous
 range; ``BVHArrays.order`` maps positions back to original face indices.
 
 After the build, ``renderer.accel.optimize.reinsert`` moves the costliest nodes to where
@@ -33,33 +33,27 @@ from .spatial import clipped_boxes, spatial_top
 from .triangle import unit_roundoff
 
 #: Default most triangles per leaf. Every traversal step is a real branch, which a warp
-#: (CUDA) or SIMD packet (LLVM) takes only when one of its lanes needs it; so smaller leaves
-#: pay: leaves of at most 2 triangles trace 1.05-1.24x faster than leaves of 4 on an H200
-#: (per-scene medians; Conference 0.98x: ``results/h200/throughput/branches.md``) and 0-30 %
-#: faster with the 4-wide BVH on the CPU (``results/cpu/leaf-size.md``), hits bitwise the same.
+#: (CUDA) or SIMD packet (LLVM) takes only when one of its lanes needs it, so small leaves
+#: pay: leaves of at most 2 triangles trace faster than leaves of 4 on both backends, hits
+#: bitwise the same (``lab/notes/accel-decisions.md``).
 LEAF_SIZE = 2
 BINS = 32                    # default SAH bins per axis
 #: Spatial splits (``build_bvh(spatial=...)``, on by default): the budget of extra
 #: references, and where they are tried: scenes of more triangles than
 #: ``SPATIAL_MIN_TRIANGLES``, nodes of more references than ``SPATIAL_MIN_REFS``, the top
 #: ``SPATIAL_DEPTH`` inner levels. Of the bench scenes only Sponza and Conference get cuts.
-#: H200, 1920x1080 batches against the same build without them: closest hit 1.06-1.26x
-#: faster (primary, incoherent, reflection), shadow rays 1.06-1.14x, any hit otherwise
-#: 1.04-1.13x except Conference's primary and reflection rays, 0.74-0.75x (its walls and
-#: floor, which stop those rays near the root, move down the tree); the CPU alike
-#: (``results/cpu/spatial.md``). A renderer's any-hit rays are shadow rays, so they pay.
+#: They speed up closest-hit and shadow rays on both backends; only any-hit rays that stop
+#: near the root (Conference's walls and floor move down the tree) slow down, and a
+#: renderer's any-hit rays are shadow rays (``lab/notes/accel-decisions.md``).
 SPATIAL = 0.3
 SPATIAL_MIN_TRIANGLES = 16384
 SPATIAL_MIN_REFS = 512
 SPATIAL_DEPTH = 12
 #: Rounds of insertion-based optimisation after the build (``renderer.accel.optimize``): each
 #: moves the 1 % of nodes that cost most for their size to where the SAH cost grows least.
-#: SAH cost 6-14 % lower on the bench scenes (Conference 35.4 -> 31.5); H200, against the
-#: same build without it, binary BVH: 0.93-1.54x, median 1.04x; any-hit rays median 1.24x,
-#: Conference's closest-hit rays 1.05-1.14x, the small scenes' closest hit down to 0.93x
-#: (``results/h200/throughput/optimize.md``); hits bitwise the same. It adds 0.4-1x the
-#: build's own time (the H200's host: Conference 1.0 of 2.8 s, the 1.1M bunny 4.8 of 9.7 s,
-#: ``results/h200/throughput/bench-cuda.md``).
+#: It lowers the SAH cost of every bench scene and speeds up the traversal of most, any-hit
+#: rays most, hits bitwise the same; it costs up to about the build's own time again
+#: (``lab/notes/accel-decisions.md``).
 OPTIMIZE = 4
 BIG_NODE = 1024              # nodes larger than this (level average) get root_bins bins
 AXES_MIN = 1024              # three-axis SAH only in levels whose nodes average more triangles

@@ -298,10 +298,9 @@ def masked_step(t: Types, where, step, state: tuple) -> tuple:
     returns the new state. The ``if`` is a real branch, taken only when some lane of the
     16-lane SIMD packet (LLVM) or of the 32-thread warp (CUDA) needs it; written inline
     with masked updates instead, every lane pays for every instruction of the loop body
-    on every iteration. Measured on an H200 (``results/h200/throughput/branches.md``):
-    the branches make the binary BVH's traversal 1.35-2.05x faster (median 1.65x), with
-    bitwise the same hits. Inside the ``if`` Dr.Jit masks the step's gathers and stack
-    writes itself."""
+    on every iteration, so the branch is the faster form, with bitwise the same hits
+    (``lab/notes/accel-decisions.md``). Inside the ``if`` Dr.Jit masks the step's gathers
+    and stack writes itself."""
     return dr.if_stmt(state, where, lambda *s: step(*s, True), lambda *s: s)
 
 

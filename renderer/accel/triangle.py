@@ -136,9 +136,8 @@ def _watertight_bind(o, d):
     last, and the shear) computed once, before the traversal loop, instead of at every
     triangle. The rotation is cyclic (``kx = kz + 1``, ``ky = kz + 2`` mod 3), chosen by
     two Bools, so a vertex is rotated with two selects per component. Both are bitwise the
-    same test; on an H200 they make closest and any hit 1.04-1.12x faster, median 1.06x,
-    than selects on integer axis indices at every test
-    (``results/h200/throughput/experiments/watertight-setup.md``); the CPU is unchanged."""
+    same test as selects on integer axis indices at every test, and cheaper on CUDA
+    (``lab/notes/accel-decisions.md``)."""
     double = dr.type_v(o) == dr.VarType.Float64
     ad = dr.abs(d)
     zx = (ad.x > ad.y) & (ad.x > ad.z)           # largest |d| component: x
@@ -182,8 +181,8 @@ def _watertight_tail(a, n, d, xy, double, t_min):
     e1 = difference_of_products(x2, y0, y2, x0)
     e2 = difference_of_products(x0, y1, y0, x1)
     if not double:
-        # a symbolic branch: the float64 products cost ~40 % of the test when evaluated
-        # on every lane, and an exactly-zero edge function is rare
+        # a symbolic branch: the float64 products are a large part of the test when
+        # evaluated on every lane, and an exactly-zero edge function is rare
         e0, e1, e2 = dr.if_stmt((xy, (e0, e1, e2)), (e0 == 0) | (e1 == 0) | (e2 == 0),
                                 _edges_float64, _edges_as_they_are)
     mixed = ((e0 < 0) | (e1 < 0) | (e2 < 0)) & ((e0 > 0) | (e1 > 0) | (e2 > 0))
@@ -256,8 +255,7 @@ def box_reach(scene, routine: str) -> float:
     by up to a few units of roundoff of ``|p - o|`` (pbrt's conservative traversal: the
     slab test never rejects a ray the triangle test would accept); and the slab test's FMA
     form moves its planes by up to a unit of roundoff of ``|o|`` (``traverse.box_ray``,
-    where origins beyond the reach enter every box). Möller–Trumbore's hits lie on the float
-    triangle, so before the FMA form its boxes needed no reach."""
+    where origins beyond the reach enter every box), whichever routine the boxes serve."""
     mags = [float(np.max(np.abs(scene.positions(True)))) if scene.face_count else 0.0]
     mags += [float(np.max(np.abs(c.position))) for c in scene.cameras]
     mags += [float(np.max(np.abs(li.position))) for li in scene.lights]

@@ -5,7 +5,7 @@ Conversion (``collapse``): each wide node starts from a binary node's two childr
 repeatedly replaces the inner child of largest surface area by its two children (SAH-greedy
 expansion) until it has ``width`` children or no inner child may be expanded. Leaves are
 the binary tree's leaves unchanged (same triangle order, same packed references of
-``renderer.accel.traverse``), so the wide tree visits the same triangles in a different
+``renderer.accel.layout``), so the wide tree visits the same triangles in a different
 order and the hits are bitwise those of the binary BVH and of brute force.
 
 Stack bound: a closest-hit node step pushes at most ``children - 1`` entries. The
@@ -30,9 +30,8 @@ triangles are moreover read as UInt64 views, two words per 64-bit gather
 
 Node steps sort the hit children by entry distance (a sorting network); closest-hit steps
 go to the nearest and push the rest far to near, any-hit steps go to the farthest and push
-the rest near to far (``traverse.FAR_FIRST``; before, any-hit steps pushed the hit
-children in slot order, which took up to 2.2x the loop iterations on Sponza and
-Conference, and nearest first 3-35 % more than slot order).
+the rest near to far (``traverse.FAR_FIRST``; it takes fewer loop iterations than slot
+order or nearest first: ``lab/notes/accel-decisions.md``).
 """
 from __future__ import annotations
 
@@ -400,7 +399,7 @@ class WideBVH(Accelerator):
     backend: str = "llvm"
     precision: str = "float32"
     intersection: str = DEFAULT_ROUTINE
-    tie_break: str = "lowest"          # traverse.TIE_BREAKS; "other" only probes ties
+    tie_break: str = "lowest"          # query.TIE_BREAKS; "other" only probes ties
     tie_window: float = 0.0            # t window (world units) of tie_break "other"
     tie_slack: float = 0.0             # edge slack (world units) of tie_break "other"
     info: dict = field(default_factory=dict, repr=False)
