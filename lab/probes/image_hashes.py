@@ -18,8 +18,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
-from renderer.render import render  # noqa: E402
 from renderer.accel import ACCELERATORS, ROUTINES  # noqa: E402
+from renderer.render import render  # noqa: E402
 from renderer.scene import load_scene  # noqa: E402
 
 SCENES = ["analytic_quad", "bunny", "cornell_box", "cornell_sphere", "glass_bunny",
