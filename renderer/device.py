@@ -152,3 +152,9 @@ def normalize(v):
     """``v / |v|`` as ``dr.normalize`` computes it (``v * rsqrt(|v|²)``), with ``rsqrt``'s
     float64 accuracy."""
     return v * rsqrt(dr.squared_norm(v))
+
+
+def unit_roundoff(double: bool) -> float:
+    """Unit roundoff of float64 (``double``) or float32: half the distance from 1 to the
+    next float."""
+    return 2.0 ** -53 if double else 2.0 ** -24

@@ -79,7 +79,7 @@ def test_exact_matches_golden(whitted_case):
 
 def test_cornell_box_exact_in_float64():
     """``whitted check cornell_box --precision float64``: every exact case passes. The
-    tie probe excuses no shadow ray blocked at its own origin (``traverse.ORIGIN_OPS``):
+    tie probe excuses no shadow ray blocked at its own origin (``query.ORIGIN_OPS``):
     with the walls tilted by an ulp (``cos 90°`` from ``np.radians``, the mutant
     ``right_angles_inexact``) 83 floor pixels went dark and this passed."""
     from evaluation.gate.verdict import check_scene
