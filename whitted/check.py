@@ -22,7 +22,7 @@ from reference import MODES
 from reference import golden as golden_store
 from renderer.accel import ACCELERATORS
 from renderer.device import PRECISIONS
-from renderer.outputs import check_output_dir, check_output_file
+from renderer.outputs import check_output_dir, check_replaceable
 from renderer.scene import SHADING_MODES
 
 from .options import EXIT, EXIT_CODE_HELP, CliError, add_backend_option, scene_arg
@@ -62,7 +62,8 @@ def add_check_options(p: argparse.ArgumentParser) -> None:
                    help="write JUnit XML, one testcase per scene/view/shading/mode")
     p.add_argument("--report", type=Path, metavar="DIR",
                    help="write the HTML report (failures first) into DIR")
-    p.add_argument("--force", action="store_true", help="replace an existing --report folder")
+    p.add_argument("--force", action="store_true", help="replace an existing --report folder, or a --json / --junit "
+                        "file that is not a report of this tool")
     p.add_argument("--quiet", action="store_true", help="print only the summary line")
 
 
@@ -84,19 +85,22 @@ def stores_for(args) -> list[Path]:
 
 def check_outputs(args) -> None:
     """Before any rendering (``renderer.outputs``'s checks): ``--report`` must not hold a
-    report unless ``--force``, and ``--json`` / ``--junit`` must be writable files (they are
-    replaced: a gate's artefacts are rewritten on every run). Raises ``OutputError``."""
+    report unless ``--force``, and ``--json`` / ``--junit`` must be writable files that are
+    missing or hold a report of this tool (a gate's artefacts are rewritten on every run;
+    any other file, e.g. a scene named by mistake, only with ``--force``; a device, pipe
+    or socket never). Raises ``CliError`` (exit 4, one line)."""
     if args.report is not None:
         out = args.report
         if out.exists() and (not out.is_dir() or any(out.iterdir())) and not args.force:
             raise CliError(f"--report {out}: exists; pass --force to replace it",
                            code=EXIT["file"])
         check_output_dir(out)
-    for flag, value in (("--json", args.json), ("--junit", args.junit)):
+    for flag, value, ours, what in (("--json", args.json, vd.is_our_json, "verdict JSON"),
+                                    ("--junit", args.junit, vd.is_our_junit, "JUnit report")):
         if value is None or value == "-":
             continue
         try:
-            check_output_file(value, overwrite=True)
+            check_replaceable(value, ours=ours, force=args.force, what=what)
         except OSError as e:
             raise CliError(f"{flag} {e}", code=EXIT["file"]) from e
 

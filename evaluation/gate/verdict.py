@@ -383,6 +383,41 @@ def write_json(verdicts, path) -> None:
                   .encode())
 
 
+#: Largest file the report sniffers read (a report of this tool is far smaller).
+_SNIFF_LIMIT = 256 << 20
+
+
+def is_our_json(path) -> bool:
+    """Whether ``path`` holds a verdict JSON as ``write_json`` writes it (an object with
+    ``exit_code``, ``counts``, ``exit_codes`` and ``verdicts``): the only file ``--json``
+    replaces without ``--force``."""
+    path = Path(path)
+    if path.stat().st_size > _SNIFF_LIMIT:
+        return False
+    try:
+        data = json.loads(path.read_bytes().decode("utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError):
+        return False
+    return (isinstance(data, dict) and {"exit_code", "counts", "exit_codes", "verdicts"}
+            <= data.keys() and isinstance(data["verdicts"], list))
+
+
+def is_our_junit(path) -> bool:
+    """Whether ``path`` holds JUnit XML as ``write_junit`` writes it (``testsuites`` whose
+    suites are named ``whitted ...``): the only file ``--junit`` replaces without
+    ``--force``."""
+    path = Path(path)
+    if path.stat().st_size > _SNIFF_LIMIT:
+        return False
+    try:
+        root = ET.fromstring(path.read_bytes())
+    except ET.ParseError:
+        return False
+    suites = root.findall("testsuite")
+    return (root.tag == "testsuites" and bool(suites)
+            and all(str(s.get("name", "")).startswith("whitted") for s in suites))
+
+
 def junit_xml(verdicts, suite: str = "whitted check") -> bytes:
     """JUnit XML: one ``testcase`` per verdict (classname ``whitted.<scene>``, name ``<view>
     <shading> <mode>``); FAIL and SIZE are ``failure``, MISSING / STALE / ERROR ``error``,
