@@ -62,8 +62,9 @@ def add_check_options(p: argparse.ArgumentParser) -> None:
                    help="write JUnit XML, one testcase per scene/view/shading/mode")
     p.add_argument("--report", type=Path, metavar="DIR",
                    help="write the HTML report (failures first) into DIR")
-    p.add_argument("--force", action="store_true", help="replace an existing --report folder, or a --json / --junit "
-                        "file that is not a report of this tool")
+    p.add_argument("--force", action="store_true",
+                   help="replace an existing --report folder, or a --json / --junit file "
+                        "that is not a report of this tool")
     p.add_argument("--quiet", action="store_true", help="print only the summary line")
 
 
