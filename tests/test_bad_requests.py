@@ -32,6 +32,16 @@ ROWS = [
      {"study.json": b'{"mine": [1, 2]}'}, 4, "study.json"),
     ("study report-only array", ["study", "--report-only", "--out", "{tmp}"],
      {"study.json": b"[1, 2]"}, 4, "study.json"),
+    ("reference size 0", ["reference", "cornell_box", "--size", "0", "--goldens", "{tmp}"],
+     {}, 2, "--size"),
+    ("reference spp -4", ["reference", "cornell_box", "--spp", "-4", "--goldens", "{tmp}"],
+     {}, 2, "--spp"),
+    ("reference batches 0", ["reference", "cornell_box", "--batches", "0", "--goldens",
+                             "{tmp}"], {}, 2, "--batches"),
+    ("hard-cases chunk 0", ["hard-cases", "--chunk", "0", "--out", "{tmp}"], {}, 2,
+     "--chunk"),
+    ("check view nope", ["check", "cornell_box", "--view", "nope", "--goldens", "{tmp}"],
+     {}, 2, "nope"),
 ]
 
 

@@ -23,7 +23,7 @@ from reference import golden as golden_store
 from renderer.accel import ACCELERATORS
 from renderer.device import PRECISIONS
 from renderer.outputs import check_output_dir, check_replaceable
-from renderer.scene import SHADING_MODES
+from renderer.scene import SHADING_MODES, SceneError, load_scene
 
 from .options import EXIT, EXIT_CODE_HELP, CliError, add_backend_option, scene_arg
 from .progress import render_view
@@ -72,6 +72,26 @@ def _views(values):
     if not values:
         return None
     return {int(v) if v.isdigit() else v for v in values}
+
+
+def check_views(scenes, views) -> None:
+    """Every ``--view`` value must name a view (index or name) of at least one of the
+    scenes, else a ``CliError`` naming it (exit 2), before anything renders. A scene file
+    that cannot be loaded is left to its own ERROR verdict."""
+    if not views:
+        return
+    found: set = set()
+    for path in scenes:
+        try:
+            cams = load_scene(path).cameras
+        except (SceneError, OSError):
+            return
+        found |= set(range(len(cams))) | {c.name for c in cams}
+    missing = [v for v in views if (int(v) if v.isdigit() else v) not in found]
+    if missing:
+        raise CliError(f"--view {missing[0]}: no such view in "
+                       + ", ".join(str(s) for s in scenes)
+                       + f" (views: {sorted(str(v) for v in found if isinstance(v, str))})")
 
 
 def stores_for(args) -> list[Path]:
@@ -129,6 +149,7 @@ def cmd_check(args: argparse.Namespace) -> int:
     out = sys.stderr if args.json == "-" else sys.stdout
     stores = stores_for(args)
     check_outputs(args)
+    check_views(args.scenes, args.views)
     if not args.quiet:
         print("goldens: " + ", ".join(golden_store._display(s) for s in stores), file=out)
 

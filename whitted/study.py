@@ -21,22 +21,8 @@ import sys
 from pathlib import Path
 
 
-def _count(minimum: int):
-    """``argparse`` type: an integer ``>= minimum`` (a bad one is a usage error naming the
-    option, exit 2)."""
-    def parse(text: str) -> int:
-        try:
-            value = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
-        if value < minimum:
-            raise argparse.ArgumentTypeError(f"expected an integer >= {minimum}, got {text!r}")
-        return value
-    parse.__name__ = "count"
-    return parse
-
-
 def add_arguments(p: argparse.ArgumentParser) -> None:
+    from evaluation import at_least
     from evaluation.study import PROFILES, SEED_SCENES
     p.add_argument("scenes", nargs="*", default=list(SEED_SCENES),
                    help="scene files, names or PATH@OFFSET (default: the seed scenes and "
@@ -48,16 +34,18 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--backend", default="llvm", choices=("llvm", "cuda"))
     p.add_argument("--shading", choices=("classic", "physical"),
                    help="shading mode (default: each scene's own)")
-    p.add_argument("--size", type=_count(1), help="image height in pixels (default: the profile's)")
-    p.add_argument("--seeds", type=_count(1), help="seeds per point (default: the profile's, 5)")
+    p.add_argument("--size", type=at_least(1),
+                   help="image height in pixels (default: the profile's)")
+    p.add_argument("--seeds", type=at_least(1),
+                   help="seeds per point (default: the profile's, 5)")
     p.add_argument("--factors", help="comma-separated factors to sweep (default: all)")
     p.add_argument("--no-grid", action="store_true", help="skip the spp x depth grid")
-    p.add_argument("--workers", type=_count(0), default=0,
+    p.add_argument("--workers", type=at_least(0), default=0,
                    help="run points on a Dask LocalCluster of N worker processes")
     p.add_argument("--scheduler", help="run points on an existing Dask scheduler (address)")
     p.add_argument("--budget-minutes", type=float,
                    help="stop taking new points after this many minutes (resume later)")
-    p.add_argument("--max-points", type=_count(1), help="stop after this many new points")
+    p.add_argument("--max-points", type=at_least(1), help="stop after this many new points")
     p.add_argument("--report-only", action="store_true",
                    help="only write markdown, plots and HTML from OUT/study.json")
     p.add_argument("--readme", type=Path,
