@@ -115,10 +115,12 @@ def configured_store(cwd=None) -> tuple[Path | None, str]:
         if not py.is_file():
             continue
         try:
-            data = tomllib.loads(py.read_text(encoding="utf-8"))
-        except (OSError, tomllib.TOMLDecodeError) as e:
-            raise GoldenError(f"{py}: cannot read [tool.whitted]: {e}") from None
-        table = data.get("tool", {}).get("whitted")
+            data = tomllib.loads(py.read_bytes().decode("utf-8"))
+        except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as e:
+            reason = " ".join(str(e).split())[:160]
+            raise GoldenError(f"{py}: cannot read [tool.whitted]: {reason}") from None
+        tool = data.get("tool", {})
+        table = tool.get("whitted") if isinstance(tool, dict) else None
         if table is None:
             return None, ""                   # the nearest pyproject.toml decides
         if not isinstance(table, dict) or not isinstance(table.get("goldens", ""), str):
@@ -272,10 +274,23 @@ def _sidecars(store: Path):
 
 
 def _read_meta(side: Path) -> dict:
+    """A golden's sidecar JSON; ``GoldenError`` (one line naming the file and key) for
+    one that cannot be read, is not UTF-8 JSON, is not an object or has a key of the
+    wrong type."""
     try:
-        return json.loads(side.read_text())
-    except (OSError, json.JSONDecodeError) as e:
-        raise GoldenError(f"{_display(side)}: unreadable golden sidecar: {e}") from None
+        meta = json.loads(side.read_bytes().decode("utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
+        reason = " ".join(str(e).split())[:160]
+        raise GoldenError(f"{_display(side)}: unreadable golden sidecar: {reason}") from None
+    if not isinstance(meta, dict):
+        raise GoldenError(f"{_display(side)}: golden sidecar: expected a JSON object, got "
+                          f"{type(meta).__name__}")
+    for key, kind in (("content_key", str), ("inputs", dict)):
+        if key in meta and not isinstance(meta[key], kind):
+            raise GoldenError(f"{_display(side)}: golden sidecar key {key!r}: expected "
+                              f"{'a string' if kind is str else 'an object'}, got "
+                              f"{type(meta[key]).__name__}")
+    return meta
 
 
 def _load(exr: Path, meta: dict) -> Golden:

@@ -63,3 +63,58 @@ def test_bad_request_is_one_line(argv, plant, code, needle, tmp_path, capsys):
     for name, data in plant.items():
         assert (tmp_path / name).read_bytes() == data
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted(plant)
+
+
+GOLDEN = ROOT / "reference" / "goldens" / "analytic_quad" / "grazing_classic_exact"
+PNG_BYTES = b"\x89PNG\r\n\x1a\n" + b"\x00" * 64
+
+#: (name, what replaces the golden's EXR or sidecar JSON, or a pyproject.toml above the
+#: folder check runs in); each must be one error line naming the file, exit 4.
+BAD_STORES = [
+    ("exr truncated", "exr", lambda b: b[:40]),
+    ("exr empty", "exr", lambda b: b""),
+    ("exr garbage", "exr", lambda b: b"garbage" * 30),
+    ("exr is a png", "exr", lambda b: PNG_BYTES),
+    ("exr mode 000", "exr", None),
+    ("json not utf8", "json", lambda b: b"\xff\xfe\x00{"),
+    ("json array", "json", lambda b: b"[1, 2, 3]"),
+    ("json wrong types", "json", lambda b: b'{"content_key": 7, "inputs": []}'),
+    ("json inputs not object", "json",
+     lambda b: b.replace(b'"inputs": {', b'"inputs": 3, "x": {', 1)),
+    ("pyproject binary", "pyproject", lambda b: b"\xff\xfe\x00\x81binary"),
+]
+
+
+@pytest.mark.parametrize("kind,damage", [r[1:] for r in BAD_STORES],
+                         ids=[r[0].replace(" ", "-") for r in BAD_STORES])
+def test_bad_golden_store_is_one_line(kind, damage, tmp_path, capsys, monkeypatch):
+    import os
+    store = tmp_path / "store"
+    (store / "analytic_quad").mkdir(parents=True)
+    for ext in ("exr", "json"):
+        src = GOLDEN.with_suffix(f".{ext}")
+        (store / "analytic_quad" / src.name).write_bytes(src.read_bytes())
+    target = store / "analytic_quad" / f"{GOLDEN.name}.{kind}"
+    argv = ["check", str(ROOT / "scenes" / "analytic_quad.toml"), "--view", "grazing",
+            "--shadings", "classic", "--modes", "exact"]
+    if kind == "pyproject":
+        (tmp_path / "pyproject.toml").write_bytes(damage(b""))
+        work = tmp_path / "work"
+        work.mkdir()
+        monkeypatch.chdir(work)
+        monkeypatch.delenv("WHITTED_GOLDENS", raising=False)
+    else:
+        argv += ["--goldens", str(store)]
+        if damage is None:
+            if os.geteuid() == 0:
+                pytest.skip("root reads a mode-000 file")
+            target.chmod(0)
+        else:
+            target.write_bytes(damage(target.read_bytes()))
+    code = main(argv)
+    err = capsys.readouterr()
+    text = err.out + err.err
+    assert "Traceback" not in text
+    assert code == 4, text
+    name = "pyproject.toml" if kind == "pyproject" else target.name
+    assert name in text
