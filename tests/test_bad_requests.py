@@ -118,3 +118,29 @@ def test_bad_golden_store_is_one_line(kind, damage, tmp_path, capsys, monkeypatc
     assert code == 4, text
     name = "pyproject.toml" if kind == "pyproject" else target.name
     assert name in text
+
+
+#: (name, a [check.<mode>] table appended to a copy of analytic_quad.toml, the field the
+#: error line must name); each is exit 2 with one line, before any render.
+BAD_CHECK_TABLES = [
+    ("batches 0", "[check.converged]\nbatches = 0\n", "check.converged.batches"),
+    ("batches 1.5", "[check.converged]\nbatches = 1.5\n", "check.converged.batches"),
+    ("alpha 2", "[check.converged]\nalpha = 2\n", "check.converged.alpha"),
+    ("alpha 0", "[check.converged]\nalpha = 0.0\n", "check.converged.alpha"),
+    ("var_floor text", '[check.converged]\nvar_floor = "big"\n', "check.converged.var_floor"),
+    ("max_rel negative", "[check.exact]\nmax_rel = -1.0\n", "check.exact.max_rel"),
+]
+
+
+@pytest.mark.parametrize("table,field", [r[1:] for r in BAD_CHECK_TABLES],
+                         ids=[r[0].replace(" ", "-") for r in BAD_CHECK_TABLES])
+def test_bad_check_threshold_is_one_line(table, field, tmp_path, capsys):
+    scene = tmp_path / "analytic_quad.toml"
+    scene.write_text((ROOT / "scenes" / "analytic_quad.toml").read_text() + "\n" + table)
+    mode = field.split(".")[1]
+    code = main(["check", str(scene), "--modes", mode, "--goldens", str(tmp_path / "g")])
+    out = capsys.readouterr()
+    text = out.out + out.err
+    assert "Traceback" not in text
+    assert code in (2, 4), text
+    assert field in text and scene.name in text

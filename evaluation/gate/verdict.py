@@ -111,15 +111,32 @@ def _unknown(scene, where: str, name: str, valid) -> SceneError:
                       f"{', '.join(valid)}){hint}")
 
 
+#: The values a threshold may take: name -> (test, what it must be). Any other name: a
+#: number >= 0.
+_RANGES = {
+    "alpha": (lambda v: 0 < v < 1, "a probability strictly between 0 and 1"),
+    "batches": (lambda v: isinstance(v, int) and v >= 2,
+                "an integer >= 2 (the t-test needs a variance of ours)"),
+}
+
+
+def _check_range(scene, where: str, name: str, value) -> None:
+    test, what = _RANGES.get(name, (lambda v: v >= 0, "a number >= 0"))
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not test(value):
+        raise SceneError(f"{scene.path}: {where}: expected {what}, got {value!r}")
+
+
 def thresholds_for(scene, mode: str) -> dict[str, Threshold]:
     """The thresholds of ``mode`` for ``scene``: ``evaluation.gate.rules.THRESHOLDS[mode]`` with the
     scene file's ``[check.<mode>]`` values in place of the defaults they name. Raises
-    ``SceneError`` (file and field) for a name the rule does not have."""
+    ``SceneError`` (file and field) for a name the rule does not have or a value out of its
+    range (``_RANGES``)."""
     out = dict(THRESHOLDS[mode])
     reason = scene.check.get("reason", "")
     for name, value in scene.check.get(mode, {}).items():
         if name not in out:
             raise _unknown(scene, f"check.{mode}", name, out)
+        _check_range(scene, f"check.{mode}.{name}", name, value)
         why = f"set in {Path(scene.path).name} [check.{mode}]" + (f": {reason}" if reason
                                                                   else "")
         out[name] = Threshold(value, why)
