@@ -81,6 +81,11 @@ class Renderer:
           (``renderer.accel.traverse.tie_probe``): "lowest" original face index (default;
           the renderer's) or "other" (a probe: the golden tests render both and excuse a
           pixel only where they differ).
+      build: how the BVH is built, "sah" | "device" | "auto" (default None: the scene's
+          ``settings.build``; ``renderer.accel.builders``); cache: a
+          ``renderer.accel.cache.TreeCache`` for built trees (default None: none); frames:
+          how many frames the caller renders (default None: unknown), for "auto";
+          build_progress: None, or ``build_progress(build, levels_done)`` during a build.
 
     The settings are checked by ``validate_settings`` (SceneError, a ValueError, names the
     field). ``arrays`` (SceneArrays) holds the uploaded scene, ``frame_fn`` the (frozen)
@@ -91,7 +96,8 @@ class Renderer:
                  accel: str | None = None, intersection: str = DEFAULT_ROUTINE,
                  effects: EffectSet | None = None, spp: int | None = None,
                  exact: bool | None = None, freeze: bool = False, tie_break: str = "lowest",
-                 tie_window: float = 0.0, tie_slack: float = 0.0):
+                 tie_window: float = 0.0, tie_slack: float = 0.0, build: str | None = None,
+                 cache=None, frames: int | None = None, build_progress=None):
         if not scene.cameras:
             raise ValueError(f"scene {scene.name!r}: cameras: at least one camera is required")
         s = scene.with_overrides(spp=spp, exact=exact).settings
@@ -109,7 +115,9 @@ class Renderer:
         t0 = time.perf_counter()
         acc = build_accelerator(accel, scene, t, intersection=intersection,
                                 tie_break=tie_break, tie_window=tie_window,
-                                tie_slack=tie_slack)
+                                tie_slack=tie_slack,
+                                build=s.build if build is None else build, cache=cache,
+                                frames=frames, progress=build_progress)
         self.arrays = SceneArrays(
             accel=acc, materials=upload_materials(scene, t), lights=upload_lights(scene, t),
             ambient=array3(t, scene.ambient), background=array3(t, s.background))

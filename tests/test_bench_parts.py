@@ -16,9 +16,9 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def test_parts_have_unique_names_and_keys_in_study_order():
-    assert list(PARTS) == ["throughput", "seed", "whitted", "peer", "effects"]
+    assert list(PARTS) == ["throughput", "seed", "whitted", "peer", "effects", "build"]
     assert [p.key for p in PARTS.values()] == ["throughput", "seed_table", "whitted", "peer",
-                                               "effects"]
+                                               "effects", "build"]
     assert all(name == p.name for name, p in PARTS.items())
 
 
@@ -26,6 +26,13 @@ def test_parts_have_unique_names_and_keys_in_study_order():
                          ids=lambda p: p.parent.name)
 def test_stored_results_render_to_the_stored_markdown(stored):
     assert markdown(json.loads(stored.read_text())) == stored.with_suffix(".md").read_text()
+
+
+def test_build_part_renders_its_stored_rows():
+    from evaluation.bench.build import markdown as build_markdown
+    rows = json.loads((ROOT / "results/cpu/build/bench-llvm.json").read_text())["build"]
+    text = "\n".join(build_markdown(rows))
+    assert "Time to first image" in text and all(r["scene"] in text for r in rows)
 
 
 def test_unknown_part_is_refused_before_anything_runs(tmp_path):

@@ -31,7 +31,14 @@ from renderer.outputs import check_output_dir
 from renderer.render import Renderer
 from renderer.stats import format_operations
 
-from .options import EXIT, CliError, add_scene_options, effects_for_cli, load_for_cli
+from .options import (
+    EXIT,
+    CliError,
+    add_scene_options,
+    cache_for_cli,
+    effects_for_cli,
+    load_for_cli,
+)
 from .progress import render_view
 
 
@@ -119,15 +126,18 @@ def cmd_compare(args: argparse.Namespace) -> int:
     print(f"effects: {effects}")
 
     # one upload / accelerator build for every view
+    cache = cache_for_cli(args)
     renderer = Renderer(scene, backend=args.backend, precision=args.precision,
-                        accel=args.accel, intersection=args.intersection, effects=effects)
+                        accel=args.accel, intersection=args.intersection, effects=effects,
+                        build=args.build, cache=cache, frames=len(views))
     stores = golden.search_stores(args.goldens)
     th = vd.thresholds_for(scene, "exact")
     # the tie probe (exact mode): the same scene with the other tie-break, for the tie mask
     d = float(th["tie_slack"].value) * scene.diagonal
     probe = Renderer(scene, backend=args.backend, precision=args.precision,
                      accel=args.accel, intersection=args.intersection, effects=effects,
-                     tie_break="other", tie_window=d, tie_slack=d) if s.exact else None
+                     tie_break="other", tie_window=d, tie_slack=d, build=args.build,
+                     cache=cache, frames=len(views)) if s.exact else None
     entries, verdicts = [], []
     for v in views:
         cam = scene.cameras[v]

@@ -8,6 +8,7 @@ thread ends at the next band.
 """
 from __future__ import annotations
 
+import contextlib
 import sys
 import threading
 import time
@@ -51,6 +52,31 @@ def bar(total: int, label: str, *, unit: str = "row", file=None):
         return tqdm(total=total, desc=label, unit=unit, file=file, leave=False,
                     dynamic_ncols=True)
     return _PlainBar(total, label, file)
+
+
+@contextlib.contextmanager
+def build_bar(scene, min_triangles: int = 100_000):
+    """A bar over the levels of a BVH build (at most ``MAX_LEVELS``) for scenes of at least
+    ``min_triangles`` triangles; yields the ``build_progress`` callback (None for smaller
+    scenes, whose build is quick)."""
+    from renderer.accel.bvh_build import MAX_LEVELS
+    if scene.face_count < min_triangles:
+        yield None
+        return
+    state = {}
+
+    def step(build: str, levels: int) -> None:
+        if "bar" not in state:
+            state["bar"] = bar(MAX_LEVELS, f"{scene.name}: {build} BVH build", unit="level")
+            state["n"] = 0
+        if levels > state["n"]:
+            state["bar"].update(levels - state["n"])
+            state["n"] = levels
+    try:
+        yield step
+    finally:
+        if "bar" in state:
+            state["bar"].close()
 
 
 def render_view(renderer, view: int, label: str) -> dict:

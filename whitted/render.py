@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+import time
 from pathlib import Path
 
 from renderer.film import write_exr, write_png
@@ -19,8 +20,14 @@ from renderer.outputs import check_output_file
 from renderer.render import Renderer
 from renderer.stats import format_operations
 
-from .options import CliError, add_scene_options, effects_for_cli, load_for_cli
-from .progress import render_view
+from .options import (
+    CliError,
+    add_scene_options,
+    cache_for_cli,
+    effects_for_cli,
+    load_for_cli,
+)
+from .progress import build_bar, render_view
 
 #: ``--out`` suffixes that name one output file, and what writes them.
 FILE_SUFFIXES = {".exr": "EXR image", ".png": "sRGB PNG image", ".gif": "orbit GIF"}
@@ -90,7 +97,11 @@ def output_files(scene, views: list[int], out: Path, orbit: bool) -> list[dict]:
 
 
 def cmd_render(args: argparse.Namespace) -> int:
+    from . import STARTED
+    t_imports = time.perf_counter() - STARTED
+    t_load = time.perf_counter()
     scene, views = load_for_cli(args)
+    t_load = time.perf_counter() - t_load
     effects = effects_for_cli(scene, args)
     files = output_files(scene, views, Path(args.out), bool(args.orbit))
     refuse_existing((p for f in files for p in f.values()), args.overwrite)
@@ -108,8 +119,17 @@ def cmd_render(args: argparse.Namespace) -> int:
     if args.orbit:
         return render_orbit_views(scene, views, effects, args, files)
     # one upload / accelerator build for every view
-    renderer = Renderer(scene, backend=args.backend, precision=args.precision,
-                        accel=args.accel, intersection=args.intersection, effects=effects)
+    with build_bar(scene) as step:
+        renderer = Renderer(scene, backend=args.backend, precision=args.precision,
+                            accel=args.accel, intersection=args.intersection,
+                            effects=effects, build=args.build, cache=cache_for_cli(args),
+                            frames=len(views), build_progress=step)
+    info = renderer.arrays.accel.stats()
+    if "tree_build" in info:
+        print(f"bvh: {info['tree_build']} tree of {scene.face_count} triangles "
+              f"{'read from the cache' if info['tree_cached'] else 'built'} in "
+              f"{info['tree_seconds']:.2f} s")
+    first = None
     for v, f in zip(views, files):
         cam = scene.cameras[v]
         ks = render_view(renderer, v, f"{scene.name}/{cam.name}")
@@ -124,6 +144,11 @@ def cmd_render(args: argparse.Namespace) -> int:
               f"{', '.join(map(str, f.values()))}")
         if "operations" in ks:
             print(f"    kernels: {format_operations(ks)}, {ks['kernel_ms']:.2f} ms kernel time")
+        first = first if first is not None else time.perf_counter() - STARTED
+    tree = float(info.get("tree_seconds", 0.0))
+    print(f"timing: imports {t_imports:.2f} s, load {t_load:.2f} s, tree {tree:.2f} s, "
+          f"upload {renderer.upload_seconds - tree:.2f} s, first image at {first:.2f} s "
+          "since the command's imports began")
     return 0
 
 
@@ -132,7 +157,8 @@ def render_orbit_views(scene, views, effects, args: argparse.Namespace, files) -
     frame function (renderer/orbit.py) → an animated GIF (and MP4 when imageio has ffmpeg)."""
     for v, f in zip(views, files):
         cam = scene.cameras[v]
-        res = render_orbit(scene, args.orbit, view=v, backend=args.backend,
+        sc = scene if args.build is None else scene.with_settings(build=args.build)
+        res = render_orbit(sc, args.orbit, view=v, backend=args.backend,
                            precision=args.precision, accel=args.accel,
                            intersection=args.intersection, effects=effects)
         write_gif(f["gif"], res.frames, fps=PLAYBACK_FPS, overwrite=args.overwrite)

@@ -19,6 +19,8 @@ a module of this package:
   Mitsuba peer (``reference.peer``: one kernel, frozen) at equal depth, 512² and 1024², with
   the depth at which the peer's unrolled tree stops compiling (probed in subprocesses).
 - ``effects`` (``effects.py``): the scene's specialised kernel vs the all-effects kernel.
+- ``build`` (``build.py``): the device BVH build vs the host SAH build vs Mitsuba's scene
+  build, the two trees' SAH cost and frames, and a process's time to its first image.
 
 A new part is one module defining ``PART = Part(name, key, run, markdown)`` (``part.py``)
 and one entry in ``PARTS`` below.
@@ -34,14 +36,15 @@ from pathlib import Path
 
 from renderer.outputs import check_output_file
 
-from . import effects, peer, seed_table, throughput, whitted_frame
+from . import build, effects, peer, seed_table, throughput, whitted_frame
 from .part import Context, Part, jsonable, write_atomic
 
 __all__ = ["PARTS", "Context", "NothingMeasured", "Part", "device_info", "markdown", "run"]
 
 #: The study's parts by name, in the order they run and appear in the markdown.
 PARTS: dict[str, Part] = {p.name: p for p in (throughput.PART, seed_table.PART,
-                                               whitted_frame.PART, peer.PART, effects.PART)}
+                                               whitted_frame.PART, peer.PART, effects.PART,
+                                               build.PART)}
 
 
 class NothingMeasured(Exception):

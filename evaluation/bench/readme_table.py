@@ -6,7 +6,8 @@
 The rows are data: ``readme_table.toml`` in the results folder (``--results``, default
 ``results``) lists them in order, each with its name, its peer, the ``kind`` of reading
 (``READERS``: ``throughput``, the best of our accelerators over Mitsuba's rate per batch
-and query; ``peer``, the Whitted frame against the fair Mitsuba peer) and the result file
+and query; ``peer``, the Whitted frame against the fair Mitsuba peer; ``first_image``, the
+``build`` part's time to the first image) and the result file
 it reads (the JSON that ``whitted bench`` or ``evaluation.bench.throughput_run`` writes).
 A row whose file is empty, absent or of a kind with no reader says "not measured". The
 caption names the device and date of every file read.
@@ -142,8 +143,21 @@ def read_peer(result: dict) -> Cell:
                 result["device"].get("device", "?"), _date(result))
 
 
+def read_first_image(result: dict) -> Cell:
+    """The ``build`` part's process times of its largest scene: a ``whitted render``
+    process from start to exit with the SAH build and no cache, with ``--build auto`` and
+    an empty cache, and from the cache."""
+    r = max(result["build"], key=lambda row: row["triangles"])
+    text = (f"{r['process_cold_s']:.1f} s cold, {r['process_cached_s']:.1f} s cached "
+            f"(SAH build, no cache: {r['process_sah_nocache_s']:.1f} s)")
+    return Cell(text, f"`whitted render {r['scene']}` ({r['triangles']:,} triangles) at "
+                f"{r['process_size']}², one process, start to exit",
+                result["device"].get("device", "?"), _date(result))
+
+
 #: How a row's file is read, by the row's ``kind``.
-READERS: dict[str, Callable[[dict], Cell]] = {"throughput": read_throughput, "peer": read_peer}
+READERS: dict[str, Callable[[dict], Cell]] = {"throughput": read_throughput, "peer": read_peer,
+                                              "first_image": read_first_image}
 
 #: The rows' file inside the results folder.
 ROWS_FILE = "readme_table.toml"

@@ -44,6 +44,7 @@ from ..device import Types
 from .base import Accelerator, ClosestHit, DeviceTriangles, Ray
 from .boxes import ObjectBoxes
 from .brute import BruteForce
+from .builders import BUILDS, binary_tree, check_build
 from .bvh import BVH
 from .traverse import TIE_BREAKS
 from .triangle import DEFAULT_ROUTINE, ROUTINES, triangle_routine
@@ -61,8 +62,9 @@ ACCELERATORS = {"brute": BruteForce, "boxes": ObjectBoxes, "bvh": BVH, "bvh4": B
 #: 8-wide BVH 0.69-1.12x.
 DEFAULT_ACCELS = {"cuda": "bvh", "llvm": "bvh4"}
 
-__all__ = ["ACCELERATORS", "BVH", "BVH4", "BVH8", "DEFAULT_ACCELS", "DEFAULT_ROUTINE", "ROUTINES",
-           "TIE_BREAKS", "Accelerator", "BruteForce", "ClosestHit", "DeviceTriangles",
+__all__ = ["ACCELERATORS", "BUILDS", "BVH", "BVH4", "BVH8", "DEFAULT_ACCELS", "DEFAULT_ROUTINE",
+           "ROUTINES", "TIE_BREAKS", "TREE_ACCELS", "Accelerator", "BruteForce", "ClosestHit",
+           "DeviceTriangles",
            "ObjectBoxes", "Ray", "WideBVH", "build_accelerator", "default_accel",
            "triangle_routine"]
 
@@ -74,14 +76,23 @@ def default_accel(backend: str) -> str:
     return DEFAULT_ACCELS[backend]
 
 
+#: The accelerators built over ``bvh_build``'s binary tree (``builders.binary_tree``).
+TREE_ACCELS = ("bvh", "bvh4", "bvh8")
+
+
 def build_accelerator(name: str, scene, t: Types, *, intersection: str = DEFAULT_ROUTINE,
                       tie_break: str = "lowest", tie_window: float = 0.0,
-                      tie_slack: float = 0.0) -> Accelerator:
+                      tie_slack: float = 0.0, build: str = "sah", cache=None,
+                      frames: int | None = None, progress=None) -> Accelerator:
     """Build the accelerator ``name`` (a key of ``ACCELERATORS``) for ``scene`` with the
     triangle routine ``intersection`` (a key of ``ROUTINES``). ``tie_break`` (a value of
     ``TIE_BREAKS``), ``tie_window`` and ``tie_slack`` (world-space distances) choose the
     closest hit among near-equal ones (``traverse.tie_probe``); the default, "lowest", is
-    the renderer's (window and slack unused)."""
+    the renderer's (window and slack unused). ``build`` (``builders.BUILDS``), ``cache`` (a
+    ``cache.TreeCache`` or None) and ``frames`` (frames the caller renders, None: unknown)
+    choose how the tree of a ``TREE_ACCELS`` accelerator is got (``builders.binary_tree``,
+    which calls ``progress(build, levels_done)`` during a build);
+    ``acc.info`` then names it (``tree_build``, ``tree_cached``, ``tree_seconds``)."""
     if name not in ACCELERATORS:
         raise ValueError(f"accel: expected one of {sorted(ACCELERATORS)}, got {name!r}")
     if tie_break not in TIE_BREAKS:
@@ -91,7 +102,15 @@ def build_accelerator(name: str, scene, t: Types, *, intersection: str = DEFAULT
     if not tie_slack >= 0.0:
         raise ValueError(f"tie_slack: expected a distance >= 0, got {tie_slack!r}")
     triangle_routine(intersection)
-    acc = ACCELERATORS[name].build(scene, t, intersection=intersection)
+    check_build(build)
+    if name in TREE_ACCELS:
+        tree, how = binary_tree(scene, t.backend, build=build, cache=cache, frames=frames,
+                                progress=progress)
+        acc = ACCELERATORS[name].build(scene, t, intersection=intersection, binary=tree)
+        acc.info.update(tree_build=how.build, tree_cached=how.cached,
+                        tree_seconds=how.seconds)
+    else:
+        acc = ACCELERATORS[name].build(scene, t, intersection=intersection)
     if tie_break == "lowest":
         return acc
     return replace(acc, tie_break=tie_break, tie_window=float(tie_window),

@@ -257,7 +257,7 @@ def build_bvh(vertices: np.ndarray, faces: np.ndarray, *, leaf_size: int = LEAF_
               bins: int = BINS, root_bins: int = BINS, all_axes: bool = True,
               sah_leaves: bool = False, depth_first: bool = True,
               sample: int = SAMPLE, spatial: float = SPATIAL,
-              optimize: int = OPTIMIZE) -> BVHArrays:
+              optimize: int = OPTIMIZE, progress=None) -> BVHArrays:
     """Build a BVH over the triangles ``faces`` (int (F, 3)) of ``vertices`` (float (V, 3)).
 
     leaf_size: most triangles per leaf (1..16); a node with more is always split.
@@ -277,6 +277,8 @@ def build_bvh(vertices: np.ndarray, faces: np.ndarray, *, leaf_size: int = LEAF_
         ``SPATIAL_MIN_TRIANGLES`` triangles (the default); 0: object splits only.
     optimize: rounds of insertion-based optimisation after the build
         (``renderer.accel.optimize.reinsert``; default ``OPTIMIZE``); 0: none.
+    progress: None, or called as ``progress(levels_done)`` after each level of the build
+        (and once more, ``MAX_LEVELS``, when the build is done but the optimisation).
     A node whose centroids coincide, or one too deep to finish with SAH splits inside
     MAX_LEVELS levels, is split at the median instead.
     """
@@ -331,6 +333,8 @@ def build_bvh(vertices: np.ndarray, faces: np.ndarray, *, leaf_size: int = LEAF_
             _leaf_or_split(lv, tree, opt)
             _partition(lv)
             lv = _emit_children(lv, tree, opt)
+            if progress is not None:
+                progress(lv.depth)
 
     boxes, children = tree.boxes[:tree.n_nodes], tree.children[:tree.n_nodes]
     if depth_first and F > leaf_size:
@@ -342,6 +346,8 @@ def build_bvh(vertices: np.ndarray, faces: np.ndarray, *, leaf_size: int = LEAF_
     arrays = BVHArrays(boxes.copy(), children.copy(), order, tree.levels,
                        tree.leaf_count, 0.0, 0.0, bounds, cells)
     arrays.sah_cost = _sah_cost(arrays)
+    if progress is not None:
+        progress(MAX_LEVELS)
     if optimize > 0 and F > leaf_size:
         from .optimize import reinsert
         arrays = reinsert(arrays, rounds=optimize)

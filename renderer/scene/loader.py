@@ -25,6 +25,7 @@ from .model import (
     FALLOFFS,
     SHADING_MODES,
     SPAWN_RULES,
+    TREE_BUILDS,
     Camera,
     Material,
     ObjectInfo,
@@ -41,7 +42,7 @@ _TOP_KEYS = ("description", "camera", "views", "render", "ambient", "lights", "m
              "objects", "physical", "check")
 _VIEW_KEYS = ("name", "position", "target", "up", "fov_y", "resolution")
 _RENDER_KEYS = ("max_depth", "spp", "exact", "shading", "background", "min_weight",
-                "ray_epsilon", "seed", "spawn")
+                "ray_epsilon", "seed", "spawn", "build")
 _LIGHT_KEYS = ("name", "position", "intensity", "falloff")
 _MATERIAL_KEYS = ("ka", "kd", "ks", "n", "k_refl", "k_refr", "ior", "combination")
 _OBJECT_KEYS = ("name", "material", "mesh", "shape", "translate", "rotate", "scale",
@@ -150,7 +151,7 @@ def _describe(value) -> str:
     return f"{kind} {text if len(text) <= 40 else text[:37] + '...'}"
 
 
-def load_scene(path, *, shading: str | None = None) -> Scene:
+def load_scene(path, *, shading: str | None = None, cache=None) -> Scene:
     """Read and validate a scene file (TOML; format in docs/scene-format.md).
 
     path: the ``.toml`` file; mesh paths inside it are relative to its folder.
@@ -158,6 +159,9 @@ def load_scene(path, *, shading: str | None = None) -> Scene:
         ``[physical]`` table applies (``light_scale`` multiplies every light's intensity,
         ``ambient`` / ``background`` replace the scene's), and lights default to
         inverse-square falloff (an explicit ``falloff = "none"`` is an error).
+    cache: a ``renderer.accel.cache.TreeCache`` (None: none) for the slow arrays of the
+        load, keyed by their input arrays and the loader's code: subdivided meshes and
+        each object's compacted vertices and averaged normals.
 
     Raises ``SceneError`` (file, dotted field, what was expected) for any malformed input.
     Zero-area triangles are dropped with a warning.
@@ -180,10 +184,11 @@ def load_scene(path, *, shading: str | None = None) -> Scene:
             raise SceneError(f"{r.path}: {e}", field=e.field) from None
     lights = _read_lights(r, data, settings.shading, look.light_scale)
     materials = _read_materials(r, data)
-    objects, sources = _read_objects(r, data, {m.name: i for i, m in enumerate(materials)})
+    objects, sources = _read_objects(r, data, {m.name: i for i, m in enumerate(materials)},
+                                     cache)
     check = _read_check(r, data)
     scene = _assemble(r, objects, cameras, settings, lights, materials, look.ambient,
-                      [path.resolve(), *sources])
+                      [path.resolve(), *sources], cache)
     return replace(scene, check=check)
 
 
@@ -227,6 +232,7 @@ def _read_render(r: _Reader, data: dict, shading: str | None) -> Settings:
                      if "ray_epsilon" in rt else None),
         seed=r.integer(rt.get("seed", 0), "render.seed", lo=0),
         spawn=spawn,
+        build=r.string(rt.get("build", "auto"), "render.build", TREE_BUILDS),
     )
 
 
@@ -371,7 +377,7 @@ class _Part:
     faces: np.ndarray
 
 
-def _read_objects(r: _Reader, data: dict, material_index: dict[str, int]
+def _read_objects(r: _Reader, data: dict, material_index: dict[str, int], cache=None
                   ) -> tuple[list[_Part], list[Path]]:
     """Every object, transformed to world space, and the mesh files read."""
     parts, names, sources = [], set(), []
@@ -394,8 +400,9 @@ def _read_objects(r: _Reader, data: dict, material_index: dict[str, int]
             levels = r.integer(ot["subdivide"], f"{where}.subdivide", lo=0)
             if levels > 4:
                 raise r.error(f"{where}.subdivide", f"expected 0..4 levels, got {levels}")
-            verts, faces = subdivide_midpoint(verts, faces, levels)
-            faces = faces.astype(np.int64)
+            out = _cached(cache, "mesh", (verts, faces, levels), lambda v=verts, f=faces,
+                          n=levels: dict(zip(("v", "f"), subdivide_midpoint(v, f, n))))
+            verts, faces = out["v"], out["f"].astype(np.int64)
         name = r.string(ot.get("name", f"{default_name}{i}"), f"{where}.name")
         if name in names:
             raise r.error(f"{where}.name", f"duplicate object name {name!r}")
@@ -535,8 +542,41 @@ def _transform(r: _Reader, ot: dict, where: str) -> np.ndarray:
     return m
 
 
+def _cached(cache, kind: str, inputs: tuple, fn) -> dict:
+    """``fn()`` (a dict of arrays and an optional JSON-able ``meta``), through ``cache``
+    (None: ``fn()``) under a key of ``inputs`` and the loader's code."""
+    if cache is None:
+        return fn()
+    from ..accel.cache import code_version, content_key
+    key = content_key(kind, *inputs, code_version(("scene/loader.py", "scene/subdivide.py")))
+    got = cache.get(kind, key)
+    if got is not None:
+        return got
+    out = fn()
+    cache.put(kind, key, {k: v for k, v in out.items() if k != "meta"}, out.get("meta"))
+    return out
+
+
+def _part_arrays(world: np.ndarray, faces: np.ndarray) -> dict:
+    """One object's arrays: ``keep`` (faces of nonzero area), ``faces`` (those faces over
+    the compacted vertices), ``verts`` and their averaged ``normals``."""
+    # Zero-area test on the float32 positions the renderer will see (float64 arithmetic).
+    p = world.astype(np.float32).astype(np.float64)
+    cross = np.cross(p[faces[:, 1]] - p[faces[:, 0]], p[faces[:, 2]] - p[faces[:, 0]])
+    area2 = np.linalg.norm(cross, axis=1)
+    keep = area2 > 0
+    faces, cross, area2 = faces[keep], cross[keep], area2[keep]
+    if len(faces) == 0:
+        return {"keep": keep, "faces": faces, "verts": world[:0], "normals": world[:0]}
+    used, faces = np.unique(faces, return_inverse=True)   # compact to used vertices
+    faces = faces.reshape(-1, 3)
+    verts = world[used]
+    return {"keep": keep, "faces": faces, "verts": verts,
+            "normals": _vertex_normals(verts, faces, cross / area2[:, None])}
+
+
 def _assemble(r: _Reader, parts: list[_Part], cameras, settings, lights, materials, ambient,
-              sources) -> Scene:
+              sources, cache=None) -> Scene:
     """The flat scene arrays: zero-area triangles dropped, vertices compacted per object,
     vertex normals averaged."""
     objects, all_v, all_n, all_f, f_mat, f_obj = [], [], [], [], [], []
@@ -545,23 +585,17 @@ def _assemble(r: _Reader, parts: list[_Part], cameras, settings, lights, materia
         name, kind, mat, smooth, world, faces = (part.name, part.kind, part.material,
                                                  part.smooth, part.world, part.faces)
         where = f"objects[{k}]"
-        # Zero-area test on the float32 positions the renderer will see (float64 arithmetic).
-        p = world.astype(np.float32).astype(np.float64)
-        cross = np.cross(p[faces[:, 1]] - p[faces[:, 0]], p[faces[:, 2]] - p[faces[:, 0]])
-        area2 = np.linalg.norm(cross, axis=1)
-        keep = area2 > 0
+        arr = _cached(cache, "object", (world, faces), lambda w=world, f=faces:
+                      _part_arrays(w, f))
+        keep = arr["keep"]
         dropped = int((~keep).sum())
         if dropped:
             warnings.warn(f"{r.path}: {where} ({name!r}): dropped {dropped} zero-area "
                           f"triangle{'s' if dropped > 1 else ''} of {len(faces)}", stacklevel=3)
-        faces, cross, area2 = faces[keep], cross[keep], area2[keep]
-        if len(faces) == 0:
+        if len(arr["faces"]) == 0:
             raise r.error(where, f"object {name!r} has no triangles left (all zero-area or "
                                  "empty mesh)")
-        used, faces = np.unique(faces, return_inverse=True)   # compact to used vertices
-        faces = faces.reshape(-1, 3)
-        verts = world[used]
-        normals = _vertex_normals(verts, faces, cross / area2[:, None])
+        faces, verts, normals = arr["faces"], arr["verts"], arr["normals"]
         objects.append(ObjectInfo(name=name, kind=kind, material=mat, first_face=f_base,
                                   face_count=len(faces), first_vertex=v_base,
                                   vertex_count=len(verts), smooth=smooth))

@@ -27,6 +27,8 @@ SHADING_MODES = ("classic", "physical")
 #: ``spawn_ray`` / ``spawn_ray_to``, so a comparison with a Mitsuba golden traces the same
 #: rays; ``whitted check`` renders with the rule its golden records).
 SPAWN_RULES = ("scale-free", "mitsuba")
+#: How the BVH is built (``[render] build``; ``renderer.accel.builders``).
+TREE_BUILDS = ("sah", "device", "auto")
 #: Shadow-terminator treatments of smooth (interpolated-normal) faces (docs/MODEL.md,
 #: "Ray offsets"): "none" (the default, as Mitsuba 3: shadow rays leave the flat triangle)
 #: and "hanika" (Hanika 2021, "Hacking the shadow terminator": a shadow ray starts from the
@@ -229,6 +231,8 @@ class Settings:
     terminator: one of TERMINATOR_FIXES, the shadow-terminator treatment of smooth faces
         ("none", the default; "hanika": shadow rays from the lifted hit point). Set in code
         (``Scene.with_settings``); scene files do not read it.
+    build: one of TREE_BUILDS, how the BVH is built ("auto", the default:
+        ``renderer.accel.builders.resolve_build``).
     """
 
     max_depth: int = 5
@@ -241,6 +245,7 @@ class Settings:
     seed: int = 0
     spawn: str = "scale-free"
     terminator: str = "none"
+    build: str = "auto"
 
     def __post_init__(self):
         validate_settings(spawn=self.spawn)

@@ -1,0 +1,217 @@
+"""Part ``build``: how fast the BVH is built, how good the tree is, and how soon the first
+image comes.
+
+Per scene (``SCENES``; quick: ``QUICK_SCENES``), in one process on the same triangles:
+
+- the device build (``renderer.accel.device_build``, the backend's Dr.Jit) after one
+  warm-up build (kernel compilation), median of ``REPEATS``: seconds, M triangles/s;
+- the host SAH build (``bvh_build.build_bvh``, one build): seconds, M triangles/s;
+- Mitsuba's own scene build (``reference.mitsuba_scene.load_triangles``: OptiX on CUDA,
+  Embree on the CPU, forced by a first trace: ``_mitsuba_build``), first and second build;
+- the SAH cost of both trees, and a Whitted frame (the scene's first view at
+  ``Context.frame_size``², the backend's accelerator, frozen: median kernel ms) over each,
+  with whether the two images are bitwise equal;
+- the process start-to-first-image: ``whitted render SCENE --size N×N`` (``PROCESS_SIZE``)
+  with the SAH build and no cache (the tool before the device build and the cache), with
+  ``--build auto`` and an empty cache (cold), then again (from the cache).
+
+Each row carries the 1-minute load average before it ran (a shared CPU's numbers depend
+on it). Run on a GPU host with one command:
+``python -m whitted bench --backend cuda --parts build --out DIR``.
+"""
+from __future__ import annotations
+
+import os
+import re
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from .part import Context, Part, table
+
+SCENES = ("bunny", "sponza", "conference", "bunny_1m")
+QUICK_SCENES = ("cornell_box", "bunny")
+REPEATS = 5
+PROCESS_SIZE = 1024
+
+
+def _load(ctx: Context, name: str):
+    from renderer.scene import load_scene
+    t0 = time.perf_counter()
+    scene = load_scene(ctx.scene_path(name))
+    return scene, time.perf_counter() - t0
+
+
+TIMING = re.compile(r"timing: imports ([\d.]+) s, load ([\d.]+) s, tree ([\d.]+) s, "
+                    r"upload ([-\d.]+) s, first image at ([\d.]+) s")
+
+
+def _process_seconds(ctx: Context, name: str, size: int, extra: list[str], cache: Path
+                     ) -> tuple[float, dict]:
+    """Wall seconds of one ``whitted render`` process (start to exit, one image), and the
+    breakdown its ``timing:`` line gives (imports, load, tree, upload, first_image_at: from
+    the package's import; outside: the rest of the wall time, interpreter start and exit)."""
+    with tempfile.TemporaryDirectory() as out:
+        env = dict(os.environ, WHITTED_CACHE=str(cache))
+        cmd = [sys.executable, "-m", "whitted", "render", str(ctx.scene_path(name)),
+               "--backend", ctx.backend, "--size", f"{size}x{size}", "--out", out] + extra
+        t0 = time.perf_counter()
+        r = subprocess.run(cmd, env=env, capture_output=True, text=True)
+        seconds = time.perf_counter() - t0
+        if r.returncode != 0:
+            raise RuntimeError(f"{' '.join(cmd)}: exit {r.returncode}: "
+                               f"{r.stderr.strip().splitlines()[-1:]}")
+        m = TIMING.search(r.stdout)
+        parts = {}
+        if m:
+            parts = dict(zip(("imports", "load", "tree", "upload", "first_image_at"),
+                             map(float, m.groups())))
+            parts["outside"] = seconds - parts["first_image_at"]
+        return seconds, parts
+
+
+def _mitsuba_build(scene) -> float:
+    """Seconds of Mitsuba's scene build on ``scene``'s triangles: ``mi.load_dict`` plus the
+    first ``ray_test`` of one ray (OptiX builds its acceleration structure lazily, at the
+    first trace), minus a second, warm ``ray_test`` of the same ray."""
+    import drjit as dr
+
+    from reference.mitsuba_scene import load_triangles, rays
+    c = np.asarray(scene.vertices, np.float64).mean(axis=0)
+    ray = rays(c[None] + [0.0, 0.0, 1e3], np.array([[0.0, 0.0, -1.0]]))
+    dr.sync_thread()
+    t0 = time.perf_counter()
+    mscene, _ = load_triangles(scene.vertices, scene.faces)
+    hit = mscene.ray_test(ray)
+    dr.eval(hit)
+    dr.sync_thread()
+    first = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    hit = mscene.ray_test(ray)
+    dr.eval(hit)
+    dr.sync_thread()
+    return max(first - (time.perf_counter() - t0), 0.0)
+
+
+def build_row(ctx: Context, name: str) -> dict:
+    """The measurements of one scene (see the module docstring)."""
+    import drjit as dr
+
+    from reference import mitsuba_variant
+    from renderer.accel.bvh_build import build_bvh
+    from renderer.accel.device_build import build_device
+
+    from .frames import frozen_frame_ms
+    row = {"scene": name, "load_avg_1min": os.getloadavg()[0]}
+    scene, row["load_s"] = _load(ctx, name)
+    F = scene.face_count
+    row["triangles"] = F
+    build_device(scene.vertices, scene.faces, ctx.backend)          # warm-up: compilation
+    times = []
+    for _ in range(REPEATS):
+        dr.sync_thread()
+        dev = build_device(scene.vertices, scene.faces, ctx.backend)
+        times.append(dev.build_seconds)
+    row["device_s"] = statistics.median(times)
+    row["device_mtris_s"] = F / row["device_s"] / 1e6
+    row["device_sah_cost"], row["device_levels"] = dev.sah_cost, dev.levels
+    phases = {}
+    build_device(scene.vertices, scene.faces, ctx.backend, phases=phases)
+    row["device_phases_s"] = phases          # one more build, waiting at each phase's end
+    sah = build_bvh(scene.vertices, scene.faces)
+    row["sah_s"] = sah.build_seconds
+    row["sah_mtris_s"] = F / sah.build_seconds / 1e6
+    row["sah_sah_cost"], row["sah_levels"] = sah.sah_cost, sah.levels
+    mitsuba_variant("cuda_ad_rgb" if ctx.backend == "cuda" else "llvm_ad_rgb")
+    row["mitsuba_build_s"] = _mitsuba_build(scene)
+    row["mitsuba_build_again_s"] = _mitsuba_build(scene)
+    row["mitsuba_mtris_s"] = F / row["mitsuba_build_again_s"] / 1e6
+    row["speedup_vs_sah"] = row["sah_s"] / row["device_s"]
+    row["vs_mitsuba"] = row["mitsuba_build_again_s"] / row["device_s"]
+    # a Whitted frame over each tree: the builder is picked through the scene's settings
+    frames = {}
+    for build in ("sah", "device"):
+        sc = scene.with_settings(build=build).with_size(ctx.frame_size)
+        frames[build] = frozen_frame_ms(sc, backend=ctx.backend, accel=None,
+                                        frames=ctx.frames)
+    row["frame_ms_sah"] = frames["sah"]["frozen_kernel_ms"]
+    row["frame_ms_device"] = frames["device"]["frozen_kernel_ms"]
+    row["frame_ratio"] = row["frame_ms_device"] / max(row["frame_ms_sah"], 1e-9)
+    row["frames_bitwise_equal"] = bool(np.array_equal(frames["sah"]["image"],
+                                                      frames["device"]["image"]))
+    size = 64 if ctx.quick else PROCESS_SIZE
+    row["process_size"] = size
+    with tempfile.TemporaryDirectory() as cache:
+        for key, extra in (("sah_nocache", ["--build", "sah", "--no-cache"]), ("cold", []),
+                           ("cached", [])):
+            row[f"process_{key}_s"], row[f"process_{key}_parts"] = _process_seconds(
+                ctx, name, size, extra, Path(cache))
+    return row
+
+
+def run(ctx: Context) -> list[dict]:
+    rows = []
+    for name in QUICK_SCENES if ctx.quick else SCENES:
+        if not ctx.scene_path(name).exists():
+            continue
+        r = build_row(ctx, name)
+        rows.append(r)
+        ctx.save_rows(rows)
+        print(f"  build {name:12s} {r['triangles']:>8d} tris: device {r['device_s']:.3f} s "
+              f"({r['device_mtris_s']:.2f} M/s), SAH {r['sah_s']:.2f} s, Mitsuba "
+              f"{r['mitsuba_build_again_s']:.3f} s; SAH cost {r['device_sah_cost']:.1f} vs "
+              f"{r['sah_sah_cost']:.1f}; frame x{r['frame_ratio']:.2f}; process "
+              f"{r['process_sah_nocache_s']:.1f} -> {r['process_cold_s']:.1f} cold, "
+              f"{r['process_cached_s']:.1f} cached", flush=True)
+    return rows
+
+
+def markdown(rows: list[dict]) -> list[str]:
+    cells = [[r["scene"], f"{r['triangles']:,}", f"{r['device_s']:.3f}",
+              f"{r['device_mtris_s']:.2f}", f"{r['sah_s']:.2f}", f"{r['sah_mtris_s']:.3f}",
+              f"{r['mitsuba_build_s']:.3f} / {r['mitsuba_build_again_s']:.3f}",
+              f"{r['mitsuba_mtris_s']:.2f}", f"{r['load_avg_1min']:.1f}"] for r in rows]
+    out = table("Build: device (Dr.Jit) vs host SAH vs Mitsuba's scene build, one process",
+                ["scene", "triangles", "device s", "device M/s", "SAH s", "SAH M/s",
+                 "Mitsuba s (1st / 2nd)", "Mitsuba M/s", "load avg"], "lrrrrrrrr", cells)
+    names = list(rows[0].get("device_phases_s", {})) if rows else []
+    cells = [[r["scene"]] + [f"{1e3 * r['device_phases_s'].get(n, 0.0):.1f}" for n in names]
+             for r in rows if r.get("device_phases_s")]
+    out += table("Device build by phase (ms; one build that waits at each phase's end)",
+                 ["scene"] + names, "l" + "r" * len(names), cells)
+    cells = [[r["scene"], f"{r['device_sah_cost']:.2f}", f"{r['sah_sah_cost']:.2f}",
+              f"{r['device_levels']} / {r['sah_levels']}", f"{r['frame_ms_device']:.3f}",
+              f"{r['frame_ms_sah']:.3f}", f"{r['frame_ratio']:.2f}",
+              "yes" if r["frames_bitwise_equal"] else "NO"] for r in rows]
+    out += table("Trees: SAH cost and a frozen Whitted frame (kernel ms) over each",
+                 ["scene", "SAH cost device", "SAH cost SAH", "levels", "frame ms device",
+                  "frame ms SAH", "device / SAH", "same image"], "lrrrrrrl", cells)
+    cells = [[r["scene"], f"{r['process_size']}²", f"{r['process_sah_nocache_s']:.2f}",
+              f"{r['process_cold_s']:.2f}", f"{r['process_cached_s']:.2f}"] for r in rows]
+    out += table("Time to first image: one `whitted render` process, start to exit",
+                 ["scene", "size", "SAH, no cache s", "auto, cold cache s",
+                  "auto, cached s"], "lrrrr", cells)
+    cells = []
+    for r in rows:
+        for key, label in (("sah_nocache", "SAH, no cache"), ("cold", "auto, cold"),
+                           ("cached", "auto, cached")):
+            p = r.get(f"process_{key}_parts") or {}
+            if p:
+                frame = (p["first_image_at"] - p["imports"] - p["load"] - p["tree"]
+                         - p["upload"])
+                cells.append([r["scene"], label, f"{r[f'process_{key}_s']:.2f}"]
+                             + [f"{p[k]:.2f}" for k in ("outside", "imports", "load", "tree",
+                                                         "upload")] + [f"{frame:.2f}"])
+    out += table("Where a `whitted render` process spends its time (s; `outside`: interpreter "
+                 "start and exit, `frame`: the rest up to the first image, compilation "
+                 "included)", ["scene", "run", "wall", "outside", "imports", "load", "tree",
+                               "upload", "frame"], "llrrrrrrr", cells)
+    return out
+
+
+PART = Part(name="build", key="build", run=run, markdown=markdown)

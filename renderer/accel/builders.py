@@ -1,0 +1,152 @@
+"""Which builder makes the binary tree, and the cache in front of both.
+
+``BUILDS``: "sah" (``bvh_build.build_bvh``: binned SAH on the host, spatial splits,
+reinsertion: the better tree), "device" (``device_build.build_device``: the Morton radix
+tree built by Dr.Jit on the render's backend: the faster build), "auto" (``resolve_build``).
+
+``binary_tree(scene, backend, build=..., cache=...)`` answers a ``BVHArrays`` and how it
+was got: from the ``TreeCache`` when an entry for the same triangles, builder, parameters
+and code is there (verified: a bad entry is rebuilt with one warning), else built and
+stored. The "auto" rule, measured (``lab/notes/device-build.md``): an SAH tree already in
+the cache is taken (it costs nothing and traces fastest); otherwise a caller that renders
+at most ``AUTO_MAX_FRAMES`` frames of a scene of at least ``AUTO_MIN_TRIANGLES`` triangles
+gets the device tree (its much faster build outweighs its slower traversal
+over so few frames), every other caller (a study, a bench, an unknown number of frames)
+the SAH tree.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..scene.model import TREE_BUILDS
+from .bvh_build import LEAF_SIZE, BVHArrays
+from .cache import TreeCache, code_version, content_key
+from .traverse import LEAF_BIT
+
+BUILDS = TREE_BUILDS
+#: ``resolve_build``: "auto" takes the device build for at most this many frames ...
+AUTO_MAX_FRAMES = 4
+#: ... of scenes of at least this many triangles (smaller ones build by SAH in < 0.1 s).
+AUTO_MIN_TRIANGLES = 20000
+
+
+def check_build(build: str) -> str:
+    if build not in BUILDS:
+        raise ValueError(f"build: expected one of {list(BUILDS)}, got {build!r}")
+    return build
+
+
+def resolve_build(build: str, face_count: int, frames: int | None, sah_cached: bool) -> str:
+    """The builder "auto" stands for (see the module docstring); others unchanged."""
+    check_build(build)
+    if build != "auto":
+        return build
+    if sah_cached:
+        return "sah"
+    if frames is not None and frames <= AUTO_MAX_FRAMES and face_count >= AUTO_MIN_TRIANGLES:
+        return "device"
+    return "sah"
+
+
+@dataclass
+class TreeInfo:
+    """How ``binary_tree`` got its tree: the builder, whether the cache answered, the
+    seconds spent (building, or reading the entry)."""
+
+    build: str
+    cached: bool
+    seconds: float
+
+
+def tree_key(scene, build: str, leaf_size: int = LEAF_SIZE) -> str:
+    """The cache key of ``scene``'s tree from ``build`` ("sah" or "device")."""
+    return content_key(np.asarray(scene.vertices, np.float32),
+                       np.asarray(scene.faces, np.int64), build,
+                       {"leaf_size": leaf_size}, code_version())
+
+
+def binary_tree(scene, backend: str, *, build: str = "sah", cache: TreeCache | None = None,
+                frames: int | None = None, leaf_size: int = LEAF_SIZE, progress=None
+                ) -> tuple[BVHArrays, TreeInfo]:
+    """``scene``'s binary tree from ``build`` (a value of ``BUILDS``) on ``backend``,
+    through ``cache`` (None: no cache). ``frames``: how many frames the caller renders
+    (None: unknown), for "auto". ``progress(build, levels_done)``: None, or called after
+    each level of the build that runs (at most ``MAX_LEVELS``)."""
+    check_build(build)
+    t0 = time.perf_counter()
+    keys = {}
+    if cache is not None:
+        keys["sah"] = tree_key(scene, "sah", leaf_size)
+        if build == "auto":
+            got = cache.get("tree", keys["sah"])
+            if got is not None:
+                a = _from_entry(got, scene.face_count)
+                if a is not None:
+                    return a, TreeInfo("sah", True, time.perf_counter() - t0)
+    chosen = resolve_build(build, scene.face_count, frames, False)
+    if cache is not None and not (build == "auto" and chosen == "sah"):
+        keys[chosen] = keys.get(chosen) or tree_key(scene, chosen, leaf_size)
+        got = cache.get("tree", keys[chosen])
+        if got is not None:
+            a = _from_entry(got, scene.face_count)
+            if a is not None:
+                return a, TreeInfo(chosen, True, time.perf_counter() - t0)
+    if chosen == "device":
+        from .device_build import build_device
+        a = build_device(scene.vertices, scene.faces, backend, leaf_size=leaf_size,
+                         progress=progress and (lambda k: progress("device", k)))
+    else:
+        from .bvh_build import build_bvh
+        a = build_bvh(scene.vertices, scene.faces, leaf_size=leaf_size,
+                      progress=progress and (lambda k: progress("sah", k)))
+    seconds = time.perf_counter() - t0
+    if cache is not None:
+        cache.put("tree", keys.get(chosen) or tree_key(scene, chosen, leaf_size),
+                  *_to_entry(a))
+    return a, TreeInfo(chosen, False, seconds)
+
+
+def _to_entry(a: BVHArrays) -> tuple[dict, dict]:
+    arrays = {"boxes": a.boxes, "children": a.children, "order": a.order,
+              "bounds_lo": np.asarray(a.bounds[0], np.float64),
+              "bounds_hi": np.asarray(a.bounds[1], np.float64)}
+    if a.cells is not None:
+        arrays["cell_lo"], arrays["cell_hi"] = a.cells
+    meta = {"levels": a.levels, "leaf_count": a.leaf_count, "sah_cost": a.sah_cost,
+            "build_seconds": a.build_seconds, "optimize_seconds": a.optimize_seconds}
+    return arrays, meta
+
+
+def _from_entry(e: dict, face_count: int) -> BVHArrays | None:
+    """The tree of a verified entry, or None (a ``CacheWarning``) when its arrays do not
+    make a tree over ``face_count`` triangles."""
+    import warnings
+
+    from .cache import CacheWarning
+    try:
+        boxes, children, order = e["boxes"], e["children"], e["order"]
+        meta = e["meta"]
+        n = boxes.shape[0]
+        ok = (boxes.dtype == np.float32 and boxes.shape == (n, 12)
+              and children.dtype == np.uint32 and children.shape == (n, 2)
+              and order.dtype == np.int64 and order.ndim == 1 and order.size >= face_count)
+        if ok and order.size:
+            ok = int(order.min()) >= 0 and int(order.max()) < face_count
+        ref = children.astype(np.int64)
+        inner = ref[(ref & LEAF_BIT) == 0]
+        ok = ok and (inner.size == 0 or int(inner.max()) < n)
+        cells = (e["cell_lo"], e["cell_hi"]) if "cell_lo" in e else None
+        a = BVHArrays(boxes, children, order, int(meta["levels"]), int(meta["leaf_count"]),
+                      float(meta["sah_cost"]), float(meta["build_seconds"]),
+                      (e["bounds_lo"], e["bounds_hi"]), cells,
+                      float(meta.get("optimize_seconds", 0.0)))
+    except (KeyError, TypeError, ValueError):
+        ok = False
+    if not ok:
+        warnings.warn("cache entry does not hold a tree of this scene; rebuilding",
+                      CacheWarning, stacklevel=3)
+        return None
+    return a

@@ -1,0 +1,283 @@
+"""BVH build on the device (Dr.Jit, the same code on CUDA and LLVM): a Morton-code radix tree.
+
+Steps, each a few Dr.Jit kernels over all triangles or all nodes of one level:
+
+1. triangle boxes and the scene box (device reductions);
+2. 30-bit Morton codes of the box centres in the scene box, large triangles
+   (``BIG_TRIANGLE``) keyed after all others, sorted by ``dr.argsort`` (a radix sort);
+3. the tree top down, one inner-node level at a time: a node over the sorted range
+   ``[s, e]`` splits where the highest bit in which ``code[s]`` and ``code[e]`` differ
+   flips (a binary search over the range: the Karras radix-tree split), at the range's
+   middle where the codes are equal or where the radix split would need more than
+   ``MAX_LEVELS`` levels (so the traversal stack never overflows). Children of at most
+   ``leaf_size`` triangles are leaves; the others are the next level's nodes, compacted by
+   ``dr.compress`` (one count read per level, the only host round trips of the build);
+4. the child boxes bottom up, deepest level first: a leaf's box reduced over its (at most
+   ``leaf_size``) triangles, an inner child's the union of its own two child boxes.
+
+The result is a ``BVHArrays`` like ``bvh_build.build_bvh``'s (inner nodes numbered level
+by level, so every level is one contiguous run of nodes), its boxes padded on the device by
+``pad_boxes``'s rule (the same float32 operations) and its SAH cost summed there, so the
+traversal, the wide conversion and the refit read it as they read the SAH tree, and the
+hits are the same bit for bit.
+"""
+from __future__ import annotations
+
+import importlib
+import math
+import time
+
+import drjit as dr
+import numpy as np
+
+from .bvh_build import C_TRAV, LEAF_SIZE, MAX_LEVELS, BVHArrays, build_bvh
+from .traverse import COUNT_SHIFT, LEAF_BIT, MAX_LEAF
+from .triangle import unit_roundoff
+
+MORTON_BITS = 10                 # bits per axis: 30-bit codes
+#: Triangles whose box is larger than this fraction of the scene box's longest side (along
+#: their own longest side) sort after all others (bit 30 of the key), so the root splits
+#: them off and the small triangles' subtrees keep tight boxes (a floor or wall triangle in
+#: a Morton cell of small ones would grow every box above it). Of 1/4, 1/8, 1/16, 1/32, 1/64
+#: and none, 1/4 gives the lowest SAH cost on the bunny, Sponza and Conference
+#: (``lab/notes/device-build.md``).
+BIG_TRIANGLE = 0.25
+
+
+def _module(backend: str):
+    if backend not in ("cuda", "llvm"):
+        raise ValueError(f"backend: expected 'cuda' or 'llvm', got {backend!r}")
+    return importlib.import_module(f"drjit.{backend}")
+
+
+def _spread(x):
+    """The 10 low bits of UInt32 ``x`` spread to every third bit (Morton interleave)."""
+    x = (x | (x << 16)) & 0x030000FF
+    x = (x | (x << 8)) & 0x0300F00F
+    x = (x | (x << 4)) & 0x030C30C3
+    x = (x | (x << 2)) & 0x09249249
+    return x
+
+
+def _levels_needed(count, leaf_size: int):
+    """UInt32: inner-node levels a median-split subtree over ``count`` (UInt32) triangles
+    needs: ``ceil(log2(ceil(count / leaf_size)))``, 0 for a leaf."""
+    leaves = (count + (leaf_size - 1)) // leaf_size
+    return dr.select(leaves > 1, 32 - dr.lzcnt(dr.maximum(leaves, 1) - 1), 0)
+
+
+def _phase(phases: dict, name: str, t_phase: list) -> None:
+    """Wait for the device, add the seconds since ``t_phase[0]`` to ``phases[name]``."""
+    dr.sync_thread()
+    now = time.perf_counter()
+    phases[name] = phases.get(name, 0.0) + now - t_phase[0]
+    t_phase[0] = now
+
+
+def _bisect(UInt32, code, bit, a, b):
+    """One bisection step of the split search: ``(a, b)`` halved towards the first code
+    in ``(a, b]`` with ``bit`` set."""
+    mid = (a + b) >> 1
+    has = (dr.gather(UInt32, code, mid) & bit) != 0
+    return dr.select(has, a, mid), dr.select(has, mid, b)
+
+
+def build_device(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm", *,
+                 leaf_size: int = LEAF_SIZE, progress=None,
+                 phases: dict | None = None) -> BVHArrays:
+    """Build a BVH over ``faces`` (int (F, 3)) of ``vertices`` (float (V, 3)) on ``backend``
+    ("cuda" or "llvm"; see the module docstring). ``leaf_size``: most triangles per leaf
+    (1..16). ``progress``: called as ``progress(levels_done)`` after each level.
+    ``phases``: None, or a dict that gets the seconds of each phase (the build then waits
+    for the device at each phase's end, which costs a little). A scene of at most
+    ``leaf_size`` triangles gets ``build_bvh``'s single-leaf tree."""
+    if not 1 <= leaf_size <= MAX_LEAF:
+        raise ValueError(f"leaf_size: expected 1..{MAX_LEAF}, got {leaf_size}")
+    m = _module(backend)
+    t_start = time.perf_counter()
+    Vn = np.ascontiguousarray(np.asarray(vertices, np.float32))
+    Fn = np.asarray(faces, np.int64)
+    F = int(Fn.shape[0])
+    if F >= 1 << COUNT_SHIFT:
+        raise ValueError(f"faces: at most {1 << COUNT_SHIFT} triangles, got {F}")
+    if F <= leaf_size:
+        return build_bvh(Vn, Fn, leaf_size=leaf_size, spatial=0.0, optimize=0)
+    if MAX_LEVELS < math.ceil(math.log2(math.ceil(F / leaf_size))) + 1:
+        raise ValueError(f"faces: {F} triangles need more than {MAX_LEVELS} BVH levels")
+    Float, UInt32 = m.Float, m.UInt32
+    t_phase = [t_start]
+
+    # ---- 1. triangle boxes and the scene box -----------------------------------------------
+    vx, vy, vz = (Float(np.ascontiguousarray(Vn[:, k])) for k in range(3))
+    fi = [UInt32(np.ascontiguousarray(Fn[:, k].astype(np.uint32))) for k in range(3)]
+    lo, hi = [], []
+    for axis in (vx, vy, vz):
+        p = [dr.gather(Float, axis, fi[k]) for k in range(3)]
+        lo.append(dr.minimum(dr.minimum(p[0], p[1]), p[2]))
+        hi.append(dr.maximum(dr.maximum(p[0], p[1]), p[2]))
+    dr.eval(lo, hi)
+    if phases is not None:
+        _phase(phases, "triangle boxes", t_phase)
+    s_lo = [dr.min(x) for x in lo]
+    s_hi = [dr.max(x) for x in hi]
+
+    # ---- 2. Morton codes of the box centres, sorted ---------------------------------------
+    scale = float(1 << MORTON_BITS)
+    code = dr.zeros(UInt32, F)
+    for k in range(3):
+        ext = s_hi[k] - s_lo[k]
+        inv = dr.select(ext > 0, scale / dr.maximum(ext, 1e-30), 0.0)
+        c = (lo[k] + hi[k]) * 0.5
+        q = UInt32(dr.clip((c - s_lo[k]) * inv, 0.0, scale - 1.0))
+        code |= _spread(q) << (2 - k)
+    size = dr.maximum(dr.maximum(hi[0] - lo[0], hi[1] - lo[1]), hi[2] - lo[2])
+    ext = dr.maximum(dr.maximum(s_hi[0] - s_lo[0], s_hi[1] - s_lo[1]), s_hi[2] - s_lo[2])
+    code |= dr.select(size > ext * BIG_TRIANGLE, UInt32(1 << 30), 0)
+    perm = dr.argsort(code)
+    code = dr.gather(UInt32, code, perm)
+    slo = [dr.gather(Float, x, perm) for x in lo]        # triangle boxes in sorted order
+    shi = [dr.gather(Float, x, perm) for x in hi]
+    dr.eval(code, perm, slo, shi)
+    del lo, hi
+    if phases is not None:
+        _phase(phases, "Morton codes and sort", t_phase)
+
+    # ---- 3. topology, top down ------------------------------------------------------------
+    first, count = dr.opaque(UInt32, 0, 1), dr.opaque(UInt32, F, 1)   # the root level
+    level_base, level_size, level_refs = [], [], []
+    n_nodes, k = 0, 1
+    while k:
+        depth = len(level_base)
+        level_base.append(n_nodes)
+        level_size.append(k)
+        n_nodes += k
+        s, e = first, first + count - 1
+        cs, ce = dr.gather(UInt32, code, s), dr.gather(UInt32, code, e)
+        diff = cs ^ ce
+        bit = UInt32(1) << (31 - dr.lzcnt(dr.maximum(diff, 1)))
+        # code[a] lacks the bit, code[b] has it: bisect to the first index that has it
+        a, b = dr.while_loop(
+            state=(UInt32(s), UInt32(e)),
+            cond=lambda a, b: b - a > 1,
+            body=lambda a, b, bit=bit: _bisect(UInt32, code, bit, a, b),
+            label="device_build_split")
+        left = dr.select(diff != 0, b - s, count >> 1)
+        big = dr.maximum(left, count - left)
+        over = dr.opaque(UInt32, depth + 1) + _levels_needed(big, leaf_size) > MAX_LEVELS
+        left = dr.select(over, count >> 1, left)
+        dr.eval(left)
+        # children: lane 2 i + side is child ``side`` of this level's node i
+        lane = dr.arange(UInt32, 2 * k)
+        node = lane >> 1
+        side = lane & 1
+        n_first = dr.gather(UInt32, first, node)
+        n_count = dr.gather(UInt32, count, node)
+        n_left = dr.gather(UInt32, left, node)
+        c_first = dr.select(side == 0, n_first, n_first + n_left)
+        c_count = dr.select(side == 0, n_left, n_count - n_left)
+        leaf = c_count <= leaf_size
+        ref = dr.select(leaf, LEAF_BIT | ((c_count - 1) << COUNT_SHIFT) | c_first, 0)
+        dr.eval(ref, c_first, c_count, leaf)
+        pend = dr.compress(~leaf)                          # the next level's nodes
+        k = dr.width(pend)
+        if k:           # inner children: the next level's nodes, numbered in lane order
+            dr.scatter(ref, dr.opaque(UInt32, n_nodes) + dr.arange(UInt32, k), pend)
+            first = dr.gather(UInt32, c_first, pend)
+            count = dr.gather(UInt32, c_count, pend)
+            dr.eval(ref, first, count)
+        level_refs.append(ref)
+        if progress is not None:
+            progress(len(level_base))
+    levels = len(level_base)
+    if phases is not None:
+        _phase(phases, "topology", t_phase)
+
+    # ---- 4. child boxes, bottom up ---------------------------------------------------------
+    # (unpadded, as BVHArrays.boxes; every inner child of a level's node is in the next level)
+    below, level_boxes = None, []
+    for depth in reversed(range(levels)):
+        size, refs = level_size[depth], level_refs[depth]
+        i = dr.arange(UInt32, size)
+        out = []
+        for side in range(2):
+            ref = dr.gather(UInt32, refs, 2 * i + side)
+            is_leaf = (ref & LEAF_BIT) != 0
+            inner = ~is_leaf
+            lo_c, hi_c = [dr.full(Float, dr.inf, size) for _ in range(3)], \
+                [dr.full(Float, -dr.inf, size) for _ in range(3)]
+            if below is not None:
+                j = ref - dr.opaque(UInt32, level_base[depth + 1])
+                for a in range(3):
+                    lo_c[a] = dr.select(inner, dr.minimum(dr.gather(Float, below[a], j, inner),
+                                                          dr.gather(Float, below[6 + a], j,
+                                                                    inner)), lo_c[a])
+                    hi_c[a] = dr.select(inner, dr.maximum(dr.gather(Float, below[3 + a], j,
+                                                                    inner),
+                                                          dr.gather(Float, below[9 + a], j,
+                                                                    inner)), hi_c[a])
+            f0 = ref & ((1 << COUNT_SHIFT) - 1)
+            cnt = ((ref >> COUNT_SHIFT) & 15) + 1
+            for jj in range(leaf_size):
+                on = is_leaf & (cnt > jj)
+                for a in range(3):
+                    lo_c[a] = dr.select(on, dr.minimum(lo_c[a],
+                                                       dr.gather(Float, slo[a], f0 + jj, on)),
+                                        lo_c[a])
+                    hi_c[a] = dr.select(on, dr.maximum(hi_c[a],
+                                                       dr.gather(Float, shi[a], f0 + jj, on)),
+                                        hi_c[a])
+            out += lo_c + hi_c
+        dr.eval(out)
+        level_boxes.append(out)
+        below = out
+    level_boxes.reverse()
+
+    if phases is not None:
+        _phase(phases, "boxes bottom up", t_phase)
+
+    # ---- 5. padded boxes and references in the host layout, on the device -----------------
+    N = n_nodes
+    extent = dr.maximum(dr.maximum(s_hi[0] - s_lo[0], s_hi[1] - s_lo[1]), s_hi[2] - s_lo[2])
+    u32 = float(32 * unit_roundoff(False))
+    boxes_d = dr.zeros(Float, 12 * N)
+    refs_d = dr.zeros(UInt32, 2 * N)
+    area = dr.zeros(m.Float64, 1)
+    for depth in range(levels):
+        base, size = dr.opaque(UInt32, level_base[depth]), level_size[depth]
+        i = dr.arange(UInt32, size)
+        ids = base + i
+        lb, refs = level_boxes[depth], level_refs[depth]
+        for side in range(2):
+            ref = dr.gather(UInt32, refs, 2 * i + side)
+            padded = []
+            for a in range(3):             # pad_boxes: 32 roundoff x (magnitude + extent)
+                lo_a, hi_a = lb[6 * side + a], lb[6 * side + 3 + a]
+                e = (dr.maximum(abs(lo_a), abs(hi_a)) + extent) * u32
+                padded.append((lo_a - e, hi_a + e))
+            for a in range(3):
+                dr.scatter(boxes_d, padded[a][0], 12 * ids + 6 * side + a)
+                dr.scatter(boxes_d, padded[a][1], 12 * ids + 6 * side + 3 + a)
+            d = [m.Float64(padded[a][1] - padded[a][0]) for a in range(3)]
+            half = d[0] * d[1] + d[1] * d[2] + d[2] * d[0]
+            weight = dr.select((ref & LEAF_BIT) != 0,
+                               m.Float64(((ref >> COUNT_SHIFT) & 15) + 1), 1.0)
+            area += dr.sum(half * weight)
+        dr.scatter(refs_d, refs, 2 * base + dr.arange(UInt32, 2 * size))
+    dr.eval(boxes_d, refs_d, area)
+
+    # ---- the host arrays ------------------------------------------------------------------
+    boxes = np.asarray(boxes_d.numpy(), np.float32).reshape(N, 12)
+    ch = np.asarray(refs_d.numpy(), np.uint32).reshape(N, 2)
+    order = np.asarray(perm.numpy(), np.int64)
+    b_lo = np.array([float(x.numpy()[0]) for x in s_lo], np.float32)
+    b_hi = np.array([float(x.numpy()[0]) for x in s_hi], np.float32)
+    leaf_count = int(np.count_nonzero(ch & np.uint32(LEAF_BIT)))
+    bounds = (b_lo.astype(np.float64), b_hi.astype(np.float64))
+    dd = bounds[1] - bounds[0]
+    root = float(dd[0] * dd[1] + dd[1] * dd[2] + dd[2] * dd[0])
+    sah = (C_TRAV * root + float(area.numpy()[0])) / root if root > 0 else 0.0
+    arrays = BVHArrays(boxes, ch, order, levels, leaf_count, sah, 0.0, bounds)
+    arrays.build_seconds = time.perf_counter() - t_start
+    if phases is not None:
+        _phase(phases, "host layout and copy", t_phase)
+    return arrays
