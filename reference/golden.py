@@ -269,16 +269,19 @@ def full_key(inputs: dict) -> str:
     return _sha(json.dumps(inputs, sort_keys=True).encode())
 
 
-def describe_changes(old: dict, new: dict) -> list[str]:
-    """What differs between two ``golden_inputs``, one phrase each."""
+def describe_changes(old: dict, new: dict, mesh_files=()) -> list[str]:
+    """What differs between two ``golden_inputs``, one phrase each; a changed mesh is named
+    by its file name (``mesh_files``: the new scene's mesh files, in ``meshes`` order)."""
     out = []
+    names = [Path(f).name for f in mesh_files]
     if old.get("scene") != new.get("scene"):
         out.append("scene file content")
     om, nm = old.get("meshes", []), new.get("meshes", [])
     if len(om) != len(nm):
         out.append(f"mesh count {len(om)} -> {len(nm)}")
     else:
-        out += [f"mesh {i}" for i, (a, b) in enumerate(zip(om, nm)) if a != b]
+        out += [f"mesh {names[i] if i < len(names) else i} (its bytes)"
+                for i, (a, b) in enumerate(zip(om, nm)) if a != b]
     for k in ("view", "view_name", "shading", "mode"):
         if old.get(k) != new.get(k):
             out.append(f"{k} {old.get(k)!r} -> {new.get(k)!r}")
@@ -361,7 +364,8 @@ def find_golden(scene: Scene, *, view: int, shading: str, mode: str, stores) -> 
                           changes=["sidecar format 1 (keyed by path)"],
                           message=f"golden {exr} has a sidecar without content keys "
                                   f"(format 1); re-key or re-render it with `{cmd}`")
-        changes = describe_changes(old, inputs) or ["its key"]
+        changes = describe_changes(old, inputs, [Path(f) for f in scene.source_files][1:]) \
+            or ["its key"]
         cmd = regenerate_command(scene.path, store)
         return Lookup("stale", path=side.with_suffix(".exr"), changes=changes, command=cmd,
                       message=f"golden {exr} is stale ({', '.join(changes)} changed since "
