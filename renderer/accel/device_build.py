@@ -42,6 +42,10 @@ MORTON_BITS = 10                 # bits per axis: 30-bit codes
 #: and none, 1/4 gives the lowest SAH cost on the bunny, Sponza and Conference
 #: (``lab/notes/device-build.md``).
 BIG_TRIANGLE = 0.25
+#: The top-down loop reads the next level's node count back every this many levels: to stop
+#: after the last level and to size the following levels' lanes (at most twice the nodes of
+#: the level before).
+CHECK_EVERY = 4
 
 
 def _module(backend: str):
@@ -157,13 +161,13 @@ def build_device(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm",
     refs_all = dr.zeros(UInt32, 2 * NI)
     ks = dr.zeros(UInt32, MAX_LEVELS + 1)            # k_d of every level, read once at the end
     base, k = dr.opaque(UInt32, 0, 1), dr.opaque(UInt32, 1, 1)
+    level = dr.opaque(UInt32, 0, 1)                  # the depth, counted on the device
     max_level = F // (leaf_size + 1)
-    bases, caps = [], []
+    bases, known, known_depth = [], 1, 0             # k_d read at the last check: k_d bound
     for depth in range(MAX_LEVELS):
-        cap = min(1 << depth, max_level)
+        cap = min(known << (depth - known_depth), max_level)
         bases.append(base)
-        caps.append(cap)
-        dr.scatter(ks, k, dr.opaque(UInt32, depth))
+        dr.scatter(ks, k, level)
         lane = dr.arange(UInt32, cap)
         active = lane < k
         nid = base + lane
@@ -181,7 +185,7 @@ def build_device(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm",
             label="device_build_split")
         left = dr.select(diff != 0, b - s, count >> 1)
         big = dr.maximum(left, count - left)
-        over = dr.opaque(UInt32, depth + 1) + _levels_needed(big, leaf_size) > MAX_LEVELS
+        over = level + 1 + _levels_needed(big, leaf_size) > MAX_LEVELS
         left = dr.select(over, count >> 1, left)
         inner0 = active & (left > leaf_size)
         inner1 = active & (count - left > leaf_size)
@@ -189,8 +193,8 @@ def build_device(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm",
         dr.eval(s, count, left, q)
         slot = dr.prefix_sum(q)                # exclusive
         dr.eval(slot)
-        last = dr.opaque(UInt32, cap - 1, 1)
-        k_next = dr.gather(UInt32, slot, last) + dr.gather(UInt32, q, last)
+        last, any_node = k - 1, k > 0
+        k_next = dr.gather(UInt32, slot, last, any_node) + dr.gather(UInt32, q, last, any_node)
         next_base = base + k
         for side in range(2):
             c_first = s + (left if side else 0)
@@ -201,12 +205,14 @@ def build_device(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm",
             dr.scatter(refs_all, ref, 2 * nid + side, active)
             dr.scatter(n_first, c_first, child, active & ~leaf)
             dr.scatter(n_count, c_count, child, active & ~leaf)
-        base, k = next_base, k_next
-        dr.eval(refs_all, n_first, n_count, base, k, ks)
+        base, k, level = next_base, k_next, level + 1
+        dr.eval(refs_all, n_first, n_count, base, k, ks, level)
         if progress is not None:
             progress(depth + 1)
-        if depth % 4 == 3 and k.numpy()[0] == 0:      # a host read every 4th level only
-            break
+        if depth % CHECK_EVERY == CHECK_EVERY - 1:    # the only host reads of the loop
+            known, known_depth = int(k.numpy()[0]), depth + 1
+            if not known:
+                break
     ks_h = np.asarray(ks.numpy(), np.int64)
     levels = int(np.count_nonzero(ks_h))
     N = int(ks_h[:levels].sum())
