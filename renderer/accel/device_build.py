@@ -86,9 +86,17 @@ def _bisect(UInt32, code, bit, a, b):
     return dr.select(has, a, mid), dr.select(has, mid, b)
 
 
+def sorted_keys(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm"):
+    """The sort keys of step 2 (uint32 (F,), ascending) and the face order (int64 (F,)) the
+    build sorts ``faces`` of ``vertices`` into."""
+    keys: dict = {}
+    build_device(vertices, faces, backend, leaf_size=1, _keys=keys)
+    return keys["code"], keys["order"]
+
+
 def build_device(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm", *,
                  leaf_size: int = LEAF_SIZE, progress=None,
-                 phases: dict | None = None) -> BVHArrays:
+                 phases: dict | None = None, _keys: dict | None = None) -> BVHArrays:
     """Build a BVH over ``faces`` (int (F, 3)) of ``vertices`` (float (V, 3)) on ``backend``
     ("cuda" or "llvm"; see the module docstring). ``leaf_size``: most triangles per leaf
     (1..16). ``progress``: called as ``progress(levels_done)`` after each level.
@@ -145,6 +153,10 @@ def build_device(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm",
     del lo, hi
     if phases is not None:
         _phase(phases, "Morton codes and sort", t_phase)
+    if _keys is not None:       # sorted_keys: the keys and order, no tree
+        _keys["code"] = np.asarray(code.numpy(), np.uint32)
+        _keys["order"] = np.asarray(perm.numpy(), np.int64)
+        return None
 
     # ---- 3. topology, top down ------------------------------------------------------------
     # Node ``i`` of the tree covers the sorted range ``[n_first[i], n_first[i] + n_count[i])``;
