@@ -11,7 +11,8 @@ reason in the commit).
 
 **Keys.** ``golden_inputs`` lists everything a golden depends on: the scene file's content
 (its parsed TOML without the ``[check]`` table, so thresholds and comments can change without
-re-rendering), the bytes of every mesh it reads, the view (index and name), shading, mode, the
+re-rendering; the bytes of an OBJ, PLY or Mitsuba XML scene file), the bytes of every mesh
+(and MTL) file it reads, the view (index and name), shading, mode, the
 source of the reference harness, the scene loader and shapes (``HARNESS_FILES``, the bytes of
 each file), and the Mitsuba version. ``content_key`` is the sha256 of
 those inputs without the Mitsuba version; ``key`` adds the version. No path enters a key, so
@@ -47,6 +48,7 @@ import numpy as np
 from renderer.film import read_exr_layers, write_exr
 from renderer.outputs import OutputError, check_output_dir, write_text
 from renderer.scene import SHADING_MODES, Scene, load_scene
+from renderer.scene.importers import IMPORT_KINDS
 
 from . import MODES
 
@@ -66,6 +68,13 @@ HARNESS_FILES = (
     "reference/mitsuba_scene.py", "reference/plugins.py",
     "renderer/scene/loader.py", "renderer/scene/shapes.py", "renderer/scene/meshio.py",
     "renderer/scene/subdivide.py",
+)
+#: The readers of other tools' scene files (``renderer.scene.load_scene``): part of the key
+#: of a golden of an OBJ, PLY or Mitsuba XML scene only, so TOML scenes' keys do not change
+#: with them.
+IMPORT_FILES = (
+    "renderer/scene/importers.py", "renderer/scene/objmtl.py",
+    "renderer/scene/mitsuba_xml.py", "renderer/scene/plyattrs.py",
 )
 #: Environment variable naming the user's golden store.
 STORE_ENV = "WHITTED_GOLDENS"
@@ -200,8 +209,21 @@ def harness_hashes() -> dict[str, str]:
     return {f: code_hash(ROOT / f) for f in HARNESS_FILES}
 
 
+def import_hashes() -> dict[str, str]:
+    """``code_hash`` of every file in ``IMPORT_FILES`` (keys of imported scenes' goldens)."""
+    return {f: code_hash(ROOT / f) for f in IMPORT_FILES}
+
+
+def is_imported(path) -> bool:
+    """Whether a scene file is another tool's format (OBJ, PLY, Mitsuba XML), not TOML."""
+    return Path(path).suffix.lower() != ".toml"
+
+
 def scene_content_hash(path) -> str:
-    """sha256 of the scene file's parsed TOML without its ``[check]`` table (canonical JSON)."""
+    """sha256 of the scene file's parsed TOML without its ``[check]`` table (canonical JSON);
+    for an imported scene (OBJ, PLY, XML) the sha256 of its bytes."""
+    if is_imported(path):
+        return file_hash(Path(path))
     data = tomllib.loads(Path(path).read_text(encoding="utf-8"))
     data.pop("check", None)
     return _sha(json.dumps(data, sort_keys=True, separators=(",", ":")).encode())
@@ -223,12 +245,13 @@ def golden_inputs(scene: Scene, *, view: int, shading: str, mode: str,
     if scene.path is None:
         raise GoldenError(f"scene {scene.name!r} has no file; goldens exist only for files")
     files = [Path(f) for f in scene.source_files] or [Path(scene.path)]
+    imported = is_imported(scene.path) or any(o.kind in IMPORT_KINDS for o in scene.objects)
     return {
         "scene": scene_content_hash(scene.path),
         "meshes": [file_hash(f) for f in files[1:]],
         "view": view, "view_name": scene.cameras[view].name,
         "shading": shading, "mode": mode,
-        "code": harness_hashes(),
+        "code": {**harness_hashes(), **(import_hashes() if imported else {})},
         "mitsuba_version": mitsuba or mitsuba_version(),
     }
 

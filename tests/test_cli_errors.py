@@ -111,3 +111,39 @@ def test_one_exit_code_table():
     for status, code in EXIT_CODES.items():
         assert f"\n  {code} " in text and status in text
     assert "\n  130 " in text
+
+
+# Bad imported scenes (OBJ + MTL, Mitsuba XML): (file name, content, what the line says).
+BAD_IMPORTS = [
+    ("a.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nmtllib gone.mtl\nf 1 2 3\n",
+     "a.obj:4: mtllib gone.mtl: file not found"),
+    ("b.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 7\n", "b.obj:4: face vertex index 7"),
+    ("c.xml", "<scene version=\"3.0.0\">\n<shape type=\"cube\">\n</scene>\n",
+     "c.xml:3: XML syntax error"),
+    ("d.xml", "<scene version=\"3.0.0\">\n<integrator type=\"direct\"/>\n"
+              "<shape type=\"obj\">\n<string name=\"filename\" value=\"nope.obj\"/>\n"
+              "</shape>\n</scene>\n", "d.xml:4: filename: file not found"),
+    ("e.xml", "<scene version=\"3.0.0\">\n<integrator type=\"direct\"/>\n"
+              "<shape type=\"cube\">\n<float name=\"x\" value=\"$size\"/>\n</shape>\n"
+              "</scene>\n", "e.xml:4: $size: parameter has no value"),
+    ("f.xml", "<scene version=\"3.0.0\">\n<integrator type=\"direct\"/>\n"
+              "<bsdf type=\"twosided\" id=\"a\"><ref id=\"b\"/></bsdf>\n"
+              "<bsdf type=\"twosided\" id=\"b\"><ref id=\"a\"/></bsdf>\n"
+              "<shape type=\"cube\"><ref id=\"a\"/></shape>\n</scene>\n",
+     "a cycle of references (a -> b -> a)"),
+    ("g.xml", "<scene version=\"3.0.0\">\n<integrator type=\"direct\"/>\n"
+              "<emitter type=\"area\"/>\n<shape type=\"cube\"/>\n</scene>\n",
+     "g.xml:3: <emitter type=\"area\">: area lights are not supported yet"),
+]
+
+
+@pytest.mark.parametrize("name,text,says", BAD_IMPORTS, ids=[b[0] for b in BAD_IMPORTS])
+def test_bad_imported_scene_is_one_line_exit_2_nothing_written(tmp_path, capsys, name, text,
+                                                               says):
+    scene = tmp_path / name
+    scene.write_text(text)
+    out = tmp_path / "out"
+    assert main(["render", str(scene), "--out", str(out)]) == 2
+    last = _one_error_line(capsys.readouterr().err)
+    assert last.startswith(f"error: {scene.parent}/") and says in last, last
+    assert not out.exists()

@@ -5,6 +5,7 @@
     whitted check   SCENE...     regression gate: one verdict per view, idiff exit codes
     whitted reference SCENE...   (re)render Mitsuba golden images
     whitted export  SCENE.toml --mitsuba-xml OUT.xml [--portable]
+    whitted convert SCENE OUT.toml   an OBJ + MTL, PLY or Mitsuba XML scene as a TOML file
     whitted bench   ...          timing study (kernel times, frozen frames, vs Mitsuba)
     whitted study   ...          accuracy-vs-time study (error vs time, Pareto front)
     whitted data    DIR          copy the bundled scenes and meshes out of the package
@@ -12,8 +13,8 @@
     whitted view    SCENE        interactive viewer in the browser, Mitsuba side by side
 
 Each subcommand lives in its own module (``whitted/render.py``, ``compare.py``,
-``check.py``, ``reference.py``, ``bench.py``, ``study.py``, ``data.py``, ``hard_cases.py``,
-``view.py``)
+``check.py``, ``reference.py``, ``convert.py``, ``bench.py``, ``study.py``, ``data.py``,
+``hard_cases.py``, ``view.py``)
 with ``register(subparsers)``, which sets ``func``; the options they share are in
 ``whitted/options.py``. Mitsuba is imported only by the subcommands that run it, when they
 run, so ``render`` works with only the core dependencies installed.
@@ -43,12 +44,23 @@ from renderer.device import DeviceError
 from renderer.outputs import OutputError, remove_live_temporaries
 from renderer.scene import SceneError
 
-from . import bench, check, compare, data, hard_cases, reference, render, study, view
+from . import (
+    bench,
+    check,
+    compare,
+    convert,
+    data,
+    hard_cases,
+    reference,
+    render,
+    study,
+    view,
+)
 from .options import EXIT, EXIT_CODE_HELP, CliError
 from .progress import STOP
 
 #: Modules that add subcommands, in the order ``--help`` lists them.
-COMMANDS = (render, compare, check, reference, bench, study, hard_cases, view, data)
+COMMANDS = (render, compare, check, reference, convert, bench, study, hard_cases, view, data)
 
 
 def version() -> str:

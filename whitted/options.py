@@ -60,7 +60,9 @@ def add_backend_option(p: argparse.ArgumentParser) -> None:
 def add_scene_options(p: argparse.ArgumentParser) -> None:
     """Options shared by every subcommand that renders a scene with our tracer."""
     p.add_argument("scene", type=scene_arg,
-                   help="scene file (.toml), or a bundled scene's name (whitted data)")
+                   help="scene file (.toml, .obj with its .mtl, .ply, Mitsuba .xml), or a "
+                        "bundled scene's name (whitted data)")
+    add_import_options(p)
     p.add_argument("--view", default="0", help="view index, view name, or 'all' (default 0)")
     p.add_argument("--size", type=wxh, help="override the resolution, e.g. 512x512")
     p.add_argument("--shading", choices=SHADING_MODES, help="override the shading mode")
@@ -91,6 +93,31 @@ def add_scene_options(p: argparse.ArgumentParser) -> None:
                         f"scene's truth); one of {', '.join(FLAGS)}")
 
 
+def add_import_options(p: argparse.ArgumentParser) -> None:
+    """``--camera auto``, ``-D NAME=VALUE`` and ``--approximate``: how a scene file is read
+    (``renderer.scene.load_scene``)."""
+    p.add_argument("--camera", choices=("auto",),
+                   help="'auto': one view framed on the scene's bounding box, replacing the "
+                        "file's views (a mesh file without views gets it anyway)")
+    p.add_argument("-D", dest="defines", action="append", default=[], metavar="NAME=VALUE",
+                   help="Mitsuba XML: set a $NAME parameter (overrides its <default>)")
+    p.add_argument("--approximate", action="store_true",
+                   help="Mitsuba XML: render elements outside the model's subset (path "
+                        "integrator, rough or plastic BSDFs, named conductors) by their "
+                        "documented approximation instead of refusing them")
+
+
+def read_scene(args: argparse.Namespace, path=None, *, cache=None) -> Scene:
+    """``load_scene`` of ``path`` (default ``args.scene``) with the options of
+    ``add_import_options``, ``--shading`` and the tree cache ``cache``."""
+    from renderer.scene.mitsuba_xml import parse_defines
+    return load_scene(args.scene if path is None else path,
+                      shading=getattr(args, "shading", None),
+                      camera=getattr(args, "camera", None),
+                      defines=parse_defines(getattr(args, "defines", [])),
+                      approximate=getattr(args, "approximate", False), cache=cache)
+
+
 def cache_for_cli(args: argparse.Namespace):
     """The tree cache the command line asks for: None with ``--no-cache``."""
     from renderer.accel.cache import TreeCache
@@ -101,7 +128,7 @@ def load_for_cli(args: argparse.Namespace) -> tuple[Scene, list[int]]:
     """The scene with the command line's overrides applied, and the selected view indices.
 
     Raises ``SceneError`` for a bad scene file or override, ``CliError`` for a bad view."""
-    scene = load_scene(args.scene, shading=args.shading, cache=cache_for_cli(args))
+    scene = read_scene(args, cache=cache_for_cli(args))
     scene = scene.with_overrides(spp=args.spp, max_depth=args.max_depth, size=args.size)
     return scene, select_views(scene, args.view)
 

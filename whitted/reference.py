@@ -14,6 +14,7 @@ from reference.mitsuba_scene import (
     portable_integrator,
     portable_problems,
 )
+from reference.xml_lookat import write_lookat
 from renderer.outputs import check_output_dir
 from renderer.scene import SHADING_MODES, load_scene
 
@@ -148,6 +149,7 @@ def cmd_export(args: argparse.Namespace) -> int:
     mode = "converged" if args.portable or not s.exact else "exact"
     out = export_xml(scene, args.mitsuba_xml, view=views[0], spp=spp, mode=mode,
                      portable=args.portable, overwrite=args.force)
+    write_lookat(out, scene.cameras[views[0]])     # the view exactly, for a read back
     print(f"wrote {out} and its meshes in {export_paths(out)[1]}/")
     if args.portable:
         note = portable_integrator(scene)[1]

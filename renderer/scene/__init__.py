@@ -1,7 +1,9 @@
 """The scene: the data model (``model``), the scene-file loader (``loader``) and the mesh
 sources it reads (``meshio`` for OBJ/PLY files, ``shapes`` for built-in shapes,
-``subdivide`` for midpoint subdivision)."""
-from .loader import load_scene
+``subdivide`` for midpoint subdivision), and the readers of other tools' scenes
+(``importers`` for OBJ + MTL and PLY, with ``objmtl`` and ``plyattrs``; ``mitsuba_xml``).
+``load_scene`` reads any of them by suffix (``SCENE_FORMATS``)."""
+from .importers import SCENE_FORMATS, auto_camera, load_scene
 from .model import (
                     COMBINATIONS,
                     FALLOFFS,
@@ -22,7 +24,8 @@ from .model import (
                     validate_settings,
 )
 
-__all__ = ["COMBINATIONS", "FALLOFFS", "MAX_DEPTH_LIMIT", "SHADING_MODES", "SPAWN_RULES",
+__all__ = ["SCENE_FORMATS", "auto_camera", "COMBINATIONS", "FALLOFFS", "MAX_DEPTH_LIMIT",
+           "SHADING_MODES", "SPAWN_RULES",
            "TERMINATOR_FIXES", "Camera", "Material",
            "ObjectInfo", "PointLight", "Scene", "SceneError", "Settings", "check_ranges",
            "load_scene", "precision_limits", "validate_image_size", "validate_settings"]
