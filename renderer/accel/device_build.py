@@ -1,6 +1,6 @@
 """BVH build on the device (Dr.Jit, the same code on CUDA and LLVM): a Morton-code radix tree.
 
-Steps, each a few Dr.Jit kernels over all triangles or all nodes of one level:
+Steps, each a few Dr.Jit kernels over all triangles or the nodes of one level:
 
 1. triangle boxes and the scene box (device reductions);
 2. 30-bit Morton codes of the box centres in the scene box, large triangles
@@ -10,10 +10,13 @@ Steps, each a few Dr.Jit kernels over all triangles or all nodes of one level:
    flips (a binary search over the range: the Karras radix-tree split), at the range's
    middle where the codes are equal or where the radix split would need more than
    ``MAX_LEVELS`` levels (so the traversal stack never overflows). Children of at most
-   ``leaf_size`` triangles are leaves; the others are the next level's nodes, compacted by
-   ``dr.compress`` (one count read per level, the only host round trips of the build);
-4. the child boxes bottom up, deepest level first: a leaf's box reduced over its (at most
-   ``leaf_size``) triangles, an inner child's the union of its own two child boxes.
+   ``leaf_size`` triangles are leaves; the others are the next level's nodes, numbered by
+   a prefix sum on the device. The level's first node, node count and depth are device
+   values, so every level runs the same cached kernels; the host reads the count back
+   only every ``CHECK_EVERY`` levels (to stop and to size the next levels' lanes);
+4. the child boxes bottom up, one kernel per level, deepest first: a leaf's box reduced
+   over its (at most ``leaf_size``) triangles, an inner child's the union of its own two
+   child boxes, padded and written to the output with the node's SAH area.
 
 The result is a ``BVHArrays`` like ``bvh_build.build_bvh``'s (inner nodes numbered level
 by level, so every level is one contiguous run of nodes), its boxes padded on the device by
