@@ -91,6 +91,10 @@ def portable_problems(scene: Scene) -> list[str]:
         if light.falloff != "inverse_square":
             out.append(f"lights[{i}] ({light.name!r}): falloff 'none' (stock 'point' "
                        "emitters fall off as 1/dist²) → the 'whitted' integrator")
+        if light.extent:
+            out.append(f"lights[{i}] ({light.name!r}): a {light.shape} light is invisible "
+                       "and blocks nothing (a stock area emitter's shape is hit by every "
+                       "ray) → the 'whitted' integrator")
     for m in scene.materials:
         diffuse = bool(np.any(m.kd > 0))
         if np.any(m.ks > 0):
@@ -135,6 +139,32 @@ def portable_integrator(scene: Scene) -> tuple[dict, str | None]:
             "a brighter image than the Whitted tree; the exact Whitted image needs the "
             "project's 'whitted' integrator (export without --portable)")
     return {"type": "path", "max_depth": depth, "rr_depth": depth}, note
+
+
+def area_light_dicts(light, key: str) -> dict:
+    """The Mitsuba shapes of a light with extent (docs/MODEL.md, "Lights with extent"),
+    ``{id: shape dict}``, each carrying an ``area`` emitter of radiance ``L_e``: a ``sphere``
+    (centre, radius), or a ``rectangle`` mapped onto the parallelogram (its ``[-1, 1]²``
+    to ``c + x e_u/2 + y e_v/2``, normal along ``e_u × e_v``); a two-sided rectangle adds a
+    second one with flipped normals (``<id>_back``). They are nested in the ``whitted``
+    integrator, not in the scene: no ray hits them (lights are not geometry), and the
+    integrator samples them with their own ``sample_direction``."""
+    mi = _mi()
+    emitter = {"type": "area", "radiance": _rgb(light.radiance)}
+    if light.shape == "sphere":
+        return {key: {"type": "sphere", "center": [float(v) for v in light.position],
+                      "radius": float(light.radius), "emitter": emitter}}
+    eu, ev = (np.asarray(e, np.float64) for e in (light.edge_u, light.edge_v))
+    n = np.cross(eu, ev)
+    n = n / np.linalg.norm(n)
+    m = np.eye(4)
+    m[:3, 0], m[:3, 1], m[:3, 2], m[:3, 3] = eu / 2, ev / 2, n, light.position
+    rect = {"type": "rectangle", "to_world": mi.ScalarTransform4f(m.tolist()),
+            "emitter": emitter}
+    out = {key: rect}
+    if light.two_sided:
+        out[f"{key}_back"] = dict(rect, flip_normals=True, emitter=dict(emitter))
+    return out
 
 
 def mesh_parts(scene: Scene):
@@ -241,12 +271,21 @@ def to_mitsuba_dict(scene: Scene, *, view: int = 0, spp: int = 1, mode: str = "e
             "background": _rgb(st.background),
             "ambient": _rgb(scene.ambient),
             "falloff_none": ",".join(f"light{i}" for i, light in enumerate(scene.lights)
-                                     if light.falloff == "none")}
+                                     if light.falloff == "none"),
+            "shadow_samples": int(st.shadow_samples)}
+        for i, light in enumerate(scene.lights):
+            if light.extent:
+                d["integrator"].update(area_light_dicts(light, f"light{i}"))
     d["sensor"] = sensor_dict(scene, view=view, spp=spp, mode=mode, seed=seed)
     for i, light in enumerate(scene.lights):
         if builtins and light.falloff != "inverse_square":
             raise ValueError(f"{where}: lights[{i}].falloff must be 'inverse_square' for "
                              f"builtins=True")
+        if light.extent:
+            if builtins:
+                raise ValueError(f"{where}: lights[{i}] is a {light.shape} light; "
+                                 "builtins=True takes point lights only")
+            continue
         d[f"light{i}"] = {"type": "point", "position": [float(v) for v in light.position],
                           "intensity": _rgb(light.intensity)}
     mats: dict[int, object] = {}
@@ -404,6 +443,7 @@ def _xml_value(parent, name, value):
                    "perspective": "sensor", "stratified": "sampler",
                    "independent": "sampler", "hdrfilm": "film", "box": "rfilter",
                    "point": "emitter", "ply": "shape", "whitted": "integrator",
+                   "area": "emitter", "sphere": "shape", "rectangle": "shape",
                    "direct": "integrator", "path": "integrator"}[t]
             _xml_object(parent, tag, value, name=name)
     elif isinstance(value, bool):
@@ -429,6 +469,8 @@ def _xml_object(parent, tag, d, name=None, id=None):
     attrs = {"type": d["type"]}
     if name and tag not in ("shape", "emitter", "sensor", "integrator"):
         attrs["name"] = name
+    if name and tag == "shape":            # a light's shape nested in the integrator
+        attrs["id"] = name
     if id:
         attrs["id"] = id
     el = ET.SubElement(parent, tag, **attrs)

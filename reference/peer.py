@@ -115,6 +115,10 @@ class Peer:
                 raise ValueError(f"peer: emitter {em.id()!r} is not a point emitter")
             lights.append((em, em.id() in integ.falloff_none))
         self.lights = lights
+        # lights with extent: the area emitters nested in the integrator (not in the scene)
+        self.area_lights = list(getattr(integ, "area_lights", []))
+        self.shadow_samples = int(getattr(integ, "shadow_samples", 1))
+        self._rng = None               # the frame's PCG32 while a frame is traced
 
         def c3(a):
             return mi.Color3f(*(mi.Float(a[:, k].astype(np.float32)) for k in range(3)))
@@ -167,6 +171,7 @@ class Peer:
             lit = hit & ~scene.ray_test(shadow, hit)
             f = bsdf.eval(ctx, si, si.to_local(ds.d), lit)
             result += dr.select(lit, f * intensity, 0.0)
+        result += self._area_terms(scene, si, hit, bsdf, ctx, offset)
 
         if depth + 1 > self.max_depth:
             return result
@@ -213,6 +218,47 @@ class Peer:
             result += dr.select(go, w_t * Lc, 0.0)
         return result
 
+    def _area_terms(self, scene, si, hit, bsdf, ctx, offset):
+        """Lights with extent (docs/MODEL.md): ``shadow_samples`` samples of each by its own
+        ``sample_direction`` (independent PCG32 numbers, not stratified), each with a shadow
+        ray, weight ``1 / shadow_samples``; physical ``L_e / pdf``, classic the
+        point-light intensity (as ``reference.plugins``)."""
+        mi = _mi()
+        import drjit as dr
+        total = mi.Color3f(0.0)
+        inv_n = 1.0 / self.shadow_samples
+        integ = self.scene.integrator()
+        for shape, key in self.area_lights:
+            em = shape.emitter()
+            sphere = shape.shape_type() == mi.ShapeType.Sphere
+            box = shape.bbox()
+            radius = float(box.extents()[0]) * 0.5
+            proj = np.pi * radius * radius if sphere else float(shape.surface_area()[0])
+            no_falloff = key.removesuffix("_back") in integ.falloff_none
+            outside = (dr.squared_norm(si.p - mi.Point3f(box.center())) > radius * radius
+                       if sphere else mi.Bool(True))
+            for _ in range(self.shadow_samples):
+                u = mi.Point2f(self._rng.next_float32(), self._rng.next_float32())
+                ds, spec = em.sample_direction(si, u, hit)
+                ok = hit & outside & (ds.pdf > 0) & (_hmax(spec) > 0)
+                if self.physical:
+                    Li = spec
+                else:
+                    Li = spec * ds.pdf * proj
+                    if not sphere:
+                        Li = Li * dr.maximum(-dr.dot(ds.d, ds.n), 0.0)
+                    if not no_falloff:
+                        Li = Li / dr.square(ds.dist)
+                o = offset(ds.d)
+                to_light = ds.p - o
+                dist = dr.norm(to_light)
+                shadow = mi.Ray3f(o, to_light / dist)
+                shadow.maxt = dist - self.eps
+                lit = ok & ~scene.ray_test(shadow, ok)
+                f = bsdf.eval(ctx, si, si.to_local(ds.d), lit)
+                total += dr.select(lit, f * Li * inv_n, 0.0)
+        return total
+
     # ---- frames ------------------------------------------------------------------------------
     def frame_fn(self):
         """``frame(scene, tables, pos) -> TensorXf (H, W, 3)``: one ray through each film
@@ -224,6 +270,10 @@ class Peer:
         def frame(scene, tables, pos):
             sensor = scene.sensors()[0]
             ray, _ = sensor.sample_ray(0.0, 0.5, pos, mi.Point2f(0.5))
+            self._rng = None
+            if self.area_lights:           # the shadow samples' numbers, one stream a ray
+                n = dr.width(pos)
+                self._rng = mi.PCG32(n, dr.arange(mi.UInt64, n))
             L = self.radiance(scene, tables, mi.Ray3f(ray.o, ray.d), mi.Bool(True))
             return mi.TensorXf(dr.ravel(L), shape=(h, w, 3))
         return frame

@@ -25,7 +25,15 @@ BSDFs (Fresnel term, refracted direction, radiance compression). What is ours:
     ``max_depth`` (5), ``min_weight`` (0.01), ``shading`` ("classic"), ``spawn``
     ("mitsuba") "mitsuba" | "fixed", ``ray_offset`` (absolute ε, 1e-4, read only with
     ``spawn = "fixed"``), ``background`` and ``ambient`` (rgb, 0), ``falloff_none``
-    (comma-separated ids of point emitters without 1/dist² falloff, ""). It works under
+    (comma-separated ids of point emitters without 1/dist² falloff, ""), ``shadow_samples``
+    (1) and the shapes of the lights with extent nested in it (``sphere`` / ``rectangle``
+    shapes carrying an ``area`` emitter, ``mitsuba_scene.area_light_dicts``): they are not
+    part of the scene, so no ray hits them; at each hit every one is sampled
+    ``shadow_samples`` times by its own ``sample_direction`` (cone sampling for a sphere,
+    area sampling for a rectangle) with the sampler's ``next_2d``, each sample with its
+    own shadow ray and weight ``1 / shadow_samples``; physical shading takes Mitsuba's
+    ``L_e / pdf``, classic the point-light intensity ``I`` of docs/MODEL.md (``L_e`` times
+    the projected area ``π r²``, or times the area and the emission cosine). It works under
     ``mi.render`` (converged mode) and through ``render_exact`` (one ray per given film
     position, exact mode).
 
@@ -198,6 +206,14 @@ def _define_plugins() -> dict[str, type]:
             self.ambient = _color(props, "ambient")
             ids = props.get("falloff_none", "")
             self.falloff_none = {s for s in ids.split(",") if s}
+            self.shadow_samples = int(props.get("shadow_samples", 1))
+            self.area_lights = []       # (shape, id) of the nested lights with extent
+            for key in props.keys():
+                v = props[key]
+                if isinstance(v, mi.Shape):
+                    if v.emitter() is None:
+                        raise ValueError(f"whitted: nested shape {key!r} has no emitter")
+                    self.area_lights.append((v, key))
             self._tables = None
 
         # ---- host-side tables -------------------------------------------------------------
@@ -231,7 +247,7 @@ def _define_plugins() -> dict[str, type]:
         # ---- Mitsuba entry point (converged mode, via mi.render) --------------------------
         def sample(self, scene, sampler, ray, medium=None, active=True):
             ray = mi.Ray3f(ray.o, ray.d)
-            L = self.radiance(scene, ray, mi.Bool(active))
+            L = self.radiance(scene, ray, mi.Bool(active), sampler=sampler)
             return L, mi.Bool(True), []
 
         # ---- exact mode -------------------------------------------------------------------
@@ -244,13 +260,19 @@ def _define_plugins() -> dict[str, type]:
             n = film_xy.shape[0]
             ray, _ = sensor.sample_ray(0.0, dr.full(mi.Float, 0.5, n), pos,
                                        dr.full(mi.Point2f, 0.5, n))
-            L = self.radiance(scene, mi.Ray3f(ray.o, ray.d), dr.full(mi.Bool, True, n))
+            sampler = None
+            if self.area_lights:            # shadow samples of lights with extent
+                sampler = mi.load_dict({"type": "independent"})
+                sampler.seed(0, n)
+            L = self.radiance(scene, mi.Ray3f(ray.o, ray.d), dr.full(mi.Bool, True, n),
+                              sampler=sampler)
             return np.ascontiguousarray(np.array(L, dtype=np.float32).reshape(3, n).T)
 
         # ---- the Whitted tree -------------------------------------------------------------
-        def radiance(self, scene, ray, active, depth=0, acc=None):
+        def radiance(self, scene, ray, active, depth=0, acc=None, sampler=None):
             """Radiance along ``ray`` (Ray3f, unit d) for lanes ``active``; ``acc`` is the
-            accumulated weight of the path (Color3f), ``depth`` the tree depth of ``ray``."""
+            accumulated weight of the path (Color3f), ``depth`` the tree depth of ``ray``;
+            ``sampler`` draws the shadow samples of the lights with extent."""
             _, materials, mat_table, lights = self._prepare(scene)
             acc = mi.Color3f(1.0) if acc is None else acc
             eps = self.ray_offset
@@ -307,6 +329,8 @@ def _define_plugins() -> dict[str, type]:
                     mk = lit & (mat == k)
                     f = m.local.eval(ctx, si, wo, mk)
                     result += dr.select(mk, f * intensity, 0.0)
+            result += self._area_light_terms(scene, si, hit, mat, materials, ctx, sampler,
+                                             spawn_shadow_ray)
 
             if depth + 1 > self.max_depth:
                 return result
@@ -350,10 +374,53 @@ def _define_plugins() -> dict[str, type]:
                 if not dr.any(go):
                     continue
                 child = spawn_ray(dr.normalize(d))
-                Lc = self.radiance(scene, child, go, depth + 1, child_acc)
+                Lc = self.radiance(scene, child, go, depth + 1, child_acc, sampler)
                 result += dr.select(go, w * Lc, 0.0)
             dr.eval(result)
             return result
+
+        def _area_light_terms(self, scene, si, hit, mat, materials, ctx, sampler,
+                              spawn_shadow_ray):
+            """The lights with extent at the hits: ``shadow_samples`` samples of each."""
+            total = mi.Color3f(0.0)
+            if not self.area_lights:
+                return total
+            if sampler is None:
+                raise ValueError("whitted: lights with extent need a sampler")
+            inv_n = 1.0 / self.shadow_samples
+            for shape, key in self.area_lights:
+                em = shape.emitter()
+                sphere = shape.shape_type() == mi.ShapeType.Sphere
+                box = shape.bbox()
+                centre = mi.Point3f(box.center())
+                radius = float(box.extents()[0]) * 0.5
+                area = float(shape.surface_area()[0])
+                # classic: the point-light intensity I of MODEL.md (L_e × π r², or L_e × A)
+                proj = (np.pi * radius * radius) if sphere else area
+                no_falloff = key.removesuffix("_back") in self.falloff_none
+                outside = dr.squared_norm(si.p - centre) > radius * radius if sphere \
+                    else mi.Bool(True)
+                for _ in range(self.shadow_samples):
+                    ds, spec = em.sample_direction(si, sampler.next_2d(hit), hit)
+                    ok = hit & outside & (ds.pdf > 0) & (_hmax(spec) > 0)
+                    if self.shading == "physical":
+                        Li = spec
+                    else:
+                        L_e = spec * ds.pdf              # spec is L_e / pdf
+                        Li = L_e * proj
+                        if not sphere:
+                            Li = Li * dr.maximum(-dr.dot(ds.d, ds.n), 0.0)
+                        if not no_falloff:
+                            Li = Li / dr.square(ds.dist)
+                    shadow = spawn_shadow_ray(ds.p, ds.d)
+                    lit = ok & ~scene.ray_test(shadow, ok)
+                    wo = si.to_local(ds.d)
+                    for k, m in enumerate(materials):
+                        mk = lit & (mat == k)
+                        f = m.local.eval(ctx, si, wo, mk)
+                        total += dr.select(mk, f * Li * inv_n, 0.0)
+                    dr.eval(total)
+            return total
 
         def aov_names(self):
             return []

@@ -12,7 +12,7 @@ PCG32 sequence, seeded with ``initstate = seed + k``, ``initseq = default stream
 ``arange(size)`` to both), and draws ``ξ1`` then ``ξ2``. The same seed gives the same
 image on every backend.
 
-Tiles: ``primary_rays(..., first_row=y0, rows=n)`` makes only the rays of rows
+Tiles: ``primary_rays(..., tile=RayTile(first_row=y0, rows=n))`` makes only the rays of rows
 ``y0 .. y0+n-1``, seeded by their numbers in the whole image, so a tiled render has the
 same rays, bit for bit, as one batch. ``first_row`` is an opaque ``UInt32`` so that every
 tile reuses one compiled kernel.
@@ -40,11 +40,9 @@ from .scene import Camera, SceneError, validate_settings
 #: Dr.Jit's (and the original PCG32's) default stream, ``PCG32(initseq=...)``.
 PCG32_DEFAULT_STREAM = 0xDA3E39CB94B95BDB
 #: The renderer's pixel block per backend (``Renderer`` frames): 4 × 8 pixels, a warp of 32
-#: lanes on CUDA, two packets of 16 (AVX-512) on LLVM. Whitted frames at depth 2, 1024²,
-#: frozen, kernel time against row-major order (``evaluation.bench.probe_frame``, H200):
-#: glass bunny 2.25 → 1.47 ms, Platonic solids 0.80 → 0.63, Cornell spheres 0.60 → 0.50,
-#: Cornell box 0.30 → 0.27 (blocks of 8 × 4 and 16 × 2 gain less). LLVM, 512² (2-core
-#: EPYC): 1.07–1.13x on the spheres, bunny and solids, the Cornell box within noise.
+#: lanes on CUDA, two packets of 16 (AVX-512) on LLVM. Whitted frames in these blocks take
+#: less kernel time than in row-major order on both backends, and more than in blocks of
+#: 8 × 4 or 16 × 2 (``lab/notes/accel-decisions.md``).
 BLOCKS = {"cuda": (4, 8), "llvm": (4, 8)}
 
 
@@ -128,9 +126,46 @@ def block_pixel(q, width: int, rows: int, block: tuple[int, int]):
     return x, by * bh + yy
 
 
+@dataclass
+class RayTile:
+    """Which of an image's camera rays ``primary_rays`` makes, and in which order.
+
+    first_row, rows: only the ``rows`` image rows from ``first_row`` (a ``t.UInt32`` of
+    width 1, made opaque by the caller) on (the module's "Tiles"); None: every row.
+    block: ``(bw, bh)``: the rays in block order (the module's "Pixel blocks"); None:
+    row-major order.
+    """
+
+    first_row: object = None
+    rows: int | None = None
+    block: tuple[int, int] | None = None
+
+
+def ray_keys(width: int, height: int, t: Types, *, spp: int = 1, seed: int = 0,
+             first_row=None, rows: int | None = None, block: tuple[int, int] | None = None):
+    """UInt32 random key of each ray of ``primary_rays`` (same arguments, same order): the
+    low 32 bits of ``seed + k`` xor its high 32 bits, ``k`` the ray's row-major number in
+    the whole image, so a ray keeps its key in any batching, tile or block order and
+    batches seeded ``n`` rays apart (``evaluation.rules.render_batches``) share no key."""
+    n_rows = height if rows is None else rows
+    n = width * n_rows * spp
+    idx = dr.arange(t.UInt32, n)
+    slot = idx // spp if spp > 1 else idx
+    s = idx - slot * spp if spp > 1 else dr.zeros(t.UInt32, n)
+    if block is None:
+        x, y = slot % width, slot // width
+    else:
+        x, y = block_pixel(slot, width, n_rows, block)
+    if first_row is not None:
+        y = y + first_row
+    UInt64 = dr.uint64_array_t(t.UInt32)
+    v = UInt64(seed) + UInt64(y * width + x) * spp + UInt64(s)
+    return t.UInt32(v & 0xFFFFFFFF) ^ t.UInt32(v >> 32)
+
+
 def primary_rays(cam: CameraArrays, width: int, height: int, t: Types, *,
-                 spp: int = 1, exact: bool = True, seed: int = 0, first_row=None,
-                 rows: int | None = None, block: tuple[int, int] | None = None):
+                 spp: int = 1, exact: bool = True, seed: int = 0,
+                 tile: RayTile | None = None):
     """Camera rays for every pixel sample.
 
     Returns ``(o, d)``: Array3f of width ``width·height·spp`` (``d`` unit length), ray ``k``
@@ -138,13 +173,15 @@ def primary_rays(cam: CameraArrays, width: int, height: int, t: Types, *,
     ``spp = k²`` stratified jittered samples per pixel. Raises SceneError
     (``validate_settings``) for any other ``spp``.
 
-    first_row, rows: only the ``rows`` image rows from ``first_row`` (a ``t.UInt32`` of
-    width 1, made opaque by the caller) on: width ``width·rows·spp``, the same rays as
-    those rows of the whole image (see the module's "Tiles").
-    block: ``(bw, bh)``: the rays in block order (the module's "Pixel blocks"): ray ``k``
-    is sample ``k % spp`` of the pixel in slot ``k // spp``; the same rays as without.
+    tile (``RayTile``): with ``first_row`` and ``rows``, only those rows: width
+    ``width·rows·spp``, the same rays as those rows of the whole image (see the module's
+    "Tiles"); with ``block``, the rays in block order (the module's "Pixel blocks"): ray
+    ``k`` is sample ``k % spp`` of the pixel in slot ``k // spp``; the same rays as
+    without.
     """
     validate_settings(spp=spp, exact=exact)
+    tile = RayTile() if tile is None else tile
+    first_row, rows, block = tile.first_row, tile.rows, tile.block
     n_rows = height if rows is None else rows
     n = width * n_rows * spp
     idx = dr.arange(t.UInt32, n)

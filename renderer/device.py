@@ -4,12 +4,15 @@ Every kernel module takes its types from a ``Types`` bundle instead of hard-codi
 ``drjit.cuda`` or ``drjit.llvm``: ``types()`` gives ``drjit.auto``'s choice (CUDA when a GPU
 is present, LLVM otherwise); ``types("llvm")`` forces the CPU backend. ``precision`` selects
 float32 (default) or float64 for every floating-point array, so the same code renders in
-double precision. The renderer takes its reciprocals from here (``rcp``, ``rsqrt``,
-``normalize``): Dr.Jit's own are float32-accurate for float64 arrays on CUDA.
+double precision. The LLVM backend is refused before any kernel where the libLLVM Dr.Jit
+loaded cannot run it (``llvm_problem``: one line with the fix). The renderer takes its
+reciprocals from here (``rcp``, ``rsqrt``, ``normalize``): Dr.Jit's own are float32-accurate
+for float64 arrays on CUDA.
 """
 from __future__ import annotations
 
 import importlib
+import os
 from dataclasses import dataclass
 from functools import lru_cache
 
@@ -21,7 +24,33 @@ PRECISIONS = ("float32", "float64")
 
 
 class DeviceError(RuntimeError):
-    """A backend that this machine cannot run (``--backend cuda`` without a CUDA device)."""
+    """A backend that this machine cannot run (``--backend cuda`` without a CUDA device,
+    the LLVM backend without a usable libLLVM)."""
+
+
+#: The oldest libLLVM major version the LLVM backend renders with: Dr.Jit 1.5 refuses 14
+#: (no opaque pointers) and LLVM 15 aborts while compiling the render kernel (a DAG dump,
+#: exit 134); 19 is the version ``ci/setup.sh`` installs.
+MIN_LLVM = 16
+LLVM_FIX = ("install libLLVM 19 (`apt-get install libllvm19`) or point DRJIT_LIBLLVM_PATH "
+            "at a libLLVM.so of version {min} or newer")
+
+
+def llvm_problem() -> str | None:
+    """Why the LLVM backend cannot run here, with the fix, in one line; None where it can
+    (a libLLVM of version ``MIN_LLVM`` or newer is loaded). Decided from what Dr.Jit
+    found when it was imported, before any kernel."""
+    version = tuple(dr.detail.llvm_version())
+    fix = LLVM_FIX.format(min=MIN_LLVM)
+    path = os.environ.get("DRJIT_LIBLLVM_PATH")
+    where = f" (DRJIT_LIBLLVM_PATH={path})" if path else ""
+    if not dr.has_backend(dr.JitBackend.LLVM) and version[0] < 0:
+        return f"backend 'llvm': no usable libLLVM was loaded{where}; {fix}"
+    if version[0] < MIN_LLVM:
+        found = ".".join(map(str, version))
+        return f"backend 'llvm': libLLVM {found}{where} is too old (it cannot compile " \
+               f"the render kernels); {fix}"
+    return None
 
 
 @dataclass(frozen=True)
@@ -56,6 +85,8 @@ def types(backend: str = "auto", precision: str = "float32") -> Types:
     if backend == "cuda" and not dr.has_backend(dr.JitBackend.CUDA):
         raise DeviceError("backend 'cuda' requested but no CUDA device is available "
                           "(backend 'llvm' or 'auto' runs on the CPU)")
+    if backend == "llvm" and (problem := llvm_problem()) is not None:
+        raise DeviceError(problem)
     m = importlib.import_module(f"drjit.{backend}")
     s = "64" if precision == "float64" else ""
     return Types(
@@ -66,11 +97,31 @@ def types(backend: str = "auto", precision: str = "float32") -> Types:
     )
 
 
+#: Byte alignment of the host buffers device arrays are made from (``host_array``).
+HOST_ALIGN = 64
+
+
+def host_array(x, dtype=None) -> np.ndarray:
+    """A C-contiguous copy of ``x`` (as ``dtype``) starting at a ``HOST_ALIGN``-byte
+    boundary, for ``t.Float(...)``-style uploads. On LLVM Dr.Jit reads a numpy array's own
+    memory and marks a kernel input whose address is not aligned to the vector width
+    (``align 1`` instead of ``align 4``/``32`` in the IR): the traced kernel, and its
+    hash, then depended on where numpy's allocator put the array (it moved with
+    ``PYTHONHASHSEED``), so a warm run could compile again. Aligned, the kernel is the
+    same in every run."""
+    x = np.asarray(x, dtype=dtype)
+    buf = np.empty(x.nbytes + HOST_ALIGN, np.uint8)
+    start = (-buf.ctypes.data) % HOST_ALIGN
+    out = buf[start:start + x.nbytes].view(x.dtype).reshape(x.shape)
+    out[...] = x
+    return out
+
+
 def array3(t: Types, rows) -> object:
     """``t.Array3f`` of width N from host rows (anything numpy reads as (N, 3) or (3,))."""
-    x = np.ascontiguousarray(np.asarray(rows, np.float64).reshape(-1, 3),
-                             dtype=np.float64 if t.is_double else np.float32)
-    return t.Array3f(t.Float(x[:, 0]), t.Float(x[:, 1]), t.Float(x[:, 2]))
+    x = np.asarray(rows, np.float64).reshape(-1, 3)
+    fdt = np.float64 if t.is_double else np.float32
+    return t.Array3f(*(t.Float(host_array(x[:, k], fdt)) for k in range(3)))
 
 
 # ---- reciprocals that keep float64 float64 on CUDA --------------------------------------
@@ -101,3 +152,9 @@ def normalize(v):
     """``v / |v|`` as ``dr.normalize`` computes it (``v * rsqrt(|v|²)``), with ``rsqrt``'s
     float64 accuracy."""
     return v * rsqrt(dr.squared_norm(v))
+
+
+def unit_roundoff(double: bool) -> float:
+    """Unit roundoff of float64 (``double``) or float32: half the distance from 1 to the
+    next float."""
+    return 2.0 ** -53 if double else 2.0 ** -24

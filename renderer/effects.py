@@ -18,7 +18,7 @@ import numpy as np
 from .scene import Scene
 
 FLAGS = ("shadows", "ambient", "reflection", "refraction", "smooth_normals", "specular",
-         "many_lights", "fresnel")
+         "many_lights", "fresnel", "soft_shadows")
 
 
 @dataclass(frozen=True)
@@ -30,7 +30,10 @@ class EffectSet:
     (refraction implies reflection: total internal reflection and Fresnel reflect).
     smooth_normals: some object interpolates vertex normals. specular: some ks > 0 and a
     light exists. many_lights: more than one light. fresnel: some material uses Fresnel
-    weights. physical: "physical" shading (else "classic").
+    weights. soft_shadows: some light has extent (a sphere or rectangle light: several
+    jittered shadow rays per light, docs/MODEL.md "Lights with extent"); a scene of point
+    lights traces without it, exactly today's kernel. physical: "physical" shading (else
+    "classic").
     depth: deepest reachable bounce (0 without secondary rays; see ``reachable_depth``).
     reasons: flag -> why it is on (the material, light or object asking for it).
     forced: True when the set does not follow from the scene (``all()`` / ``without()``).
@@ -44,6 +47,7 @@ class EffectSet:
     specular: bool = False
     many_lights: bool = False
     fresnel: bool = False
+    soft_shadows: bool = False
     physical: bool = False
     depth: int = 0
     reasons: dict = field(default_factory=dict, compare=False)
@@ -82,9 +86,14 @@ class EffectSet:
         r_many = f"{len(lights)} lights" if len(lights) > 1 else None
         r_fres = first(lambda m: m.combination == "fresnel" and (m.reflective or m.transmissive),
                        used_mats, "material") if deep else None
+        r_soft = first(lambda li: li.extent, lights, "light")
+        if r_soft:
+            big = next(li for li in lights if li.extent)
+            r_soft += f" is a {big.shape} ({s.shadow_samples} shadow samples)"
         for k, r in (("shadows", r_light), ("ambient", r_amb), ("reflection", r_refl),
                      ("refraction", r_refr), ("smooth_normals", r_smooth),
-                     ("specular", r_spec), ("many_lights", r_many), ("fresnel", r_fres)):
+                     ("specular", r_spec), ("many_lights", r_many), ("fresnel", r_fres),
+                     ("soft_shadows", r_soft)):
             if r:
                 reasons[k] = r
         secondary = bool(r_refl or r_refr)
@@ -94,6 +103,7 @@ class EffectSet:
         return cls(shadows=bool(r_light), ambient=bool(r_amb), reflection=bool(r_refl),
                    refraction=bool(r_refr), smooth_normals=bool(r_smooth),
                    specular=bool(r_spec), many_lights=bool(r_many), fresnel=bool(r_fres),
+                   soft_shadows=bool(r_soft),
                    physical=s.shading == "physical",
                    depth=depth, reasons=reasons)
 

@@ -15,6 +15,7 @@ from pathlib import Path
 import drjit as dr
 import numpy as np
 
+from .camera import block_pixel
 from .outputs import atomic_path
 
 
@@ -29,7 +30,6 @@ def develop(radiance, width: int, height: int, spp: int, t,
     if block is None:
         flat = dr.ravel(radiance, order="F")
     else:
-        from .camera import block_pixel
         x, y = block_pixel(dr.arange(t.UInt32, width * height), width, height, block)
         flat = dr.zeros(t.Float, 3 * width * height)
         dr.scatter(flat, radiance, y * width + x)        # flat[3 p + c] = radiance[c]

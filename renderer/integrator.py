@@ -32,31 +32,41 @@ from .shade import (
 
 
 def _shade_hit(sa: SceneArrays, ray: Ray, hit, t: Types, fx: EffectSet, opt: TraceOptions,
-               active):
-    """Surface point and I_local (Array3f) at the closest hits ``hit`` of ``ray``."""
+               active, key=None, hit_no=None):
+    """Surface point and I_local (Array3f) at the closest hits ``hit`` of ``ray``
+    (``key``, ``hit_no``: the shadow samples' random key and hit number, soft shadows
+    only)."""
     sp = surface_point(sa.accel, ray, hit, t, fx, opt.terminator)
-    I_local = local_light(shading_context(sp, ray.d, active), sa, t, fx, opt)
+    ctx = shading_context(sp, ray.d, active, key, hit_no)
+    I_local = local_light(ctx, sa, t, fx, opt)
     return sp, I_local
 
 
-def _no_secondary(sa: SceneArrays, o, d, t: Types, fx: EffectSet, opt: TraceOptions):
+def _no_secondary(sa: SceneArrays, o, d, t: Types, fx: EffectSet, opt: TraceOptions,
+                  key=None):
     """Depth 0 only: one closest hit, local light or the background."""
     active = dr.full(t.Bool, True, dr.width(d))
     ray = Ray(o=o, d=d, t_max=t.Float(dr.inf))
     hit = sa.accel.intersect(ray, active)
-    sp, I_local = _shade_hit(sa, ray, hit, t, fx, opt, hit.found)
+    hit_no = dr.zeros(t.UInt32, dr.width(d)) if fx.soft_shadows else None
+    sp, I_local = _shade_hit(sa, ray, hit, t, fx, opt, hit.found, key, hit_no)
     return dr.select(hit.found, I_local, t.Array3f(sa.background))
 
 
 @dr.syntax
-def trace(sa: SceneArrays, o, d, t: Types, fx: EffectSet, opt: TraceOptions):
+def trace(sa: SceneArrays, o, d, t: Types, fx: EffectSet, opt: TraceOptions, key=None):
     """Radiance along the rays ``(o, d)`` (Array3f, ``d`` unit) through the Whitted tree.
 
     Returns Array3f radiance of the batch width. ``fx`` (which effects are traced) and
-    ``opt`` (``max_depth`` checked when it was made) are host constants.
+    ``opt`` (``max_depth`` checked when it was made) are host constants. ``key``: UInt32
+    per ray, the random key of its shadow samples (required with ``fx.soft_shadows``,
+    ``camera.ray_keys``); the hits along a ray's tree walk are numbered 0, 1, ... so each
+    draws its own numbers.
     """
+    if dr.hint(fx.soft_shadows and key is None, mode="scalar"):
+        raise ValueError("trace: soft shadows need the rays' random keys (key=...)")
     if dr.hint(not fx.secondary, mode="scalar"):
-        return _no_secondary(sa, o, d, t, fx, opt)
+        return _no_secondary(sa, o, d, t, fx, opt, key)
 
     n = dr.width(d)
     A3, Float, UInt32 = t.Array3f, t.Float, t.UInt32
@@ -80,11 +90,14 @@ def trace(sa: SceneArrays, o, d, t: Types, fx: EffectSet, opt: TraceOptions):
     sp_top = dr.zeros(UInt32, n)           # number of pending branches on the stack
     radiance = dr.zeros(A3, n)             # result
     active = dr.full(t.Bool, True, n)      # lane still has a ray to trace
+    hit_no = None                          # number of the hit along the walk (soft shadows)
+    if dr.hint(fx.soft_shadows, mode="scalar"):
+        hit_no = dr.zeros(UInt32, n)
 
     # host objects and local buffers are read inside the loop but are not loop state
     while dr.hint(active, max_iterations=-1, label="whitted",
                   exclude=[sa, t, fx, opt, n, A3, Float, UInt32, max_depth, use_stack, cap,
-                           st_o, st_d, st_w, st_depth]):
+                           st_o, st_d, st_w, st_depth, key]):
         # ---- closest hit, or the background --------------------------------------------------
         ray = Ray(o=ray_o, d=ray_d, t_max=Float(dr.inf))
         hit = sa.accel.intersect(ray, active)
@@ -93,7 +106,9 @@ def trace(sa: SceneArrays, o, d, t: Types, fx: EffectSet, opt: TraceOptions):
         on_surface = active & hit.found
 
         # ---- local light ---------------------------------------------------------------------
-        sp, I_local = _shade_hit(sa, ray, hit, t, fx, opt, on_surface)
+        sp, I_local = _shade_hit(sa, ray, hit, t, fx, opt, on_surface, key, hit_no)
+        if dr.hint(fx.soft_shadows, mode="scalar"):
+            hit_no += 1
         radiance = dr.select(on_surface, dr.fma(weight, I_local, radiance), radiance)
 
         # ---- children: follow the reflected one ----------------------------------------------

@@ -19,11 +19,9 @@ from pathlib import Path
 import drjit as dr
 import numpy as np
 
-from .accel import DEFAULT_ROUTINE
-from .effects import EffectSet
 from .film import srgb_encode
 from .outputs import atomic_path
-from .render import Renderer
+from .render import Renderer, RenderOptions, render_options
 from .scene import Camera, Scene
 
 # Playback rate of the animations the CLI writes: 25 fps is 4 GIF ticks of 10 ms a frame.
@@ -87,23 +85,19 @@ def orbit_cameras(cam: Camera, n: int) -> list[Camera]:
     return cams
 
 
-def render_orbit(scene: Scene, n: int, *, view: int = 0, backend: str = "auto",
-                 accel: str | None = None, precision: str = "float32",
-                 intersection: str = DEFAULT_ROUTINE, effects: EffectSet | None = None,
-                 spp: int | None = None, exact: bool | None = None,
-                 srgb: bool = True) -> OrbitResult:
+def render_orbit(scene: Scene, n: int, options: RenderOptions | None = None, *,
+                 view: int = 0, srgb: bool = True, **settings) -> OrbitResult:
     """Render ``n`` frames orbiting ``scene.cameras[view]`` (see ``orbit_cameras``) with one
     frozen frame function.
 
-    Options are those of ``render``; ``srgb`` returns uint8 (H, W, 3) sRGB frames (what an
-    animation stores), else float32 (H, W, 3) linear RGB. Timing covers the frame function
-    and the read-back of its image, not the sRGB encoding or the scene upload.
+    ``options`` and ``settings`` are those of ``render`` (``freeze`` is always on);
+    ``srgb`` returns uint8 (H, W, 3) sRGB frames (what an animation stores), else float32
+    (H, W, 3) linear RGB. Timing covers the frame function and the read-back of its image,
+    not the sRGB encoding or the scene upload.
     """
     cam = scene.cameras[view]
     cams = orbit_cameras(cam, n)
-    r = Renderer(scene, backend=backend, precision=precision, accel=accel,
-                 intersection=intersection, effects=effects, spp=spp, exact=exact,
-                 freeze=True)
+    r = Renderer(scene, render_options(options, **settings), freeze=True)
     frames, times = [], []
     for c in cams:
         ca = r.camera(c)          # upload the camera before the clock starts

@@ -8,13 +8,13 @@ benchmark can re-run it with a moved camera without re-tracing.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import drjit as dr
 import numpy as np
 
 from .accel import DEFAULT_ROUTINE, build_accelerator, default_accel
-from .camera import BLOCKS, CameraArrays, camera_arrays, primary_rays
+from .camera import BLOCKS, CameraArrays, RayTile, camera_arrays, primary_rays, ray_keys
 from .device import Types, array3, types
 from .effects import EffectSet
 from .film import develop
@@ -56,51 +56,81 @@ def make_frame_fn(t: Types, effects: EffectSet, options: TraceOptions, *, spp: i
     def frame(cam: CameraArrays, arrays: SceneArrays, width: int, height: int,
               first_row=None, rows: int | None = None):
         o, d = primary_rays(cam, width, height, t, spp=spp, exact=exact, seed=seed,
-                            first_row=first_row, rows=rows, block=block)
-        radiance = trace(arrays, o, d, t, effects, options)
+                            tile=RayTile(first_row=first_row, rows=rows, block=block))
+        key = None
+        if effects.soft_shadows:
+            key = ray_keys(width, height, t, spp=spp, seed=seed, first_row=first_row,
+                           rows=rows, block=block)
+        radiance = trace(arrays, o, d, t, effects, options, key)
         return develop(radiance, width, height if rows is None else rows, spp, t, block)
     return frame
 
 
-class Renderer:
-    """A scene uploaded for repeated frames.
+@dataclass
+class RenderOptions:
+    """How ``Renderer`` (and ``render``, ``orbit.render_orbit``) renders a scene.
 
-    Parameters (keyword-only after ``scene``):
-      backend: "auto" | "cuda" | "llvm" (default "auto").
-      precision: "float32" | "float64" (default "float32").
-      accel: a key of ``renderer.accel.ACCELERATORS`` (default None: the backend's,
-          ``renderer.accel.default_accel``: the binary BVH on CUDA, the 4-wide BVH on LLVM;
-          every accelerator gives the same pixels).
-      intersection: triangle routine (default ``renderer.accel.DEFAULT_ROUTINE``).
-      effects: EffectSet to trace (default: derived from the scene).
-      spp, exact: override ``scene.settings`` as ``Scene.with_overrides`` does (``spp``
-          alone sets ``exact = spp == 1``; ``exact`` alone takes spp 1 or the scene's).
-      freeze: wrap the frame function in ``dr.freeze`` (default False).
-      tie_break, tie_window, tie_slack: which hit wins among hits as near as the nearest
-          within the distances ``tie_window`` (along the ray) and ``tie_slack`` (off an edge)
-          (``renderer.accel.traverse.tie_probe``): "lowest" original face index (default;
-          the renderer's) or "other" (a probe: the golden tests render both and excuse a
-          pixel only where they differ).
-      build: how the BVH is built, "sah" | "device" | "auto" (default None: the scene's
-          ``settings.build``; ``renderer.accel.builders``); cache: a
-          ``renderer.accel.cache.TreeCache`` for built trees (default None: none); frames:
-          how many frames the caller renders (default None: unknown), for "auto";
-          build_progress: None, or ``build_progress(build, levels_done)`` during a build.
+    backend: "auto" | "cuda" | "llvm" (default "auto").
+    precision: "float32" | "float64" (default "float32").
+    accel: a key of ``renderer.accel.ACCELERATORS`` (default None: the backend's,
+        ``renderer.accel.default_accel``: the binary BVH on CUDA, the 4-wide BVH on LLVM;
+        every accelerator gives the same pixels).
+    intersection: triangle routine (default ``renderer.accel.DEFAULT_ROUTINE``).
+    effects: EffectSet to trace (default: derived from the scene).
+    spp, exact: override ``scene.settings`` as ``Scene.with_overrides`` does (``spp``
+        alone sets ``exact = spp == 1``; ``exact`` alone takes spp 1 or the scene's).
+    shadow_samples: override ``settings.shadow_samples`` (shadow rays per light with
+        extent, k*k).
+    freeze: wrap the frame function in ``dr.freeze`` (default False).
+    tie_break, tie_window, tie_slack: which hit wins among hits as near as the nearest
+        within the distances ``tie_window`` (along the ray) and ``tie_slack`` (off an edge)
+        (``renderer.accel.query.tie_probe``): "lowest" original face index (default; the
+        renderer's) or "other" (a probe: the golden tests render both and excuse a pixel
+        only where they differ).
+    """
+
+    backend: str = "auto"
+    precision: str = "float32"
+    accel: str | None = None
+    intersection: str = DEFAULT_ROUTINE
+    effects: EffectSet | None = None
+    spp: int | None = None
+    exact: bool | None = None
+    freeze: bool = False
+    tie_break: str = "lowest"
+    tie_window: float = 0.0
+    tie_slack: float = 0.0
+    shadow_samples: int | None = None
+    build: str | None = None
+    cache: object = None
+    frames: int | None = None
+    build_progress: object = None
+
+
+def render_options(options: RenderOptions | None = None, **settings) -> RenderOptions:
+    """``options`` (default ``RenderOptions()``) with the fields named in ``settings``
+    replaced (an unknown name is a TypeError)."""
+    return replace(options or RenderOptions(), **settings)
+
+
+class Renderer:
+    """A scene uploaded for repeated frames: ``Renderer(scene, options, **settings)``, the
+    ``RenderOptions`` ``options`` with any of its fields given as keywords
+    (``Renderer(scene, backend="llvm", accel="bvh")``).
 
     The settings are checked by ``validate_settings`` (SceneError, a ValueError, names the
     field). ``arrays`` (SceneArrays) holds the uploaded scene, ``frame_fn`` the (frozen)
     per-frame function of ``make_frame_fn``; ``frame(camera(cam), W, H)`` runs it.
     """
 
-    def __init__(self, scene: Scene, *, backend: str = "auto", precision: str = "float32",
-                 accel: str | None = None, intersection: str = DEFAULT_ROUTINE,
-                 effects: EffectSet | None = None, spp: int | None = None,
-                 exact: bool | None = None, freeze: bool = False, tie_break: str = "lowest",
-                 tie_window: float = 0.0, tie_slack: float = 0.0, build: str | None = None,
-                 cache=None, frames: int | None = None, build_progress=None):
+    def __init__(self, scene: Scene, options: RenderOptions | None = None, **settings):
+        opts = render_options(options, **settings)
+        backend, precision, accel = opts.backend, opts.precision, opts.accel
+        effects, spp, exact = opts.effects, opts.spp, opts.exact
         if not scene.cameras:
             raise ValueError(f"scene {scene.name!r}: cameras: at least one camera is required")
-        s = scene.with_overrides(spp=spp, exact=exact).settings
+        scene = scene.with_overrides(spp=spp, exact=exact, shadow_samples=opts.shadow_samples)
+        s = scene.settings
         self.scene = scene
         self.t: Types = types(backend, precision)
         check_ranges(scene, precision)
@@ -113,11 +143,12 @@ class Renderer:
         t = self.t
         accel = default_accel(t.backend) if accel is None else accel
         t0 = time.perf_counter()
-        acc = build_accelerator(accel, scene, t, intersection=intersection,
-                                tie_break=tie_break, tie_window=tie_window,
-                                tie_slack=tie_slack,
-                                build=s.build if build is None else build, cache=cache,
-                                frames=frames, progress=build_progress)
+        acc = build_accelerator(accel, scene, t, intersection=opts.intersection,
+                                tie_break=opts.tie_break, tie_window=opts.tie_window,
+                                tie_slack=opts.tie_slack,
+                                build=s.build if opts.build is None else opts.build,
+                                cache=opts.cache, frames=opts.frames,
+                                progress=opts.build_progress)
         self.arrays = SceneArrays(
             accel=acc, materials=upload_materials(scene, t), lights=upload_lights(scene, t),
             ambient=array3(t, scene.ambient), background=array3(t, s.background))
@@ -125,11 +156,12 @@ class Renderer:
         self.upload_seconds = time.perf_counter() - t0
         self.options = TraceOptions(n_lights=len(scene.lights), max_depth=int(s.max_depth),
                                     min_weight=float(s.min_weight), eps=scene.ray_offset,
-                                    spawn=s.spawn, terminator=s.terminator)
+                                    spawn=s.spawn, terminator=s.terminator,
+                                    shadow_samples=int(s.shadow_samples))
         self.accel_name = accel
         frame_fn = make_frame_fn(t, self.effects, self.options, spp=self.spp, exact=self.exact,
                                  seed=int(s.seed))
-        self.frame_fn = dr.freeze(frame_fn) if freeze else frame_fn
+        self.frame_fn = dr.freeze(frame_fn) if opts.freeze else frame_fn
 
     def camera(self, cam: Camera | int = 0) -> CameraArrays:
         """Device arrays of ``cam`` (a Camera, or an index into ``scene.cameras``)."""
@@ -195,19 +227,14 @@ class Renderer:
         return RenderResult(image=out, effects=self.effects, seconds=seconds, stats=stats)
 
 
-def render(scene: Scene, *, view: int = 0, backend: str = "auto", precision: str = "float32",
-           accel: str | None = None, intersection: str = DEFAULT_ROUTINE,
-           effects: EffectSet | None = None, spp: int | None = None,
-           exact: bool | None = None, tie_break: str = "lowest",
-           tie_window: float = 0.0, tie_slack: float = 0.0) -> RenderResult:
+def render(scene: Scene, options: RenderOptions | None = None, *, view: int = 0,
+           **settings) -> RenderResult:
     """Render ``scene`` from ``scene.cameras[view]``.
 
     Returns a RenderResult whose ``image`` is float32 (H, W, 3) linear RGB (row 0 = top).
-    Options are those of ``Renderer`` (the tie probe's included; the backend's accelerator,
-    ``renderer.accel.default_accel``, unless given); ``effects`` defaults to
-    ``EffectSet.from_scene(scene)``; ``spp``/``exact`` default to ``scene.settings``.
+    ``options`` and ``settings`` are those of ``Renderer`` (the tie probe's included; the
+    backend's accelerator, ``renderer.accel.default_accel``, unless given); ``effects``
+    defaults to ``EffectSet.from_scene(scene)``; ``spp``/``exact`` default to
+    ``scene.settings``.
     """
-    r = Renderer(scene, backend=backend, precision=precision, accel=accel,
-                 intersection=intersection, effects=effects, spp=spp, exact=exact,
-                 tie_break=tie_break, tie_window=tie_window, tie_slack=tie_slack)
-    return r.render(view)
+    return Renderer(scene, options, **settings).render(view)

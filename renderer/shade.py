@@ -10,6 +10,7 @@ summed in a device loop; a single light is straight-line code. Lights are read o
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import drjit as dr
@@ -20,7 +21,7 @@ from .accel.triangle import layout_of, unit_roundoff
 from .accel.triangle import load as load_triangle
 from .device import Types, array3, normalize, rcp
 from .effects import EffectSet
-from .lights import DeviceLights, sample_light
+from .lights import DeviceLights, sample_hash, sample_light
 from .scene import Scene, validate_settings
 
 INV_PI = 1.0 / np.pi
@@ -86,7 +87,8 @@ class TraceOptions:
     scene's ``ray_epsilon`` override), spawn (``SPAWN_RULES``: "scale-free", offsets from
     each hit's own rounding error, the default; "mitsuba", Mitsuba 3's rule), terminator
     (``TERMINATOR_FIXES``: "none"; "hanika", shadow rays of smooth faces from the lifted
-    point ``SurfacePoint.p_shadow``)."""
+    point ``SurfacePoint.p_shadow``), shadow_samples (``k²`` shadow rays per light with
+    extent, read only with soft shadows)."""
 
     n_lights: int
     max_depth: int
@@ -94,9 +96,11 @@ class TraceOptions:
     eps: float | None = None
     spawn: str = "scale-free"
     terminator: str = "none"
+    shadow_samples: int = 1
 
     def __post_init__(self):
-        validate_settings(max_depth=self.max_depth, spawn=self.spawn)
+        validate_settings(max_depth=self.max_depth, spawn=self.spawn,
+                          shadow_samples=self.shadow_samples)
 
 
 # ---- Fresnel ---------------------------------------------------------------------------------
@@ -330,19 +334,23 @@ class ShadingContext:
 
     sp: SurfacePoint; N: Array3f shading normal turned to face ``V``; V: Array3f unit
     direction to the viewer (``-d``); active: Bool lanes that hit a surface.
+    key, hit: UInt32 the camera ray's random key and the number of this hit along its
+    tree walk (the shadow samples' random numbers; None without soft shadows).
     """
 
     sp: SurfacePoint = None
     N: object = None
     V: object = None
     active: object = None
+    key: object = None
+    hit: object = None
 
 
-def shading_context(sp: SurfacePoint, d, active) -> ShadingContext:
+def shading_context(sp: SurfacePoint, d, active, key=None, hit=None) -> ShadingContext:
     """The context of the hits ``sp`` of rays with unit directions ``d``."""
     V = -d
     N = dr.select(dr.dot(V, sp.ns) >= 0, sp.ns, -sp.ns)
-    return ShadingContext(sp=sp, N=N, V=V, active=active)
+    return ShadingContext(sp=sp, N=N, V=V, active=active, key=key, hit=hit)
 
 
 # ---- local light -----------------------------------------------------------------------------
@@ -397,9 +405,18 @@ def phong_power(rv, n):
 def _light_term(li, ctx: ShadingContext, lobe: PhongLobe, sa: SceneArrays, t: Types,
                 fx: EffectSet, opt: TraceOptions, result):
     """``result`` plus light ``li``'s contribution (``li``: UInt32 index, a literal or an
-    array), with a shadow ray through ``sa.accel.intersect_p`` when ``fx.shadows``."""
+    array), with a shadow ray through ``sa.accel.intersect_p`` when ``fx.shadows``; with
+    ``fx.soft_shadows`` the mean over the light's shadow samples (``_soft_light_term``)."""
+    if dr.hint(fx.soft_shadows, mode="scalar"):
+        return _soft_light_term(li, ctx, lobe, sa, t, fx, opt, result)
+    ls = sample_light(sa.lights, li, ctx.sp.p, t, all_inverse_square=fx.physical)
+    return _sample_term(ls, ctx, lobe, sa, t, fx, opt, result)
+
+
+def _sample_term(ls, ctx: ShadingContext, lobe: PhongLobe, sa: SceneArrays, t: Types,
+                 fx: EffectSet, opt: TraceOptions, result):
+    """``result`` plus the point-light term of the light sample ``ls`` (LightSample)."""
     sp, N = ctx.sp, ctx.N
-    ls = sample_light(sa.lights, li, sp.p, t, all_inverse_square=fx.physical)
     L = ls.wi
     cos_theta = dr.dot(L, N)
     lit = ctx.active & (cos_theta > 0)
@@ -420,6 +437,35 @@ def _light_term(li, ctx: ShadingContext, lobe: PhongLobe, sa: SceneArrays, t: Ty
         blocked = sa.accel.intersect_p(shadow, lit)
         lit &= ~blocked
     return dr.select(lit, dr.fma(ls.Li, brdf, result), result)
+
+
+@dr.syntax
+def _soft_light_term(li, ctx: ShadingContext, lobe: PhongLobe, sa: SceneArrays, t: Types,
+                     fx: EffectSet, opt: TraceOptions, result):
+    """Light ``li``'s shadow samples (docs/MODEL.md, "Lights with extent"): a device loop
+    over its ``samples`` (``k²`` for a light with extent, 1 for a point light), sample
+    ``s = j k + i`` at ``((i + ξ1)/k, (j + ξ2)/k)``, each a point-light term with its own
+    shadow ray and its intensity times ``1 / samples`` (exactly 1 for a point light, whose
+    term is then the point light's bit for bit)."""
+    k = math.isqrt(opt.shadow_samples)
+    inv_k = 1.0 / k
+    draws = 2 * opt.shadow_samples          # random numbers per light per hit
+    n_s = dr.gather(t.UInt32, sa.lights.samples, li)
+    w = dr.gather(t.Float, sa.lights.weight, li)
+    base = (ctx.hit * opt.n_lights + li) * draws
+    s = dr.zeros(t.UInt32, dr.width(ctx.active))
+    while dr.hint(s < n_s, max_iterations=-1, label="shadow samples",
+                  exclude=[ctx, lobe, sa, t, fx, opt, k, inv_k, w, base]):
+        c = base + 2 * s
+        row = s // k
+        u1 = (t.Float(s - row * k) + sample_hash(ctx.key, c, t)) * inv_k
+        u2 = (t.Float(row) + sample_hash(ctx.key, c + 1, t)) * inv_k
+        ls = sample_light(sa.lights, li, ctx.sp.p, t, all_inverse_square=fx.physical,
+                          u=(u1, u2))
+        ls.Li = ls.Li * w
+        result = _sample_term(ls, ctx, lobe, sa, t, fx, opt, result)
+        s += 1
+    return result
 
 
 @dr.syntax
@@ -451,8 +497,9 @@ def local_light(ctx: ShadingContext, sa: SceneArrays, t: Types, fx: EffectSet,
     if dr.hint(opt.n_lights == 0, mode="scalar"):
         return result
     lobe = phong_lobe(sa.materials, ctx, t, fx)
-    if dr.hint(fx.many_lights, mode="scalar"):
+    if dr.hint(fx.many_lights or fx.soft_shadows, mode="scalar"):
         result = dr.zeros(A3, dr.width(ctx.active)) + result   # loop state of the batch width
+    if dr.hint(fx.many_lights, mode="scalar"):
         return _light_loop(ctx, lobe, sa, t, fx, opt, result)
     return _light_term(t.UInt32(0), ctx, lobe, sa, t, fx, opt, result)
 

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from util import camera, pixel_ray
 
-from renderer.camera import block_pixel, camera_arrays, primary_rays
+from renderer.camera import RayTile, block_pixel, camera_arrays, primary_rays
 from renderer.device import types
 
 
@@ -72,8 +72,8 @@ def test_block_order_rays_are_the_row_major_rays(backend, spp, exact):
 
     def dirs(rows, first, block):
         fr = None if first is None else dr.opaque(t.UInt32, first)
-        d = primary_rays(ca, 13, 11, t, spp=spp, exact=exact, seed=7, first_row=fr,
-                         rows=rows, block=block)[1]
+        d = primary_rays(ca, 13, 11, t, spp=spp, exact=exact, seed=7,
+                         tile=RayTile(first_row=fr, rows=rows, block=block))[1]
         return np.stack([c.numpy() for c in d], axis=1).reshape(-1, spp, 3)
 
     for rows, first in ((None, None), (6, 3)):

@@ -33,6 +33,26 @@ def test_bad_option_value_is_a_usage_error(option, value, capsys):
     assert f"argument {option}" in last and value in last
 
 
+#: Overrides the parser accepts and the scene refuses: (command, the one error line's start).
+BAD_OVERRIDES = [
+    (["render", SCENE, "--spp", "2"], "error: --spp: expected a perfect square >= 1"),
+    (["render", SCENE, "--spp", "0"], "error: --spp: expected a perfect square >= 1"),
+    (["render", SCENE, "--max-depth", "-1"], "error: --max-depth: expected an integer in 0.."),
+    (["render", SCENE, "--max-depth", "99"], "error: --max-depth: expected an integer in 0.."),
+    (["export", SCENE, "--spp", "3"], "error: --spp: expected a perfect square >= 1"),
+]
+
+
+@pytest.mark.parametrize("argv,line", BAD_OVERRIDES)
+def test_bad_override_names_the_option_as_typed(tmp_path, capsys, argv, line):
+    out = ["--mitsuba-xml", str(tmp_path / "x.xml")] if argv[0] == "export" else \
+        ["--out", str(tmp_path / "out")]
+    assert main([*argv, *out]) == 2
+    last = _one_error_line(capsys.readouterr().err)
+    assert last.startswith(line), last
+    assert "settings." not in last
+
+
 @pytest.mark.skipif(dr.has_backend(dr.JitBackend.CUDA), reason="this machine has CUDA")
 def test_cuda_backend_without_a_gpu_is_one_line(tmp_path, capsys):
     assert main(["render", SCENE, "--backend", "cuda", "--out", str(tmp_path)]) == 2

@@ -45,6 +45,9 @@ def scene_with(*extra, mirror_smooth=False, **settings):
     lights = [light([1, 2, 1.5], 6.0, name="key")]
     if "two_lights" in extra:
         lights.append(light([-1.5, 1, 1], [1, 0.5, 0.2], name="fill"))
+    if "sphere_light" in extra:
+        lights[0] = replace(lights[0], shape="sphere", radius=0.4)
+        settings.setdefault("shadow_samples", 4)
     if "no_light" in extra:
         lights = []
     return make_scene([(*floor, 0), (*cube, 1, "smooth" in extra)],
@@ -64,6 +67,7 @@ CASES = {
     "specular": (lambda: scene_with("specular"), lambda: scene_with()),
     "many_lights": (lambda: scene_with("two_lights"), lambda: scene_with()),
     "fresnel": (lambda: scene_with("fresnel"), lambda: scene_with("refraction")),
+    "soft_shadows": (lambda: scene_with("sphere_light"), lambda: scene_with()),
     "secondary": (lambda: scene_with("reflection"), lambda: scene_with("reflection", max_depth=0)),
 }
 

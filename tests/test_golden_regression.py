@@ -77,6 +77,21 @@ def test_exact_matches_golden(whitted_case):
     print(whitted_case.check())
 
 
+def test_cornell_box_exact_in_float64():
+    """``whitted check cornell_box --precision float64``: every exact case passes. The
+    tie probe excuses no shadow ray blocked at its own origin (``query.ORIGIN_OPS``):
+    with the walls tilted by an ulp (``cos 90°`` from ``np.radians``, the mutant
+    ``right_angles_inexact``) 83 floor pixels went dark and this passed."""
+    from evaluation.gate.verdict import check_scene
+    from reference.golden import search_stores
+
+    verdicts = check_scene(ROOT / "scenes" / "cornell_box.toml", search_stores(),
+                           modes=["exact"], backend="llvm", precision="float64")
+    bad = [f"{v.view_name} {v.shading}: {v.status} {v.reason}" for v in verdicts
+           if v.status != "PASS"]
+    assert len(verdicts) == 6 and not bad, bad
+
+
 @pytest.mark.parametrize("shading", ["classic", "physical"])
 def test_glass_bunny_agrees_to_depth_3(shading):
     """The glass bunny's strict xfail above is deep-bounce divergence only: cut at three

@@ -134,3 +134,20 @@ def test_glass_bunny_float64_has_no_non_finite_pixel():
     sc = load_scene("scenes/glass_bunny.toml").with_size(512, 512)
     img = render(sc, backend="llvm", precision="float64").image
     assert np.all(np.isfinite(img))
+
+
+#: Tiny scenes, refused like huge ones: (quad scale, precision, refused).
+TINY = [("1e-18", "float32", True), ("1e-12", "float32", True), ("1e-9", "float32", False),
+        ("1e-18", "float64", False), ("1e-60", "float64", False)]
+
+
+@pytest.mark.parametrize("scale,precision,refused", TINY)
+def test_scenes_whose_length_products_underflow_are_an_error(tmp_path, scale, precision,
+                                                             refused):
+    sc = load_scene(write(tmp_path, sc=scale))
+    if refused:
+        with pytest.raises(SceneError, match=r"guard\.toml: objects vertices: the scene is "
+                                             rf".* across, under the {precision} limit"):
+            Renderer(sc, backend="llvm", precision=precision)
+    else:
+        Renderer(sc, backend="llvm", precision=precision)

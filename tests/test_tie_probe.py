@@ -144,3 +144,34 @@ def test_probe_slack_is_a_world_space_distance_in_either_layout(routine):
     assert dr.width(th) == 2
     assert list(near) == [True, True] and list(far) == [False, True]
     assert narrowed == [True, False]
+
+
+@pytest.mark.parametrize("precision", ["float32", "float64"])
+def test_a_shadow_ray_blocked_at_its_origin_is_no_tie(precision):
+    """A shadow ray that starts on a wall's edge and is blocked right there (a spawned ray
+    re-hitting the surface it leaves, or one through its origin, as the Cornell box's
+    floor did where its walls leaned by an ulp) stays blocked in the probe: no tie to
+    excuse. A ray blocked by the same edge farther along is a graze, and flips."""
+    from renderer.accel import build_accelerator
+    from renderer.accel.base import Ray
+    from renderer.device import types
+
+    # a wall in the plane x = 1 over y in [0, 2], z in [-1, 1]
+    wall = quad([1, 0, -1], [1, 2, -1], [1, 2, 1], [1, 0, 1])
+    sc = make_scene([(*wall, 0)], materials=[material("w", kd=0.5)])
+    t = types("llvm", precision)
+    d = 1e-5 * 3.0
+    probe = build_accelerator("bvh", sc, t, tie_break="other", tie_window=d, tie_slack=d)
+    plain = build_accelerator("bvh", sc, t)
+    u = 2.0 ** (-53 if precision == "float64" else -24)
+    # from just behind the wall's bottom edge (x = 1 + 2u, y = 0) towards a light inside
+    # the room: blocked at t ~ 2u, within the slack of the edge; and from 1 unit farther
+    # out along the same line: blocked 1 unit along the ray, within the slack of the edge
+    dirn = np.array([-0.5, 0.8, 0.2]) / np.linalg.norm([-0.5, 0.8, 0.2])
+    starts = [np.array([1 + 2 * u, 0.0, 0.1]), np.array([1 + 2 * u, 0.0, 0.1]) - dirn]
+    o = t.Array3f(*(t.Float([s[k] for s in starts]) for k in range(3)))
+    ray = Ray(o=o, d=t.Array3f(*(float(c) for c in dirn)), t_max=t.Float(3.0))
+    assert plain.intersect_p(ray).numpy().tolist() == [True, True]
+    at_origin, graze = probe.intersect_p(ray).numpy().tolist()
+    assert at_origin, "a ray blocked at its own origin was flipped as a tie"
+    assert not graze, "an edge graze along the ray is a tie the probe flips"

@@ -264,7 +264,8 @@ def _indexed_watertight(o, d, p0, p1, p2, n):
     xy = [(dr.fma(sx, pick(a, kz), pick(a, kx)), dr.fma(sy, pick(a, kz), pick(a, ky)))
           for a in (a0, a1, a2)]
     double = dr.type_v(o) == dr.VarType.Float64
-    return triangle._watertight_tail(a0, a1, a2, n, d, *xy[0], *xy[1], *xy[2], double, 0.0)
+    return triangle._watertight_tail((a0, a1, a2), n, d, (*xy[0], *xy[1], *xy[2]), double,
+                                     0.0)
 
 
 @pytest.mark.parametrize("precision", PRECISIONS)

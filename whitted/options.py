@@ -5,8 +5,9 @@ Every ``choices`` list comes from the constant that defines it (``renderer.devic
 mode, accelerator, triangle routine or effect shows up on the command line without an edit
 here. ``--spp``, ``--max-depth`` and ``--size`` go through ``Scene.with_overrides``, the one
 place that validates them (``--spp`` alone also sets exact mode to ``spp == 1``); a bad value
-there is a ``SceneError`` naming the field, which ``whitted.cli.main`` prints as one
-``error:`` line (exit code 2). ``EXIT`` is the table of exit codes (``whitted.cli``).
+there is a ``SceneError`` naming the option as typed (``overrides_for_cli``), which
+``whitted.cli.main`` prints as one ``error:`` line (exit code 2). ``EXIT`` is the table of
+exit codes (``whitted.cli``).
 """
 from __future__ import annotations
 
@@ -17,7 +18,7 @@ from evaluation.gate.verdict import EXIT_CODES
 from renderer.accel import ACCELERATORS, BUILDS, DEFAULT_ACCELS, DEFAULT_ROUTINE, ROUTINES
 from renderer.device import BACKENDS, PRECISIONS
 from renderer.effects import FLAGS, EffectSet
-from renderer.scene import SHADING_MODES, Scene, load_scene
+from renderer.scene import SHADING_MODES, Scene, SceneError, load_scene
 
 from .data import scene_arg
 
@@ -69,6 +70,8 @@ def add_scene_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--spp", type=int,
                    help="samples per pixel (a perfect square; implies converged mode)")
     p.add_argument("--max-depth", type=int, help="override the specular depth limit")
+    p.add_argument("--shadow-samples", type=int,
+                   help="shadow rays per light with extent per hit (a perfect square)")
     add_backend_option(p)
     p.add_argument("--precision", default=PRECISIONS[0], choices=PRECISIONS)
     p.add_argument("--accel", choices=tuple(ACCELERATORS),
@@ -124,12 +127,37 @@ def cache_for_cli(args: argparse.Namespace):
     return None if getattr(args, "no_cache", False) else TreeCache()
 
 
+#: The option (and ``Scene.with_overrides`` argument) each settings field comes from on the
+#: command line.
+OVERRIDE_OPTIONS = {"settings.spp": ("--spp", "spp"), "settings.exact": ("--spp", "spp"),
+                    "settings.max_depth": ("--max-depth", "max_depth"),
+                    "size": ("--size", "size"), "settings.seed": ("--seed", "seed"),
+                    "settings.shadow_samples": ("--shadow-samples", "shadow_samples")}
+
+
+def overrides_for_cli(scene: Scene, **overrides) -> Scene:
+    """``scene.with_overrides(**overrides)`` (None keeps the scene's value) for options of
+    the command line: an error about a value the command line gave names the option as
+    typed (``--spp: ...``), not the settings field (``settings.spp``)."""
+    try:
+        return scene.with_overrides(**overrides)
+    except SceneError as e:
+        option, key = OVERRIDE_OPTIONS.get(e.field or "", (None, None))
+        if option is None or overrides.get(key) is None:
+            raise
+        text, head = str(e), f"{e.field}: "
+        body = text[len(head):] if text.startswith(head) else text
+        raise SceneError(f"{option}: {body}", field=option) from None
+
+
 def load_for_cli(args: argparse.Namespace) -> tuple[Scene, list[int]]:
     """The scene with the command line's overrides applied, and the selected view indices.
 
-    Raises ``SceneError`` for a bad scene file or override, ``CliError`` for a bad view."""
+    Raises ``SceneError`` for a bad scene file or override (naming the option as typed),
+    ``CliError`` for a bad view."""
     scene = read_scene(args, cache=cache_for_cli(args))
-    scene = scene.with_overrides(spp=args.spp, max_depth=args.max_depth, size=args.size)
+    scene = overrides_for_cli(scene, spp=args.spp, max_depth=args.max_depth, size=args.size,
+                              shadow_samples=getattr(args, "shadow_samples", None))
     return scene, select_views(scene, args.view)
 
 

@@ -19,7 +19,7 @@ from renderer.outputs import check_output_dir
 from renderer.scene import SHADING_MODES, load_scene
 
 from .data import scene_arg
-from .options import EXIT, CliError, select_views
+from .options import EXIT, CliError, overrides_for_cli, select_views
 
 
 def register(subparsers) -> None:
@@ -132,7 +132,7 @@ def cmd_reference(args: argparse.Namespace) -> int:
 def cmd_export(args: argparse.Namespace) -> int:
     scene = load_scene(args.scene, shading=args.shading)
     if args.spp is not None:
-        scene = scene.with_overrides(spp=args.spp)
+        scene = overrides_for_cli(scene, spp=args.spp)
     views = select_views(scene, args.view)
     if len(views) != 1:
         raise CliError("--view: export writes one view; name one index or view name")

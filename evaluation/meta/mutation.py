@@ -122,6 +122,33 @@ MUTANTS = [
     _m("inverse_square_ignored", "renderer.lights",
        "falloff = dr.select(inverse_square, rcp(dist2), 1.0)", "falloff = 1.0",
        "classic lights with falloff = 'inverse_square' do not fall off", *GOLDEN_CASES),
+    _m("cone_pdf_sin2", "renderer.lights",
+       "Li = intensity * (2.0 * rcp(dc2 * (1.0 + cos_max)))",
+       "Li = intensity * (2.0 * rcp(dc2))",
+       "sphere light: cone pdf 1/(2π sin²θmax) instead of 1/(2π (1 - cosθmax))",
+       "tests/test_soft_shadows.py", "-k", "centre_point"),
+    _m("cone_pdf_disk", "renderer.lights",
+       "Li = intensity * (2.0 * rcp(dc2 * (1.0 + cos_max)))",
+       "Li = intensity * rcp(dc2)",
+       "sphere light: the cone weighted by the projected disk π sin²θmax (wrong by "
+       "(1 + cosθmax) / 2)",
+       "tests/test_soft_shadows.py", "-k", "centre_point"),
+    _m("point_light_through_cone", "renderer.lights",
+       "return dr.select(kind == 1, b, dr.select(kind == 2, c, a))",
+       "return dr.select(kind == 2, c, b)",
+       "in a soft-shadow kernel a point light is cone-sampled as a sphere of radius 0 "
+       "(right in the limit, not bit for bit)",
+       "tests/test_soft_shadows.py", "-k", "bitwise"),
+    _m("shadow_key_ignores_tile", "renderer.camera",
+       "    if first_row is not None:\n        y = y + first_row\n    UInt64",
+       "    UInt64",
+       "the shadow samples' key forgets the tile's first row: a tiled render differs",
+       "tests/test_soft_shadows.py", "-k", "batching"),
+    _m("rectangle_back_side", "renderer.lights",
+       "g = dr.select(two, dr.abs(cos_l), dr.maximum(cos_l, 0.0))",
+       "g = dr.select(two, dr.abs(cos_l), dr.maximum(-cos_l, 0.0))",
+       "a one-sided rectangle light emits from its back",
+       "tests/test_soft_shadows.py", "-k", "form_factor"),
     _m("kd_not_over_pi", "renderer.shade",
        "kd = kd * INV_PI", "kd = kd * 1.0",
        "physical diffuse lobe kd instead of kd / pi"),
@@ -152,6 +179,13 @@ MUTANTS = [
        "stratum's diagonal (a bias at edges; plain uniform jitter would be unbiased)",
        "tests/test_golden_regression.py", "-k",
        "converged_matches and (cornell_box-front or platonic_solids-front-classic)"),
+    _m("right_angles_inexact", "renderer.scene.loader",
+       "    (sx, sy, sz), (cx, cy, cz) = _sin_cos_degrees(deg)\n",
+       "    cx, cy, cz = np.cos(np.radians(deg))\n    sx, sy, sz = np.sin(np.radians(deg))\n",
+       "rotations from np.radians: cos 90° = 6e-17 tilts the Cornell box's walls by an ulp, "
+       "the floor pokes through them and float64 shadow rays from its edges are blocked "
+       "at their origin (the float64 gate; the tie probe must not excuse it)",
+       "tests/test_golden_regression.py", "-k", "cornell_box_exact_in_float64"),
 ]
 #: No change at all (``old`` == ``new``): must survive, or the harness itself is broken.
 CONTROL = _m("control_no_change", "renderer.shade", "result = sa.ambient * ka",
@@ -160,6 +194,7 @@ CONTROL = _m("control_no_change", "renderer.shade", "result = sa.ambient * ka",
              "tests/test_golden_regression.py", "tests/test_analytic.py",
              "tests/test_precision.py", "tests/hard/test_hard_rays.py", "-k",
              "exact_matches or pruning or far_from_the_origin or closed_mesh_from_inside or "
+             "cornell_box_exact_in_float64 or "
              "(converged_matches and (cornell_box-front or platonic_solids-front-classic))")
 BY_NAME = {m.name: m for m in (*MUTANTS, CONTROL)}
 

@@ -13,6 +13,8 @@ factor                  values
 ``intersection``        every routine of the triangle-routine registry
 ``accel``               every accelerator of the registry (brute, boxes, bvh): same image
 ``effects``             auto (the scene's effect set) vs all (the general kernel)
+``shadow_samples``      shadow rays per light with extent: 1, 4, 16, 64 (only scenes with a
+                        sphere or rectangle light)
 ``grid``                spp × max_depth
 ======================  ==============================================================
 

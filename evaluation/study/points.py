@@ -23,10 +23,10 @@ METRICS = ("rmse", "relmse", "relmse_trim", "flip_mean", "flip_p95", "de2000_mea
 OPTIONAL_METRICS = {"de2000_mean": "colour"}
 REFS = ("golden", "own")
 FACTORS = ("spp", "max_depth", "min_weight", "precision", "combination", "intersection",
-           "accel", "effects")
+           "accel", "effects", "shadow_samples")
 #: Order in which factor lines are measured (a run stopped by its budget has the first ones).
 PRIORITY = ("spp", "accel", "precision", "effects", "min_weight", "combination", "max_depth",
-            "intersection")
+            "intersection", "shadow_samples")
 #: Factors that change what is rendered (the model), not how well: off the Pareto front.
 MODEL_FACTORS = ("combination",)
 SEED_SCENES = ("scenes/cornell_box.toml", "scenes/cornell_sphere.toml",
@@ -47,6 +47,8 @@ class Profile:
     precisions: tuple = ("float32", "float64")
     combinations: tuple = ("constant", "fresnel")
     effects: tuple = ("auto", "all")
+    #: Shadow rays per light with extent (scenes with a sphere or rectangle light only).
+    shadow_samples: tuple = (1, 4, 16, 64)
     default_spp: int = 16
     seeds: tuple = (0, 1, 2, 3, 4)
     size: int = 128
@@ -134,10 +136,13 @@ def prepare_scene(spec: dict) -> Scene:
     s = sc.settings
     settings = replace(s, spp=int(spec["spp"]), exact=False,
                        max_depth=int(spec.get("max_depth", s.max_depth)),
-                       min_weight=float(spec.get("min_weight", s.min_weight)))
+                       min_weight=float(spec.get("min_weight", s.min_weight)),
+                       shadow_samples=int(spec.get("shadow_samples", s.shadow_samples)))
     return replace(sc, settings=settings)
 
 
+#: Settings only some scenes have (in their default only then): lights with extent.
+OPTIONAL_SETTINGS = ("shadow_samples",)
 SETTING_KEYS = ("spp", "max_depth", "min_weight", "precision", "combination", "intersection",
                 "accel", "effects")
 
@@ -145,15 +150,20 @@ SETTING_KEYS = ("spp", "max_depth", "min_weight", "precision", "combination", "i
 def point_key(spec: dict) -> str:
     """Identity of a point: the scene and its settings (not seeds, repeats or device)."""
     s = " ".join(f"{k}={spec[k]}" for k in SETTING_KEYS)
+    if "shadow_samples" in spec:          # scenes with a light of extent only
+        s += f" shadow_samples={spec['shadow_samples']}"
     return f"{spec['label']} | {s}"
 
 
 def default_settings(scene: Scene, profile: Profile) -> dict:
     s = scene.settings
-    return {"spp": profile.default_spp, "max_depth": int(s.max_depth),
+    d = {"spp": profile.default_spp, "max_depth": int(s.max_depth),
             "min_weight": float(s.min_weight), "precision": "float32", "combination": "scene",
             "intersection": next(iter(ROUTINES)), "accel": "bvh" if "bvh" in ACCELERATORS
             else next(iter(ACCELERATORS)), "effects": "auto"}
+    if any(light.extent for light in scene.lights):
+        d["shadow_samples"] = int(s.shadow_samples)
+    return d
 
 
 def build_sweep(scene_args, profile: Profile, *, backend: str = "llvm",
@@ -176,7 +186,8 @@ def build_sweep(scene_args, profile: Profile, *, backend: str = "llvm",
     values = {"spp": profile.spp, "max_depth": profile.depths,
               "min_weight": profile.min_weights, "precision": profile.precisions,
               "combination": profile.combinations, "intersection": tuple(ROUTINES),
-              "accel": tuple(ACCELERATORS), "effects": profile.effects}
+              "accel": tuple(ACCELERATORS), "effects": profile.effects,
+              "shadow_samples": profile.shadow_samples}
     specs, seen = [], set()
 
     def add(info, to=specs, **changes):
@@ -198,6 +209,8 @@ def build_sweep(scene_args, profile: Profile, *, backend: str = "llvm",
     for f in sorted(profile.factors, key=PRIORITY.index):
         for info in scenes.values():
             for v in values[f]:
+                if f == "shadow_samples" and f not in info["default"]:
+                    break                         # point lights only: nothing to sweep
                 if f == "accel" and v == "brute" and info["faces"] > profile.brute_max_faces:
                     info.setdefault("skipped", []).append(
                         f"accel=brute ({info['faces']} triangles > brute_max_faces "

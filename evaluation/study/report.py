@@ -11,14 +11,14 @@ import numpy as np
 
 from renderer.outputs import atomic_path, check_output_dir, write_text
 
-from .points import FACTORS, MODEL_FACTORS, REFS, SETTING_KEYS, busy_load
+from .points import FACTORS, MODEL_FACTORS, OPTIONAL_SETTINGS, REFS, SETTING_KEYS, busy_load
 
 
 # =========================================================================================
 # Analysis: factor lines, Pareto front, tables, sentences
 # =========================================================================================
 def differs(settings: dict, default: dict) -> list[str]:
-    return [k for k in SETTING_KEYS if settings[k] != default[k]]
+    return [k for k in SETTING_KEYS + OPTIONAL_SETTINGS if settings.get(k) != default.get(k)]
 
 
 def point_label(settings: dict, default: dict) -> str:
@@ -43,6 +43,8 @@ def factor_line(data: dict, label: str, factor: str) -> list[dict]:
     """Points of ``label`` that differ from its default in ``factor`` only (and the default),
     in the order of the factor's values."""
     default = data["scenes"][label]["default"]
+    if factor not in default:
+        return []                     # an optional setting this scene does not have
     pts = [p for p in scene_points(data, label)
            if set(differs(p["settings"], default)) <= {factor}]
     order = {"precision": ["float32", "float64"], "effects": ["auto", "all"],
@@ -428,7 +430,8 @@ def markdown(data: dict) -> str:
 _STYLE = {"spp": ("tab:blue", "o"), "max_depth": ("tab:orange", "s"),
           "min_weight": ("tab:green", "^"), "precision": ("tab:red", "D"),
           "intersection": ("tab:purple", "v"), "accel": ("tab:brown", "P"),
-          "effects": ("tab:pink", "X"), "combination": ("tab:gray", "*")}
+          "effects": ("tab:pink", "X"), "combination": ("tab:gray", "*"),
+          "shadow_samples": ("tab:olive", "h")}
 
 
 def plot_scene(data: dict, label: str, out: Path, metric: str = "relmse") -> list[Path]:

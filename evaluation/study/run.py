@@ -29,6 +29,7 @@ from renderer.stats import kernel_launches, kernel_ms
 from .points import (
     METRICS,
     OPTIONAL_METRICS,
+    OPTIONAL_SETTINGS,
     PROFILES,
     REL_EPS,
     ROOT,
@@ -242,7 +243,7 @@ def run_point(item) -> dict:
         "operations")}
     if hasattr(os, "getloadavg"):
         timing["loadavg_1m"] = os.getloadavg()[0]      # other work on the machine
-    settings = {k: spec[k] for k in SETTING_KEYS}
+    settings = {k: spec[k] for k in SETTING_KEYS + OPTIONAL_SETTINGS if k in spec}
     return {"key": spec["key"], "scene": spec["label"], "settings": settings,
             "seeds": list(spec["seeds"]), "size": spec["size"], "errors": errors,
             "image_sha256": [image_hash(i) for i in images], "timing": timing,

@@ -44,7 +44,7 @@ def variant(delta=True, f64=True, perm=True, tplane=True):
         e1 = T.difference_of_products(x2, y0, y2, x0)
         e2 = T.difference_of_products(x0, y1, y0, x1)
         if f64 and not double:
-            e0, e1, e2 = dr.if_stmt((x0, y0, x1, y1, x2, y2, e0, e1, e2),
+            e0, e1, e2 = dr.if_stmt(((x0, y0, x1, y1, x2, y2), (e0, e1, e2)),
                                     (e0 == 0) | (e1 == 0) | (e2 == 0),
                                     T._edges_float64, T._edges_as_they_are)
         mixed = ((e0 < 0) | (e1 < 0) | (e2 < 0)) & ((e0 > 0) | (e1 > 0) | (e2 > 0))

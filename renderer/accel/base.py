@@ -1,4 +1,6 @@
-"""The accelerator interface and the records that travel through it.
+"""The accelerator interface, the shading attributes of its triangles and the gathers its
+traversals read records with; the query records (``Ray``, ``ClosestHit``) are
+``renderer.accel.query``'s, re-exported here.
 
 An *accelerator* is any object with
 
@@ -27,32 +29,10 @@ from dataclasses import dataclass
 import drjit as dr
 import numpy as np
 
-from ..device import Types, types
-
-
-@dataclass
-class Ray:
-    """A batch of rays. o, d: Array3f (N,) origin and direction; t_max: Float, the end of
-    the ray interval (0, t_max) in units of ``d``."""
-
-    o: object
-    d: object
-    t_max: object
-
-
-@dataclass
-class ClosestHit:
-    """Result of a closest-hit query (arrays of the ray batch's width).
-
-    t: Float ray parameter; u, v: Float barycentrics of v1, v2; prim: UInt32 index into
-    the accelerator's ``DeviceTriangles`` (undefined where not found); found: Bool.
-    """
-
-    t: object
-    u: object
-    v: object
-    prim: object
-    found: object
+from ..device import Types, host_array, types
+from .query import ClosestHit as ClosestHit
+from .query import Ray as Ray
+from .query import tie_probe, tie_probe_p
 
 
 @dataclass
@@ -89,10 +69,10 @@ class Accelerator:
     dataclass.
 
     The tie probe: a subclass's dataclass also has the fields ``tie_break`` (a value of
-    ``traverse.TIE_BREAKS``; "lowest", the renderer's, unless ``build_accelerator`` is told
+    ``query.TIE_BREAKS``; "lowest", the renderer's, unless ``build_accelerator`` is told
     otherwise), ``tie_window`` and ``tie_slack`` (world-space distances). With "other"
-    ``intersect``/``intersect_p`` run the traversal a second time with a ``traverse.Probe``
-    (``traverse.tie_probe``/``tie_probe_p``); ``_traverse`` passes the probe to
+    ``intersect``/``intersect_p`` run the traversal a second time with a ``query.Probe``
+    (``query.tie_probe``/``tie_probe_p``); ``_traverse`` passes the probe to
     ``triangle_step`` and culls and pads its boxes by ``traverse.cull_t``/``probe_pad``."""
 
     tris: DeviceTriangles
@@ -109,13 +89,11 @@ class Accelerator:
 
     def intersect(self, ray: Ray, active=True) -> ClosestHit:
         """Closest hit in ``(0, ray.t_max)`` (under ``tie_break``)."""
-        from .traverse import tie_probe  # traverse imports this module
         return tie_probe(lambda r, a, pr: self._traverse(r, a, False, pr), ray, active,
                          self.tie_break, self.tie_window, self.tie_slack)
 
     def intersect_p(self, ray: Ray, active=True):
         """Any hit in ``(0, ray.t_max)`` (shadow rays); stops at the first hit."""
-        from .traverse import tie_probe_p
         return tie_probe_p(lambda r, a, pr: self._traverse(r, a, True, pr), ray, active,
                            self.tie_break, self.tie_slack)
 
@@ -134,7 +112,7 @@ def gather_floats(t: Types, src, index, stride: int, count: int, active=True) ->
     floats, a multiple of 4), per lane, with the gather the backend is fastest at: on CUDA
     packet gathers of Array4f (all of the record's quads that ``count`` touches); on LLVM
     one scalar gather per float (a packet gather is emitted there only when numpy's buffer
-    happens to be 64-byte aligned, and is slower than scalar gathers on the CPU); where
+    happens to be 64-byte aligned, and costs more than scalar gathers on the CPU); where
     ``src`` is a UInt64 view of float32 records (``as_pairs``), one 64-bit gather per two
     floats (``gather_pairs``)."""
     if dr.type_v(src) == dr.VarType.UInt64:
@@ -158,9 +136,9 @@ def gather_pairs(t: Types, src, index, stride: int, count: int, active=True) -> 
     view of records of ``stride`` 32-bit words (``stride`` even): one 64-bit gather per two
     words, each split into its low and high word (little-endian: word ``2k`` is the low
     half of qword ``k``). Why (LLVM): on the CPU a gather costs about one load per lane
-    and element, whatever the element's width (AMD Zen 4: 16 scattered dwords cost as much
-    as 16 scattered qwords), so 64-bit gathers fetch a record with half the loads
-    (``profile-llvm.md``)."""
+    and element, whatever the element's width (16 scattered dwords cost as much as 16
+    scattered qwords), so 64-bit gathers fetch a record with half the loads
+    (``lab/notes/accel-decisions.md``)."""
     U32 = array_type(t, "UInt32")
     base = index * (stride // 2)
     out = []
@@ -176,7 +154,8 @@ def as_pairs(t: Types, words: np.ndarray):
     # a fresh copy: ``words`` may be a view of a Dr.Jit array's memory (``.numpy()`` on
     # LLVM), and a second array on the same memory confuses ``dr.freeze``, which tells
     # its inputs apart by address (it then compiled float ops on the UInt64 view)
-    w = np.array(words, dtype=np.uint32, order="C", copy=True)
+    # (``host_array``: aligned, so the traced kernel does not depend on the address)
+    w = host_array(words, np.uint32)
     return array_type(t, "UInt64")(w.view(np.uint64).reshape(-1))
 
 

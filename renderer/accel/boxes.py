@@ -12,17 +12,17 @@ from dataclasses import dataclass, field
 import drjit as dr
 import numpy as np
 
-from ..device import Types
+from ..device import Types, host_array
 from .base import Accelerator, DeviceTriangles, Ray, array_type, gather_floats
 from .bvh_build import pad_boxes
+from .query import Closest
 from .traverse import (
-    Closest,
-    box_ray,
+    LeafTriangles,
+    TraversalRay,
     cull_t,
     leaf_triangle_step,
     masked_step,
     probe_pad,
-    robust_scale,
     setup,
     slab,
     traversal_result,
@@ -56,7 +56,7 @@ class ObjectBoxes(Accelerator):
     backend: str = "llvm"
     precision: str = "float32"
     intersection: str = DEFAULT_ROUTINE
-    tie_break: str = "lowest"          # traverse.TIE_BREAKS; "other" only probes ties
+    tie_break: str = "lowest"          # query.TIE_BREAKS; "other" only probes ties
     tie_window: float = 0.0            # t window (world units) of tie_break "other"
     tie_slack: float = 0.0             # edge slack (world units) of tie_break "other"
     info: dict = field(default_factory=dict, repr=False)
@@ -80,7 +80,8 @@ class ObjectBoxes(Accelerator):
             boxes[k, 0:3], boxes[k, 4:7] = pad_boxes(p.min(axis=0), p.max(axis=0), ext)
             ranges[k] = (f0, fc)
         tri_data, tris = upload_triangles(scene, t, routine=intersection)
-        out = cls(t.Float(boxes.reshape(-1)), t.UInt32(ranges.reshape(-1)), tri_data, tris,
+        out = cls(t.Float(host_array(boxes.reshape(-1))), t.UInt32(host_array(ranges.reshape(-1))),
+                  tri_data, tris,
                   backend=t.backend, precision=t.precision,
                   intersection=intersection,
                   reach=origin_reach(scene, intersection))
@@ -92,7 +93,7 @@ class ObjectBoxes(Accelerator):
         return out
 
 
-    def _box_step(self, o, inv, t_max, robust, obj, first, end, active=True, pad=0.0):
+    def _box_step(self, ray: TraversalRay, t_max, obj, first, end, active=True, pad=0.0):
         """Object ``obj``'s box where ``active``: on a hit its faces become the pending
         range ``[first, end)``; ``obj`` moves on to the next object."""
         t = self.types
@@ -106,7 +107,7 @@ class ObjectBoxes(Accelerator):
         lo, hi = t.Array3f(f[0], f[1], f[2]), t.Array3f(f[4], f[5], f[6])
         if pad:         # the tie probe's slack reaches beyond the padded boxes
             lo, hi = lo - pad, hi + pad
-        hit, _ = slab(t, o, inv, lo, hi, t_max, robust)
+        hit, _ = slab(t, ray, lo, hi, t_max)
         if active is not True:
             hit &= active
         return (dr.select(hit, r0, first), dr.select(hit, r0 + r1, end),
@@ -115,33 +116,29 @@ class ObjectBoxes(Accelerator):
     @dr.syntax
     def _traverse(self, ray: Ray, active, any_hit: bool, probe=None):
         t = self.types
-        routine = triangle_routine(self.intersection)
-        robust = robust_scale(t)
-        tri_data, order = self.tri_data, self.tris.order
         n_obj = dr.width(self.ranges) // 2
-        t_max = ray.t_max
-        o, d, inv, active, n = setup(t, ray, active)
-        ob, ib = box_ray(t, o, inv, self.reach)    # the ray as the slab test reads it
-        routine = bind_routine(routine, o, d)
+        r, active, n = setup(t, ray, active, self.reach)
+        tris = LeafTriangles(t=t, routine=bind_routine(triangle_routine(self.intersection),
+                                                       r.o, r.d),
+                             data=self.tri_data, order=self.tris.order)
         active &= n_obj > 0
         obj = dr.zeros(t.UInt32, n)                 # next object to test
         first = dr.zeros(t.UInt32, n)               # pending triangles [first, end)
         end = dr.zeros(t.UInt32, n)
-        rec = Closest.empty(t, t_max, n)            # closest hit so far
+        rec = Closest.empty(t, r.t_max, n)          # closest hit so far
 
         while dr.hint(active, max_iterations=-1, label="boxes",
-                      exclude=[self, t, routine, robust, any_hit, probe]):
+                      exclude=[self, t, tris, any_hit, probe]):
             # ---- box step: the next object's box, when no triangles are pending ---------
-            cull = cull_t(rec, t_max, probe)   # boxes beyond it are skipped
+            cull = cull_t(rec, r.t_max, probe)   # boxes beyond it are skipped
             first, end, obj = masked_step(
                 t, (first >= end) & (obj < n_obj),
                 lambda first, end, obj, on, best_t=cull: self._box_step(
-                    ob, ib, best_t, robust, obj, first, end, on, probe_pad(probe)),
+                    r, best_t, obj, first, end, on, probe_pad(probe)),
                 (first, end, obj))
 
             # ---- triangle step -----------------------------------------------------------
-            rec, first = leaf_triangle_step(t, routine, o, d, tri_data, order, first, end,
-                                            t_max, rec, any_hit, probe)
+            rec, first = leaf_triangle_step(tris, r, first, end, rec, any_hit, probe)
             if dr.hint(any_hit, mode="scalar"):
                 active &= ~rec.found
 

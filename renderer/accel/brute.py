@@ -8,7 +8,8 @@ import drjit as dr
 
 from ..device import Types
 from .base import Accelerator, DeviceTriangles, Ray
-from .traverse import Closest, setup, traversal_result, triangle_step
+from .query import Closest
+from .traverse import LeafTriangles, setup, traversal_result, triangle_step
 from .triangle import DEFAULT_ROUTINE, bind_routine, triangle_routine, upload_triangles
 
 
@@ -30,7 +31,7 @@ class BruteForce(Accelerator):
     backend: str = "llvm"
     precision: str = "float32"
     intersection: str = DEFAULT_ROUTINE
-    tie_break: str = "lowest"          # traverse.TIE_BREAKS; "other" only probes ties
+    tie_break: str = "lowest"          # query.TIE_BREAKS; "other" only probes ties
     tie_window: float = 0.0            # t window (world units) of tie_break "other"
     tie_slack: float = 0.0             # edge slack (world units) of tie_break "other"
     info: dict = field(default_factory=dict, repr=False)
@@ -50,19 +51,17 @@ class BruteForce(Accelerator):
     @dr.syntax
     def _traverse(self, ray: Ray, active, any_hit: bool, probe=None):
         t = self.types
-        routine = triangle_routine(self.intersection)
-        tri_data, order = self.tri_data, self.tris.order
         count = self.tris.count
-        t_max = ray.t_max
-        o, d, _, active, n = setup(t, ray, active)
-        routine = bind_routine(routine, o, d)
-        rec = Closest.empty(t, t_max, n)            # closest hit so far
+        r, active, n = setup(t, ray, active)
+        tris = LeafTriangles(t=t, routine=bind_routine(triangle_routine(self.intersection),
+                                                       r.o, r.d),
+                             data=self.tri_data, order=self.tris.order)
+        rec = Closest.empty(t, r.t_max, n)          # closest hit so far
         i = dr.zeros(t.UInt32, n)                   # next candidate triangle
         while dr.hint(active & (i < count), max_iterations=-1,
                       label="brute_force_any" if any_hit else "brute_force_closest",
-                      exclude=[self, t, routine, count, any_hit, probe]):
-            rec = triangle_step(t, routine, o, d, tri_data, order, i, t_max, rec, any_hit,
-                                probe=probe)
+                      exclude=[self, t, tris, count, any_hit, probe]):
+            rec = triangle_step(tris, r, i, rec, any_hit, probe=probe)
             if dr.hint(any_hit, mode="scalar"):
                 active &= ~rec.found
             i += 1

@@ -2,7 +2,7 @@
 
 Node layout on the device (``load_node``): ``nodes`` Float, 12 per inner node (child A lo
 xyz, hi xyz, child B lo xyz, hi xyz, as ``BVHArrays.boxes``), ``children`` UInt32, 2 per
-inner node (the node references of ``renderer.accel.traverse``).
+inner node (the node references of ``renderer.accel.layout``).
 
 Traversal is one symbolic loop per query with a per-ray stack of ``STACK_SIZE`` UInt32
 (``dr.alloc_local``). The stack is kept at 32 entries = 128 bytes because larger local
@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 import drjit as dr
 import numpy as np
 
-from ..device import Types
+from ..device import Types, host_array
 from . import traverse
 from .base import (
     Accelerator,
@@ -35,20 +35,19 @@ from .base import (
     uses_pairs,
 )
 from .bvh_build import BINS, LEAF_SIZE, BVHArrays, build_bvh, refit_boxes
+from .layout import DONE
+from .query import Closest
 from .traverse import (
-    DONE,
-    STACK_SIZE,
-    Closest,
-    box_ray,
+    LeafTriangles,
+    Stack,
+    TraversalRay,
     cull_t,
     enter_leaf,
     leaf_triangle_step,
     masked_step,
-    pop,
     probe_pad,
     refill_lanes,
     refill_traversal,
-    robust_scale,
     setup,
     slab,
     traversal_result,
@@ -80,17 +79,19 @@ def load_node(t: Types, nodes, children, cur, active=True):
             t.Array3f(f[6], f[7], f[8]), t.Array3f(f[9], f[10], f[11]), ref_a, ref_b)
 
 
-def node_step(t: Types, nodes, children, o, inv, t_max, robust, stack, sp, cur, to_pop,
-              active=True, pad: float = 0.0, any_hit: bool = False):
-    """One inner node ``cur`` where ``active``: test both child boxes (grown by ``pad``)
-    against ``(0, t_max)``, push one hit child and go to the other: the near one first for
-    closest hit, the far one first for any hit (``traverse.FAR_FIRST``). Returns
-    ``(sp, cur, to_pop)``, ``to_pop`` grown by the lanes where neither child was hit."""
-    a_lo, a_hi, b_lo, b_hi, ref_a, ref_b = load_node(t, nodes, children, cur, active)
+def node_step(bvh: "BVH", ray: TraversalRay, t_max, stack: Stack, to_pop, active=True,
+              pad: float = 0.0, any_hit: bool = False):
+    """One inner node ``stack.cur`` of ``bvh`` where ``active``: test both child boxes
+    (grown by ``pad``) against ``(0, t_max)``, push one hit child and go to the other: the
+    near one first for closest hit, the far one first for any hit (``traverse.FAR_FIRST``).
+    Returns ``(stack, to_pop)``, ``to_pop`` grown by the lanes where neither child was
+    hit."""
+    t, cur = bvh.types, stack.cur
+    a_lo, a_hi, b_lo, b_hi, ref_a, ref_b = load_node(t, bvh.nodes, bvh.children, cur, active)
     if pad:             # the tie probe's slack reaches beyond the padded boxes
         a_lo, a_hi, b_lo, b_hi = a_lo - pad, a_hi + pad, b_lo - pad, b_hi + pad
-    hit_a, tn_a = slab(t, o, inv, a_lo, a_hi, t_max, robust)
-    hit_b, tn_b = slab(t, o, inv, b_lo, b_hi, t_max, robust)
+    hit_a, tn_a = slab(t, ray, a_lo, a_hi, t_max)
+    hit_b, tn_b = slab(t, ray, b_lo, b_hi, t_max)
     if active is not True:
         hit_a &= active
         hit_b &= active
@@ -98,12 +99,12 @@ def node_step(t: Types, nodes, children, o, inv, t_max, robust, stack, sp, cur, 
     b_first = (tn_b > tn_a) if any_hit and traverse.FAR_FIRST else (tn_b < tn_a)
     near = dr.select(hit_a & ~(hit_b & b_first), ref_a, ref_b)
     far = dr.select(b_first, ref_a, ref_b)
-    stack.write(far, sp, both)
-    sp = dr.select(both, sp + 1, sp)
+    stack.push(far, both)
     missed = ~(hit_a | hit_b)
     if active is not True:
         missed &= active
-    return sp, dr.select(hit_a | hit_b, near, cur), to_pop | missed
+    stack.cur = dr.select(hit_a | hit_b, near, cur)
+    return stack, to_pop | missed
 
 
 def traversal_boxes(a: BVHArrays, scene, t: Types, intersection: str) -> np.ndarray:
@@ -136,7 +137,7 @@ class BVH(Accelerator):
     backend: str = "llvm"
     precision: str = "float32"
     intersection: str = DEFAULT_ROUTINE
-    tie_break: str = "lowest"          # traverse.TIE_BREAKS; "other" only probes ties
+    tie_break: str = "lowest"          # query.TIE_BREAKS; "other" only probes ties
     tie_window: float = 0.0            # t window (world units) of tie_break "other"
     tie_slack: float = 0.0             # edge slack (world units) of tie_break "other"
     info: dict = field(default_factory=dict, repr=False)
@@ -160,7 +161,8 @@ class BVH(Accelerator):
         if uses_pairs(t):
             nodes, children = as_pairs(t, boxes.view(np.uint32)), as_pairs(t, a.children)
         else:
-            nodes, children = t.Float(boxes.reshape(-1)), t.UInt32(a.children.reshape(-1))
+            nodes = t.Float(host_array(boxes.reshape(-1)))
+            children = t.UInt32(host_array(a.children.reshape(-1)))
         tri_trav = traversal_triangles(t, tri_data)
         dr.eval(nodes, children, tri_data, tri_trav, tris)
         fsize = 8 if t.is_double else 4
@@ -182,70 +184,61 @@ class BVH(Accelerator):
         iterations)`` UInt32 per ray, the same traversal as the query with counters."""
         return self._traverse(ray, active, any_hit, counting=True)
 
+    def _leaf_triangles(self, routine) -> LeafTriangles:
+        """The triangles as the traversal reads them (``tri_trav`` where the backend has
+        one), with ``routine``."""
+        return LeafTriangles(t=self.types, routine=routine, order=self.tris.order,
+                             data=self.tri_data if self.tri_trav is None else self.tri_trav)
+
     def _traverse(self, ray: Ray, active, any_hit: bool, probe=None, counting: bool = False):
         if self.refill and not counting and probe is None:
             n = dr.width(ray.o, ray.d, ray.t_max, active)
             lanes = refill_lanes(n, self.refill)
             if lanes < n:
-                t = self.types
-                nodes, children = self.nodes, self.children
-                robust = robust_scale(t)
                 return refill_traversal(
-                    t, triangle_routine(self.intersection),
-                    self.tri_data if self.tri_trav is None else self.tri_trav,
-                    self.tris.order,
-                    lambda sp, cur, to_pop, best_t, o, inv, stack: node_step(
-                        t, nodes, children, o, inv, best_t, robust, stack, sp, cur, to_pop,
-                        any_hit=any_hit),
-                    ray, active, any_hit, n, lanes, "bvh_refill", self.reach)
+                    self._leaf_triangles(triangle_routine(self.intersection)),
+                    lambda r, best_t, stack, to_pop: node_step(
+                        self, r, best_t, stack, to_pop, any_hit=any_hit),
+                    ray, active, any_hit, lanes, "bvh_refill", self.reach)
         return self._traverse_lanes(ray, active, any_hit, probe, counting)
 
     @dr.syntax
     def _traverse_lanes(self, ray: Ray, active, any_hit: bool, probe=None,
                         counting: bool = False):
         t = self.types
-        routine = triangle_routine(self.intersection)
-        robust = robust_scale(t)
-        nodes, children, order = self.nodes, self.children, self.tris.order
-        tri_data = self.tri_data if self.tri_trav is None else self.tri_trav
-        t_max = ray.t_max
-        o, d, inv, active, n = setup(t, ray, active)
-        ob, ib = box_ray(t, o, inv, self.reach)    # the ray as the slab test reads it
-        routine = bind_routine(routine, o, d)
-        stack = dr.alloc_local(t.UInt32, STACK_SIZE)
-        sp = dr.zeros(t.UInt32, n)                              # stack depth
-        cur = dr.select(active, dr.zeros(t.UInt32, n), DONE)   # next node (root = 0)
+        r, active, n = setup(t, ray, active, self.reach)
+        tris = self._leaf_triangles(bind_routine(triangle_routine(self.intersection),
+                                                 r.o, r.d))
+        stack = Stack.start(t, active, n)                      # root = node 0
         first = dr.zeros(t.UInt32, n)                           # pending leaf triangles
         end = dr.zeros(t.UInt32, n)                             # [first, end)
-        rec = Closest.empty(t, t_max, n)                        # closest hit so far
+        rec = Closest.empty(t, r.t_max, n)                      # closest hit so far
         n_node = dr.zeros(t.UInt32, n)                          # counters (``counts``)
         n_tri = dr.zeros(t.UInt32, n)
         n_iter = dr.zeros(t.UInt32, n)
 
         while dr.hint(active, max_iterations=-1,
                       label="bvh_llvm" if t.backend == "llvm" else "bvh",
-                      exclude=[self, t, routine, robust, any_hit, probe, counting]):
+                      exclude=[self, t, tris, any_hit, probe, counting]):
             # ---- node step: only when no leaf triangles are pending ---------------------
-            is_leaf, is_inner, first, end = enter_leaf(cur, first, end)
+            is_leaf, is_inner, first, end = enter_leaf(stack.cur, first, end)
             if dr.hint(counting, mode="scalar"):
                 n_node += dr.select(is_inner, 1, 0)
                 n_tri += dr.select(first < end, 1, 0)
                 n_iter += 1
-            cull = cull_t(rec, t_max, probe)   # boxes beyond it are skipped
-            sp, cur, to_pop = masked_step(
+            cull = cull_t(rec, r.t_max, probe)   # boxes beyond it are skipped
+            stack, to_pop = masked_step(
                 t, is_inner,
-                lambda sp, cur, to_pop, on, best_t=cull: node_step(
-                    t, nodes, children, ob, ib, best_t, robust, stack, sp, cur, to_pop, on,
-                    probe_pad(probe), any_hit),
-                (sp, cur, is_leaf | False))
-            sp, cur = pop(stack, sp, cur, to_pop)
+                lambda stack, to_pop, on, best_t=cull: node_step(
+                    self, r, best_t, stack, to_pop, on, probe_pad(probe), any_hit),
+                (stack, is_leaf | False))
+            stack.pop(to_pop)
 
             # ---- triangle step: one pending leaf triangle ---------------------------------
-            rec, first = leaf_triangle_step(t, routine, o, d, tri_data, order, first, end,
-                                            t_max, rec, any_hit, probe)
+            rec, first = leaf_triangle_step(tris, r, first, end, rec, any_hit, probe)
             if dr.hint(any_hit, mode="scalar"):
                 active &= ~rec.found
 
-            active &= (first < end) | (cur != DONE)
+            active &= (first < end) | (stack.cur != DONE)
 
         return traversal_result(rec, any_hit, (n_node, n_tri, n_iter) if counting else None)

@@ -4,7 +4,7 @@ All nodes of one level are split at once with segmented numpy operations, no
 per-triangle Python loop. The result (``BVHArrays``) is a flat array of *inner* nodes; each
 node stores the boxes of BOTH children (so one fetch gives everything a traversal step
 needs) and two child references (an inner-node index or a packed leaf, see
-``renderer.accel.traverse``). Triangles are reordered so that each leaf is a contiguous
+``renderer.accel.layout``). Triangles are reordered so that each leaf is a contiguous
 range; ``BVHArrays.order`` maps positions back to original face indices.
 
 After the build, ``renderer.accel.optimize.reinsert`` moves the costliest nodes to where
@@ -22,43 +22,38 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .traverse import COUNT_SHIFT, FIRST_MASK, LEAF_BIT, MAX_LEAF, STACK_SIZE
+from .bvh_arrays import C_TRAV, C_TRI, BVHArrays, half_area, sah_cost
+from .layout import COUNT_SHIFT, FIRST_MASK, LEAF_BIT, MAX_LEAF, MAX_LEVELS, leaf_ref
+from .optimize import reinsert
+from .spatial import clipped_boxes, spatial_top
 from .triangle import unit_roundoff
 
-MAX_LEVELS = STACK_SIZE      # levels of inner nodes; the stack never holds more entries
-C_TRAV, C_TRI = 1.0, 1.0     # SAH costs of one node visit and one triangle test
 #: Default most triangles per leaf. Every traversal step is a real branch, which a warp
-#: (CUDA) or SIMD packet (LLVM) takes only when one of its lanes needs it; so smaller leaves
-#: pay: leaves of at most 2 triangles trace 1.05-1.24x faster than leaves of 4 on an H200
-#: (per-scene medians; Conference 0.98x: ``results/h200/throughput/branches.md``) and 0-30 %
-#: faster with the 4-wide BVH on the CPU (``results/cpu/leaf-size.md``), hits bitwise the same.
+#: (CUDA) or SIMD packet (LLVM) takes only when one of its lanes needs it, so small leaves
+#: pay: leaves of at most 2 triangles trace faster than leaves of 4 on both backends, hits
+#: bitwise the same (``lab/notes/accel-decisions.md``).
 LEAF_SIZE = 2
 BINS = 32                    # default SAH bins per axis
 #: Spatial splits (``build_bvh(spatial=...)``, on by default): the budget of extra
 #: references, and where they are tried: scenes of more triangles than
 #: ``SPATIAL_MIN_TRIANGLES``, nodes of more references than ``SPATIAL_MIN_REFS``, the top
 #: ``SPATIAL_DEPTH`` inner levels. Of the bench scenes only Sponza and Conference get cuts.
-#: H200, 1920x1080 batches against the same build without them: closest hit 1.06-1.26x
-#: faster (primary, incoherent, reflection), shadow rays 1.06-1.14x, any hit otherwise
-#: 1.04-1.13x except Conference's primary and reflection rays, 0.74-0.75x (its walls and
-#: floor, which stop those rays near the root, move down the tree); the CPU alike
-#: (``results/cpu/spatial.md``). A renderer's any-hit rays are shadow rays, so they pay.
+#: They speed up closest-hit and shadow rays on both backends; only any-hit rays that stop
+#: near the root (Conference's walls and floor move down the tree) slow down, and a
+#: renderer's any-hit rays are shadow rays (``lab/notes/accel-decisions.md``).
 SPATIAL = 0.3
 SPATIAL_MIN_TRIANGLES = 16384
 SPATIAL_MIN_REFS = 512
 SPATIAL_DEPTH = 12
 #: Rounds of insertion-based optimisation after the build (``renderer.accel.optimize``): each
 #: moves the 1 % of nodes that cost most for their size to where the SAH cost grows least.
-#: SAH cost 6-14 % lower on the bench scenes (Conference 35.4 -> 31.5); H200, against the
-#: same build without it, binary BVH: 0.93-1.54x, median 1.04x; any-hit rays median 1.24x,
-#: Conference's closest-hit rays 1.05-1.14x, the small scenes' closest hit down to 0.93x
-#: (``results/h200/throughput/optimize.md``); hits bitwise the same. It adds 0.4-1x the
-#: build's own time (the H200's host: Conference 1.0 of 2.8 s, the 1.1M bunny 4.8 of 9.7 s,
-#: ``results/h200/throughput/bench-cuda.md``).
+#: It lowers the SAH cost of every bench scene and speeds up the traversal of most, any-hit
+#: rays most, hits bitwise the same; it costs up to about the build's own time again
+#: (``lab/notes/accel-decisions.md``).
 OPTIMIZE = 4
 BIG_NODE = 1024              # nodes larger than this (level average) get root_bins bins
 AXES_MIN = 1024              # three-axis SAH only in levels whose nodes average more triangles
@@ -75,54 +70,6 @@ def pad_boxes(lo: np.ndarray, hi: np.ndarray, extent: float):
     e = ((np.maximum(np.abs(lo), np.abs(hi)) + dt(extent))
          * dt(32 * unit_roundoff(lo.dtype == np.float64)))
     return lo - e, hi + e
-
-
-@dataclass
-class BVHArrays:
-    """A BVH on the host.
-
-    boxes: float32 (N, 12) per inner node: child A lo xyz, hi xyz, child B lo xyz, hi xyz
-        (grown by ``pad_boxes``, so the triangle test never hits outside its box).
-    children: uint32 (N, 2) child references (inner index or packed leaf).
-    order: int64 (F,) original face index of each reordered triangle.
-    levels: number of inner-node levels (<= MAX_LEVELS; the level-wise build counts the
-        levels it made room for, ``optimize.reinsert`` the tree's height); leaf_count;
-        sah_cost (relative to
-        the root's surface area, C_trav = C_tri = 1); build_seconds;
-    bounds: float64 (3,) lo, hi of all triangles.
-    cells: None, or with spatial splits ``(lo, hi)`` float64 (F', 3) per leaf position: the
-        cell its reference was cut to (``renderer.accel.spatial``); ``order`` then holds a
-        face once per reference.
-    optimize_seconds: the part of build_seconds spent in ``renderer.accel.optimize``.
-    """
-
-    boxes: np.ndarray
-    children: np.ndarray
-    order: np.ndarray
-    levels: int
-    leaf_count: int
-    sah_cost: float
-    build_seconds: float
-    bounds: tuple = (np.zeros(3), np.zeros(3))
-    cells: tuple | None = None
-    optimize_seconds: float = 0.0
-
-    @property
-    def node_count(self) -> int:
-        return int(self.boxes.shape[0])
-
-
-def leaf_ref(first, count):
-    """Packed leaf reference(s): uint32."""
-    first = np.asarray(first, np.uint64)
-    count = np.asarray(count, np.uint64)
-    return (np.uint64(LEAF_BIT) | ((count - np.uint64(1)) << np.uint64(COUNT_SHIFT))
-            | first).astype(np.uint32)
-
-
-def _half_area(lo, hi):
-    d = hi - lo
-    return d[0] * d[1] + d[1] * d[2] + d[2] * d[0]
 
 
 def _sweep(x, op, reverse=False):
@@ -149,7 +96,26 @@ def _levels_needed(n, leaf_size):
 
 @dataclass
 class BuildOptions:
-    """The settings of one build (see ``build_bvh``), validated."""
+    """The settings of one build (``build_bvh``), validated.
+
+    leaf_size: most triangles per leaf (1..16); a node with more is always split.
+    bins: SAH bins per axis of each node (>= 2; default ``BINS`` = 32); root_bins: bins for
+        the large nodes near the root (more than ``BIG_NODE`` triangles on average in their
+        level).
+    all_axes: evaluate the binned SAH along all three axes and take the cheapest split
+        (False: only along the node's longest centroid axis).
+    sah_leaves: a node of at most ``leaf_size`` triangles becomes a leaf when intersecting
+        its triangles is no dearer than the best split (SAH with C_TRAV, C_TRI); False: every
+        node of more than ``leaf_size`` triangles is split, every smaller one is a leaf.
+    sample: nodes of more triangles are binned from a strided sample of about this many.
+    depth_first: number the inner nodes in depth-first order (a node's first child directly
+        follows it); False keeps the level-by-level order of the build.
+    spatial: spatial splits near the root (``renderer.accel.spatial``) with at most
+        ``spatial * F`` extra references (``SPATIAL``: 0.3), in scenes of more than
+        ``SPATIAL_MIN_TRIANGLES`` triangles (the default); 0: object splits only.
+    optimize: rounds of insertion-based optimisation after the build
+        (``renderer.accel.optimize.reinsert``; default ``OPTIMIZE``); 0: none.
+    """
 
     leaf_size: int = LEAF_SIZE
     bins: int = BINS
@@ -157,6 +123,9 @@ class BuildOptions:
     all_axes: bool = True
     sah_leaves: bool = False
     sample: int = SAMPLE
+    depth_first: bool = True
+    spatial: float = SPATIAL
+    optimize: int = OPTIMIZE
 
     def __post_init__(self):
         if not 1 <= self.leaf_size <= MAX_LEAF:
@@ -253,36 +222,18 @@ class _Level:
         return self.idx.size
 
 
-def build_bvh(vertices: np.ndarray, faces: np.ndarray, *, leaf_size: int = LEAF_SIZE,
-              bins: int = BINS, root_bins: int = BINS, all_axes: bool = True,
-              sah_leaves: bool = False, depth_first: bool = True,
-              sample: int = SAMPLE, spatial: float = SPATIAL,
-              optimize: int = OPTIMIZE, progress=None) -> BVHArrays:
-    """Build a BVH over the triangles ``faces`` (int (F, 3)) of ``vertices`` (float (V, 3)).
-
-    leaf_size: most triangles per leaf (1..16); a node with more is always split.
-    bins: SAH bins per axis of each node (>= 2; default ``BINS`` = 32); root_bins: bins for
-        the large nodes near the root (more than ``BIG_NODE`` triangles on average in their
-        level).
-    all_axes: evaluate the binned SAH along all three axes and take the cheapest split
-        (False: only along the node's longest centroid axis).
-    sah_leaves: a node of at most ``leaf_size`` triangles becomes a leaf when intersecting
-        its triangles is no dearer than the best split (SAH with C_TRAV, C_TRI); False: every
-        node of more than ``leaf_size`` triangles is split, every smaller one is a leaf.
-    depth_first: number the inner nodes in depth-first order (a node's first child directly
-        follows it); False keeps the level-by-level order of the build.
-    sample: nodes of more triangles are binned from a strided sample of about this many.
-    spatial: spatial splits near the root (``renderer.accel.spatial``) with at most
-        ``spatial * F`` extra references (``SPATIAL``: 0.3), in scenes of more than
-        ``SPATIAL_MIN_TRIANGLES`` triangles (the default); 0: object splits only.
-    optimize: rounds of insertion-based optimisation after the build
-        (``renderer.accel.optimize.reinsert``; default ``OPTIMIZE``); 0: none.
-    progress: None, or called as ``progress(levels_done)`` after each level of the build
-        (and once more, ``MAX_LEVELS``, when the build is done but the optimisation).
-    A node whose centroids coincide, or one too deep to finish with SAH splits inside
-    MAX_LEVELS levels, is split at the median instead.
+def build_bvh(vertices: np.ndarray, faces: np.ndarray, options: BuildOptions | None = None,
+              *, progress=None, **settings) -> BVHArrays:
+    """Build a BVH over the triangles ``faces`` (int (F, 3)) of ``vertices`` (float (V, 3))
+    with ``options`` (a ``BuildOptions``; default ``BuildOptions()``), any of its fields
+    overridden by the keywords ``settings`` (``build_bvh(V, F, leaf_size=4)``; an unknown
+    name is a TypeError). ``progress``: None, or called as ``progress(levels_done)`` after
+    each level of the build (and once more, ``MAX_LEVELS``, when the build is done but the
+    optimisation). A node whose centroids coincide, or one too deep to finish with SAH
+    splits inside MAX_LEVELS levels, is split at the median instead.
     """
-    opt = BuildOptions(leaf_size, bins, root_bins, all_axes, sah_leaves, sample)
+    opt = replace(options or BuildOptions(), **settings)
+    leaf_size = opt.leaf_size
     t_start = time.perf_counter()
     V = np.asarray(vertices, np.float32)
     Fi = np.asarray(faces, np.int64)
@@ -303,9 +254,8 @@ def build_bvh(vertices: np.ndarray, faces: np.ndarray, *, leaf_size: int = LEAF_
         s_lo = s_hi = np.zeros(3, np.float32)
     bounds = (s_lo.astype(np.float64), s_hi.astype(np.float64))
     top = None
-    if spatial > 0 and F > max(leaf_size, SPATIAL_MIN_TRIANGLES):
-        from .spatial import spatial_top
-        top = spatial_top(V, Fi, lo.T, hi.T, int(spatial * F), SPATIAL_MIN_REFS,
+    if opt.spatial > 0 and F > max(leaf_size, SPATIAL_MIN_TRIANGLES):
+        top = spatial_top(V, Fi, lo.T, hi.T, int(opt.spatial * F), SPATIAL_MIN_REFS,
                           SPATIAL_DEPTH)
         if top is not None and not len(top.nodes):
             top = None
@@ -337,7 +287,7 @@ def build_bvh(vertices: np.ndarray, faces: np.ndarray, *, leaf_size: int = LEAF_
                 progress(lv.depth)
 
     boxes, children = tree.boxes[:tree.n_nodes], tree.children[:tree.n_nodes]
-    if depth_first and F > leaf_size:
+    if opt.depth_first and F > leaf_size:
         boxes, children = _depth_first(boxes, children)
     order, cells = tree.order, None
     if top is not None:                   # leaf positions hold references: their faces
@@ -345,12 +295,11 @@ def build_bvh(vertices: np.ndarray, faces: np.ndarray, *, leaf_size: int = LEAF_
         cells = (top.cell_lo[tree.order], top.cell_hi[tree.order])
     arrays = BVHArrays(boxes.copy(), children.copy(), order, tree.levels,
                        tree.leaf_count, 0.0, 0.0, bounds, cells)
-    arrays.sah_cost = _sah_cost(arrays)
+    arrays.sah_cost = sah_cost(arrays)
     if progress is not None:
         progress(MAX_LEVELS)
-    if optimize > 0 and F > leaf_size:
-        from .optimize import reinsert
-        arrays = reinsert(arrays, rounds=optimize)
+    if opt.optimize > 0 and F > leaf_size:
+        arrays = reinsert(arrays, rounds=opt.optimize)
     arrays.build_seconds = time.perf_counter() - t_start
     return arrays
 
@@ -470,14 +419,14 @@ def _best_split(lv: _Level) -> None:
     nL = np.cumsum(lv.cnt, axis=1)[:, :-1]                 # (A, B-1, nseg): split after k
     nR = lv.s_n - nL
     with np.errstate(invalid="ignore", over="ignore"):
-        cost = (_half_area(Lmin[:, :, :-1], Lmax[:, :, :-1]) * nL.astype(np.float32)
-                + _half_area(Rmin[:, :, 1:], Rmax[:, :, 1:]) * nR.astype(np.float32))
+        cost = (half_area(Lmin[:, :, :-1], Lmax[:, :, :-1]) * nL.astype(np.float32)
+                + half_area(Rmin[:, :, 1:], Rmax[:, :, 1:]) * nR.astype(np.float32))
     cost[(nL == 0) | (nR == 0)] = np.inf
     cost = cost.reshape(A * (B - 1), nseg)
     bi = np.argmin(cost, axis=0)
     lv.best_cost = cost[bi, lv.sidx]
     lv.best_a, lv.best = bi // (B - 1), bi % (B - 1)
-    lv.node_area = _half_area(Lmin[:, 0, B - 1], Lmax[:, 0, B - 1])          # (nseg,)
+    lv.node_area = half_area(Lmin[:, 0, B - 1], Lmax[:, 0, B - 1])          # (nseg,)
     lv.Lmin, lv.Lmax, lv.Rmin, lv.Rmax, lv.nL = Lmin, Lmax, Rmin, Rmax, nL
 
 
@@ -654,7 +603,6 @@ def refit_boxes(a: BVHArrays, vertices: np.ndarray, faces: np.ndarray, dtype, ex
     t_lo = np.minimum(np.minimum(p[0], p[1]), p[2])                  # (F, 3) in BVH order
     t_hi = np.maximum(np.maximum(p[0], p[1]), p[2])
     if a.cells is not None:               # each reference: its triangle clipped to its cell
-        from .spatial import clipped_boxes
         t_lo, t_hi = clipped_boxes(vertices, faces, a.order, a.cells[0], a.cells[1], dt)
     ref = a.children.astype(np.int64)
     is_leaf = (ref & LEAF_BIT) != 0
@@ -696,27 +644,6 @@ def refit_boxes(a: BVHArrays, vertices: np.ndarray, faces: np.ndarray, dtype, ex
         boxes[:, 6 * k:6 * k + 3] = np.where(real[:, k, None], plo, np.inf)
         boxes[:, 6 * k + 3:6 * k + 6] = np.where(real[:, k, None], phi, np.inf)
     return boxes
-
-
-def _sah_cost(a: BVHArrays) -> float:
-    """SAH cost relative to the root box: C_trav per inner node + C_tri per leaf triangle,
-    each weighted by its box's surface area."""
-    lo, hi = a.bounds
-    root = float(_half_area(np.asarray(lo, np.float64), np.asarray(hi, np.float64)))
-    if root <= 0 or a.node_count == 0:
-        return 0.0
-    bx = a.boxes.astype(np.float64)
-    total = C_TRAV * root
-    for k in range(2):
-        box = bx[:, 6 * k:6 * k + 6]
-        with np.errstate(invalid="ignore"):
-            area = _half_area(box[:, 0:3].T, box[:, 3:6].T)
-        area = np.where(np.isfinite(area), area, 0.0)
-        ref = a.children[:, k].astype(np.int64)
-        is_leaf = (ref & LEAF_BIT) != 0
-        count = ((ref >> COUNT_SHIFT) & 15) + 1
-        total += float(np.sum(np.where(is_leaf, C_TRI * count * area, C_TRAV * area)))
-    return total / root
 
 
 def check_bvh(a: BVHArrays) -> None:

@@ -23,7 +23,8 @@ from dataclasses import replace
 
 import numpy as np
 
-from .bvh_build import LEAF_BIT, MAX_LEVELS, BVHArrays, _sah_cost
+from .bvh_arrays import BVHArrays, sah_cost
+from .layout import LEAF_BIT, MAX_LEVELS
 
 #: Default rounds of ``reinsert`` (``build_bvh(optimize=...)``); each moves the
 #: ``FRACTION`` of nodes that cost most for their size. Rounds stop early once one lowers the
@@ -184,7 +185,7 @@ class _Tree:
         ref = np.array(self.ref, np.int64)
         children = np.where(kids >= self.N, ref[kids], index[kids]).astype(np.uint32)
         out = replace(a, boxes=boxes, children=children, levels=self.height[0])
-        out.sah_cost = _sah_cost(out)
+        out.sah_cost = sah_cost(out)
         return out
 
 

@@ -12,11 +12,9 @@ are the wrapped accelerator's, bit for bit: a ray's hit does not depend on its n
 
 Cost and use: the sort evaluates the ray batch (it cannot be fused into a caller's
 megakernel), so it is a query for evaluated batches (``evaluation.bench.throughput``'s
-``+sort`` contender), not the renderer's default. On the shared 2-core AMD EPYC (LLVM) it
-paid on uniformly random rays (bunny 31.7 -> 25 CPU ms, Conference 122 -> 95 for 230 400
-rays: key + sort + gather about 2.5 ms of that) and not on mirror-reflection rays off
-primary hits, which arrive in pixel order and are already coherent
-(``results/cpu/profile-llvm.md``).
+``+sort`` contender), not the renderer's default. On the CPU it pays on uniformly random
+rays and not on mirror-reflection rays off primary hits, which arrive in pixel order and
+are already coherent (``lab/notes/accel-decisions.md``).
 """
 from __future__ import annotations
 

@@ -31,9 +31,8 @@ ALPHA = 1e-5
 SPATIAL_BINS = 32
 #: When no node in the top ``PROBE_DEPTH`` levels takes a spatial split that lowers its SAH
 #: cost by at least ``PROBE_GAIN`` against the best object split, the scene gets none (a
-#: mesh of even-sized triangles, like the bunny): the probe costs a few nodes' binning. The
-#: bunny's best gain there is 0.7 % (it then cut 297 references for a 4x longer build and
-#: no faster ray on the H200), Sponza's 6 %, Conference's 24 %.
+#: mesh of even-sized triangles, like the bunny): the probe costs a few nodes' binning, and
+#: spares such a mesh a longer build for no faster ray (``lab/notes/accel-decisions.md``).
 PROBE_DEPTH = 3
 PROBE_GAIN = 0.02
 #: Nodes of more references choose their split from a strided sample of about this many.

@@ -1,84 +1,102 @@
 """Traversal steps shared by every accelerator and backend.
 
 A traversal is one symbolic loop per query whose body is made of these steps: the ray
-set-up (``setup``), the slab test of a box (``slab``), the triangle step that folds one
-candidate triangle into the closest-hit record (``triangle_step``), the leaf entry
-(``enter_leaf``) and the stack pop (``pop``). Where a backend needs different code for the
-same step (the slab test's min/max on the CPU, the gathers), the branch is inside the step.
+set-up (``setup``, which builds the ``TraversalRay`` record), the slab test of a box
+(``slab``), the triangle step that folds one candidate triangle into the closest-hit record
+(``triangle_step``), the leaf entry (``enter_leaf``) and the node stack (``Stack``). Where a
+backend needs different code for the same step (the slab test's min/max on the CPU, the
+gathers), the branch is inside the step.
 
-Node references (the BVH's children, the traversal's ``cur`` and stack entries) are UInt32:
-an inner-node index, or a packed leaf ``LEAF_BIT | (count - 1) << COUNT_SHIFT | first``
-(``count`` triangles from position ``first``), or ``DONE``.
+Node references and the stack bound are those of ``renderer.accel.layout``; the query
+records (``Ray``, ``ClosestHit``, ``Closest``, ``Probe``) and the tie probe are
+``renderer.accel.query``'s, re-exported here.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import NamedTuple
 
 import drjit as dr
 
 from ..device import Types
-from .base import ClosestHit, Ray
+from .layout import COUNT_SHIFT as COUNT_SHIFT
+from .layout import DONE, FIRST_MASK, LEAF_BIT, STACK_SIZE
+from .layout import MAX_LEAF as MAX_LEAF
+from .query import TIE_BREAKS as TIE_BREAKS
+from .query import Closest, ClosestHit, Probe, Ray
+from .query import tie_probe as tie_probe
+from .query import tie_probe_p as tie_probe_p
 from .triangle import layout_of, load, unit_roundoff
 
-LEAF_BIT = 1 << 31
-COUNT_SHIFT = 27
-FIRST_MASK = (1 << COUNT_SHIFT) - 1
-MAX_LEAF = 16                # leaf size limit of the packed reference (4 count bits)
-DONE = 0xFFFFFFFF            # "no node left" sentinel of the traversal
-STACK_SIZE = 32              # UInt32 entries per ray: 128 bytes (drjit #532 limit)
-#: Closest-hit tie-breaks: "lowest" (the renderer's: nearest ``t``, then the smallest
-#: original face index) and "other" (a probe for the golden tests, ``tie_probe``: another
-#: triangle as near as the nearest one within the precision, where there is one).
-TIE_BREAKS = ("lowest", "other")
-#: Backends whose closest-hit step reads the original face indices of an exact tie in a
-#: symbolic branch (``triangle_step``); elsewhere a masked gather on every nearer hit (kept
-#: for the probes, which measure it). Both backends: on the CPU it saves a median 5 % of the
-#: CPU time; on an H200 closest-hit rays are 1.00-1.05x faster (median 1.01x binary, 1.02x
-#: 4-wide; none slower in 15 rows each; ``results/h200/throughput/refill-count.md``).
-TIE_BRANCH_BACKENDS = ("llvm", "cuda")
 #: Any-hit node steps go to the farthest hit child first and push the others far to near
 #: (closest hit: nearest first). Any hit ends the query, and the far child tends to hold
 #: what a ray surely meets (the far wall of a room for a primary ray, the geometry around a
-#: light for a shadow ray); the answer is the same in any order. Loop iterations per ray
-#: against nearest first (binary BVH, LLVM counts on the bench's 480x270 batches): shadow
-#: rays 1-7 % fewer, primary, incoherent and reflection any-hit rays 3-55 % fewer (Sponza
-#: primary 32.5 -> 16.0); the wide BVHs, against slot order: up to 54 % fewer. CPU time
-#: (2-core EPYC): 0.97-1.23x on shadow rays, up to 2.7x on Sponza's and Conference's other
-#: any-hit rays.
+#: light for a shadow ray); the answer is the same in any order, and far first takes fewer
+#: loop iterations (``tests/test_accel_traversal.py`` flips this to compare;
+#: ``lab/notes/accel-decisions.md``).
 FAR_FIRST = True
 
 
-class Probe(NamedTuple):
-    """A pass of ``tie_probe`` / ``tie_probe_p``: the nearest hit's triangle (UInt32 per
-    ray, an index in the accelerator's order like ``ClosestHit.prim``; None for any-hit)
-    and the slack (float, a world-space distance; negative narrows) of the inside test."""
+@dataclass
+class TraversalRay:
+    """The rays as a traversal loop reads them (``setup``), every array of the batch width.
 
-    nearest: object
-    slack: float
+    o, d: Array3f origin and direction; inv: ``safe_inv(d)``; box_o, box_inv: the ray as
+    the slab test reads it (``box_ray``; None for a traversal without boxes); t_max: the
+    end of the ray interval, as the query gave it; robust: ``robust_scale`` (float), the
+    slab test's growth of ``t_far``."""
+
+    o: object
+    d: object
+    inv: object
+    box_o: object
+    box_inv: object
+    t_max: object
+    robust: float
 
 
 @dataclass
-class Closest:
-    """The closest-hit record a traversal carries: ``t`` starts at ``t_max`` and shrinks
-    to the nearest hit; ``prim`` is the triangle in the accelerator's order and ``order``
-    its original face index (the tie-break); u, v: barycentrics; found: Bool."""
+class Stack:
+    """A traversal's node stack: ``data`` the ``dr.alloc_local`` UInt32 buffer of
+    ``STACK_SIZE`` entries (allocated before the loop, carried in its state), ``sp`` the
+    depth (UInt32) and ``cur`` the node being visited (UInt32 node reference, ``DONE`` when
+    the traversal is over). ``push`` and ``pop`` update the record in place, as the loop
+    and ``dr.if_stmt`` state it travels in expect."""
 
-    t: object
-    u: object
-    v: object
-    prim: object
-    order: object
-    found: object
+    data: object
+    sp: object
+    cur: object
 
     @classmethod
-    def empty(cls, t: Types, t_max, n: int) -> "Closest":
-        return cls(t=t.Float(t_max) + dr.zeros(t.Float, n), u=dr.zeros(t.Float, n),
-                   v=dr.zeros(t.Float, n), prim=dr.zeros(t.UInt32, n),
-                   order=dr.full(t.UInt32, DONE, n), found=dr.zeros(t.Bool, n))
+    def start(cls, t: Types, active, n: int) -> "Stack":
+        """An empty stack at the root (node 0) where ``active``, else ``DONE``."""
+        return cls(data=dr.alloc_local(t.UInt32, STACK_SIZE), sp=dr.zeros(t.UInt32, n),
+                   cur=dr.select(active, dr.zeros(t.UInt32, n), DONE))
 
-    def result(self) -> ClosestHit:
-        return ClosestHit(t=self.t, u=self.u, v=self.v, prim=self.prim, found=self.found)
+    def push(self, ref, where) -> None:
+        """Push node reference ``ref`` where ``where``."""
+        self.data.write(ref, self.sp, where)
+        self.sp = dr.select(where, self.sp + 1, self.sp)
+
+    def pop(self, where) -> None:
+        """Where ``where``: the next node is the top of the stack, or DONE when it is
+        empty."""
+        can_pop = where & (self.sp > 0)
+        self.sp = dr.select(can_pop, self.sp - 1, self.sp)
+        popped = self.data.read(self.sp, can_pop)
+        self.cur = dr.select(where, dr.select(can_pop, popped, DONE), self.cur)
+
+
+@dataclass
+class LeafTriangles:
+    """What a triangle step reads: ``t`` the types, ``routine`` the triangle routine (bound
+    to the loop's rays by ``triangle.bind_routine`` where the lanes keep their rays),
+    ``data`` the packed triangles as the traversal reads them, ``order`` the original face
+    index of each (UInt32, the tie-break). Excluded from loop state (it holds ``Types``)."""
+
+    t: Types
+    routine: object
+    data: object
+    order: object
 
 
 def robust_scale(t: Types) -> float:
@@ -95,48 +113,44 @@ def safe_inv(t: Types, d):
     return dr.clip(1.0 / d, -big, big)
 
 
-def setup(t: Types, ray: Ray, active):
-    """The ray as a traversal loop reads it: ``(o, d, inv, active, n)``, every array of
-    the batch width ``n``; ``inv = safe_inv(d)``."""
+def setup(t: Types, ray: Ray, active, reach: float | None = None):
+    """The ray as a traversal loop reads it: ``(TraversalRay, active, n)``, every array of
+    the batch width ``n``; ``reach``: the accelerator's (``box_ray``), None for a
+    traversal without boxes."""
     n = dr.width(ray.o, ray.d, ray.t_max, active)
     o, d = t.Array3f(ray.o), t.Array3f(ray.d)
-    return o, d, safe_inv(t, d), t.Bool(active) & dr.full(t.Bool, True, n), n
-
-
-#: Backends whose slab test is one FMA per plane, ``lo * inv - o * inv`` with ``o * inv``
-#: computed once per ray (``box_ray``), instead of ``(lo - o) * inv`` (a subtraction and
-#: a product). H200: 0.99-1.05x faster traversal, median 1.02x over 35 batches, bitwise the
-#: same hits (``results/h200/throughput/slab.md``). The probes set it to compare both forms.
-SLAB_FMA_BACKENDS: tuple = ("llvm", "cuda")
+    inv = safe_inv(t, d)
+    box_o, box_inv = (None, None) if reach is None else box_ray(t, o, inv, reach)
+    return (TraversalRay(o=o, d=d, inv=inv, box_o=box_o, box_inv=box_inv, t_max=ray.t_max,
+                         robust=robust_scale(t)),
+            t.Bool(active) & dr.full(t.Bool, True, n), n)
 
 
 def box_ray(t: Types, o, inv, reach: float):
     """The ray(s) ``(o, inv)`` as ``slab`` reads them, for boxes padded for origins of
     coordinates up to ``reach`` in magnitude (the accelerator's ``reach``,
-    ``triangle.pad_extent``): ``(-(o * inv), inv)`` for the FMA form
-    (``SLAB_FMA_BACKENDS``), else ``(o, inv)``.
+    ``triangle.pad_extent``): ``(-(o * inv), inv)``, so that the slab test is one FMA per
+    plane, ``lo * inv - o * inv``, with ``o * inv`` computed once per ray.
 
     The boxes are padded (``bvh_build.pad_boxes``: 32 ``u`` (coordinate + reach), ``u`` the
     unit roundoff) so that a triangle's computed hit lies inside them although the triangle
     test rounds in proportion to ``|p - o|``. The FMA form rounds ``o * inv`` once, which
     moves each slab plane by up to ``u |o_a|`` in world units: a 32nd of that padding where
     ``|o_a| <= reach``, which the triangle test leaves room for. From farther away the
-    padding covers neither (of 2 10^4 rays from 10^3-10^5 scene sizes away, 2-11 lost their
-    hit in float32, in either form); such rays get ``(0, 0)``, for which every slab value is
-    0, so they enter every box with ``t_near = 0``: brute force's hits at brute force's
-    cost, and no extra work per box for the others. A render's rays start at cameras,
-    lights and surfaces, which lie within the reach (``triangle.box_reach``)."""
-    if t.backend not in SLAB_FMA_BACKENDS:
-        return o, inv
+    padding covers neither the FMA form nor ``(lo - o) * inv``; such rays get ``(0, 0)``,
+    for which every slab value is 0, so they enter every box with ``t_near = 0``: brute
+    force's hits at brute force's cost, and no extra work per box for the others. A
+    render's rays start at cameras, lights and surfaces, which lie within the reach
+    (``triangle.box_reach``)."""
     mag = dr.maximum(dr.maximum(dr.abs(o.x), dr.abs(o.y)), dr.abs(o.z))
     far = ~(mag <= reach)
     return dr.select(far, 0.0, -(o * inv)), dr.select(far, 0.0, inv)
 
 
-def slab(t: Types, o, inv, lo, hi, t_max, robust):
-    """Williams et al. ray/box slab test; t_far grown by ``robust_scale`` (pbrt) so that
-    the float test never misses a box the exact ray hits. ``(o, inv)``: ``box_ray``'s.
-    Returns ``(hit, t_near)``.
+def slab(t: Types, ray: TraversalRay, lo, hi, t_max):
+    """Williams et al. ray/box slab test of ``ray`` (its ``box_o``, ``box_inv``) against
+    the box ``(lo, hi)`` and ``(0, t_max)``; t_far grown by ``ray.robust`` (pbrt) so that
+    the float test never misses a box the exact ray hits. Returns ``(hit, t_near)``.
 
     On LLVM min/max are written as compare + select: Dr.Jit emits ``dr.minimum`` /
     ``dr.maximum`` as LLVM's NaN-propagating ``llvm.minimum``/``maximum``, which x86 has no
@@ -144,10 +158,8 @@ def slab(t: Types, o, inv, lo, hi, t_max, robust):
     slab value is NaN, which needs a NaN ray (``safe_inv`` never returns 0 or inf) or a
     box at infinity: the triangle test never hits such a ray, and such a box holds no
     triangle but the first one, so the hits stay the same."""
-    if t.backend in SLAB_FMA_BACKENDS:
-        t0, t1 = dr.fma(lo, inv, o), dr.fma(hi, inv, o)
-    else:
-        t0, t1 = (lo - o) * inv, (hi - o) * inv
+    o, inv, robust = ray.box_o, ray.box_inv, ray.robust
+    t0, t1 = dr.fma(lo, inv, o), dr.fma(hi, inv, o)
     if t.backend == "llvm":
         c = t0 < t1
         tn = dr.select(c, t0, t1)
@@ -165,25 +177,35 @@ def slab(t: Types, o, inv, lo, hi, t_max, robust):
     return t_near <= dr.minimum(t_far, t_max), t_near
 
 
-def triangle_step(t: Types, routine, o, d, tri_data, order, i, t_max, rec: Closest,
-                  any_hit: bool, active=True, probe: Probe | None = None) -> Closest:
+def triangle_step(tris: LeafTriangles, ray: TraversalRay, i, rec: Closest, any_hit: bool,
+                  active=True, probe: Probe | None = None) -> Closest:
     """Test packed triangle ``i`` where ``active`` and fold it into ``rec``: accept a hit
     that is nearer, or (once something was found) equally near with a smaller original face
-    index (``order``), so ties resolve the same in every accelerator. For ``any_hit`` only
-    ``found`` (a hit in (0, t_max)) is updated. ``active`` is True where the caller's
-    symbolic ``if`` already masks the lanes.
+    index (``tris.order``), so ties resolve the same in every accelerator. For ``any_hit``
+    only ``found`` (a hit in (0, ray.t_max)) is updated. ``active`` is True where the
+    caller's symbolic ``if`` already masks the lanes.
 
-    With a ``probe`` (pass two of ``tie_probe``) ``t_max`` is the end of the tie window
+    An exact tie reads both original face indices in a symbolic branch, taken only when
+    some lane of the packet or warp has one (exact ties are rare, and a masked gather costs
+    its loads on the CPU even for masked-off lanes); ``rec.order`` is therefore not kept
+    by the renderer's pass.
+
+    With a ``probe`` (pass two of ``tie_probe``) ``ray.t_max`` is the end of the tie window
     (inclusive), the inside test takes the probe's slack (``probe_inside``, for either
     layout), and the hit in ``(0, t_max]`` with the largest original face index, other than
     triangle ``probe.nearest``, wins, however near; the caller culls boxes by ``t_max``,
     not ``rec.t`` (``cull_t``)."""
-    layout = layout_of(routine)
-    tri = load(t, tri_data, i, active, layout)
-    th, u, v, h = routine(o, d, *tri)
+    t, order, t_max = tris.t, tris.order, ray.t_max
+    layout = layout_of(tris.routine)
+    tri = load(t, tris.data, i, active, layout)
+    th, u, v, h = tris.routine(ray.o, ray.d, *tri)
     if probe is not None:
         e1, e2 = edges_of(tri, layout)
-        h = probe_inside(th, u, v, e1, e2, probe.slack)
+        inside = probe_inside(th, u, v, e1, e2, probe.slack)
+        near = th <= probe.origin
+        # at the origin the routine's answer stands: a narrowed test keeps its hit, a
+        # widened one adds none (a re-hit of the surface the ray left is no tie)
+        h = dr.select(near, h, inside) if probe.slack < 0 else inside & ~near
     if active is not True:
         h &= active
     if any_hit:
@@ -198,24 +220,15 @@ def triangle_step(t: Types, routine, o, d, tri_data, order, i, t_max, rec: Close
     h &= th <= rec.t
     nearer = h & (th < rec.t)
     tie = h & rec.found & (th == rec.t)
-    if t.backend in TIE_BRANCH_BACKENDS:
-        # exact ties are rare: read both original face indices only in a symbolic branch
-        # taken when some lane of the packet has one (a masked gather costs its loads on
-        # the CPU even for masked-off lanes); ``rec.order`` is not kept on this path
-        wins = dr.if_stmt(
-            (i, rec.prim, tie), tie,
-            lambda i, p, tie: tie & (dr.gather(t.UInt32, order, i, tie)
-                                     < dr.gather(t.UInt32, order, p, tie)),
-            lambda i, p, tie: tie & False)
-        accept = nearer | wins
-        return Closest(t=dr.select(accept, th, rec.t), u=dr.select(accept, u, rec.u),
-                       v=dr.select(accept, v, rec.v), prim=dr.select(accept, i, rec.prim),
-                       order=rec.order, found=rec.found | accept)
-    i_order = dr.gather(t.UInt32, order, i, nearer | tie)
-    accept = nearer | (tie & (i_order < rec.order))
+    wins = dr.if_stmt(
+        (i, rec.prim, tie), tie,
+        lambda i, p, tie: tie & (dr.gather(t.UInt32, order, i, tie)
+                                 < dr.gather(t.UInt32, order, p, tie)),
+        lambda i, p, tie: tie & False)
+    accept = nearer | wins
     return Closest(t=dr.select(accept, th, rec.t), u=dr.select(accept, u, rec.u),
                    v=dr.select(accept, v, rec.v), prim=dr.select(accept, i, rec.prim),
-                   order=dr.select(accept, i_order, rec.order), found=rec.found | accept)
+                   order=rec.order, found=rec.found | accept)
 
 
 def edges_of(tri, layout: str):
@@ -237,51 +250,6 @@ def probe_inside(th, u, v, e1, e2, slack: float):
     w = 1.0 - u - v
     return ((two_area > 0) & (th > 0) & (u >= -s * dr.norm(e2)) & (v >= -s * dr.norm(e1))
             & (w >= -s * dr.norm(e2 - e1)))
-
-
-def tie_probe(traverse, ray: Ray, active, tie_break: str, window: float,
-              slack: float) -> ClosestHit:
-    """The closest hit under ``tie_break`` (``TIE_BREAKS``) through ``traverse(ray, active,
-    probe)``, an accelerator's closest-hit traversal (``probe``: None or a ``Probe``).
-
-    "lowest" is one pass, the renderer's. "other" is two: the nearest hit at ``t*`` (pass
-    one, the renderer's hit), then every triangle hit in ``(0, t* + window]`` with the
-    inside test widened by the distance ``slack`` (``probe_inside``; pass two): the one
-    with the largest original face index other than the nearest wins; where there is none,
-    the nearest stays. ``window`` and ``slack`` are world-space distances (``ray.d`` unit
-    length, as the integrator's rays are). So the
-    closest hit changes exactly where another triangle is as near as the nearest within
-    the precision (a shared edge, a corner, coplanar faces): a geometric tie, which two
-    renderers may resolve either way. Where pass one finds nothing, pass two does not run
-    (a crack stays a crack). A window reaching ``ray.t_max`` shrinks to ``t*``."""
-    if tie_break not in TIE_BREAKS:
-        raise ValueError(f"tie_break: expected one of {list(TIE_BREAKS)}, got {tie_break!r}")
-    first = traverse(ray, active, None)
-    if tie_break == "lowest":
-        return first
-    limit = first.t + window
-    limit = dr.select(first.found & (limit < ray.t_max), limit, first.t)
-    other = traverse(Ray(o=ray.o, d=ray.d, t_max=limit), first.found & active,
-                     Probe(nearest=first.prim, slack=slack))
-    keep = ~other.found
-    return ClosestHit(t=dr.select(keep, first.t, other.t), u=dr.select(keep, first.u, other.u),
-                      v=dr.select(keep, first.v, other.v),
-                      prim=dr.select(keep, first.prim, other.prim), found=first.found)
-
-
-def tie_probe_p(traverse, ray: Ray, active, tie_break: str, slack: float):
-    """Any hit (shadow rays) under ``tie_break`` through ``traverse(ray, active, probe)``,
-    an accelerator's any-hit traversal. "lowest": the renderer's answer. "other": the
-    answer flipped where the inside test decides it within ``slack`` (the ray grazes an
-    occluder's edge): a blocked ray stays blocked only if it is blocked with the inside
-    test narrowed by ``slack``, an unblocked one becomes blocked if it is blocked with the
-    test widened by ``slack``."""
-    found = traverse(ray, active, None)
-    if tie_break == "lowest":
-        return found
-    narrow = traverse(ray, active & found, Probe(nearest=None, slack=-slack))
-    wide = traverse(ray, active & ~found, Probe(nearest=None, slack=slack))
-    return dr.select(found, narrow, wide)
 
 
 def cull_t(rec: Closest, t_max, probe):
@@ -307,25 +275,15 @@ def enter_leaf(cur, first, end):
     return is_leaf, is_inner, first, end
 
 
-def pop(stack, sp, cur, where):
-    """Where ``where``: the next node is the top of the stack, or DONE when it is empty.
-    Returns ``(sp, cur)``."""
-    can_pop = where & (sp > 0)
-    sp = dr.select(can_pop, sp - 1, sp)
-    popped = stack.read(sp, can_pop)
-    return sp, dr.select(where, dr.select(can_pop, popped, DONE), cur)
-
-
-def leaf_triangle_step(t: Types, routine, o, d, tri_data, order, first, end, t_max,
-                       rec: Closest, any_hit: bool, probe=None) -> tuple:
+def leaf_triangle_step(tris: LeafTriangles, ray: TraversalRay, first, end, rec: Closest,
+                       any_hit: bool, probe=None) -> tuple:
     """The triangle half of a traversal iteration, shared by every accelerator: where a
     leaf triangle is pending (``first < end``), test triangle ``first`` (``triangle_step``)
     and move on to the next. Returns ``(rec, first)``."""
     return masked_step(
-        t, first < end,
+        tris.t, first < end,
         lambda rec, first, on: (
-            triangle_step(t, routine, o, d, tri_data, order, first, t_max, rec, any_hit,
-                          on, probe),
+            triangle_step(tris, ray, first, rec, any_hit, on, probe),
             first + 1 if on is True else dr.select(on, first + 1, first)),
         (rec, first))
 
@@ -344,10 +302,9 @@ def masked_step(t: Types, where, step, state: tuple) -> tuple:
     returns the new state. The ``if`` is a real branch, taken only when some lane of the
     16-lane SIMD packet (LLVM) or of the 32-thread warp (CUDA) needs it; written inline
     with masked updates instead, every lane pays for every instruction of the loop body
-    on every iteration. Measured on an H200 (``results/h200/throughput/branches.md``):
-    the branches make the binary BVH's traversal 1.35-2.05x faster (median 1.65x), with
-    bitwise the same hits. Inside the ``if`` Dr.Jit masks the step's gathers and stack
-    writes itself."""
+    on every iteration, so the branch is the faster form, with bitwise the same hits
+    (``lab/notes/accel-decisions.md``). Inside the ``if`` Dr.Jit masks the step's gathers
+    and stack writes itself."""
     return dr.if_stmt(state, where, lambda *s: step(*s, True), lambda *s: s)
 
 
@@ -363,20 +320,22 @@ def refill_lanes(n: int, refill: int) -> int:
 
 
 @dr.syntax
-def refill_traversal(t: Types, routine, tri_data, order, node_fn, ray: Ray, active,
-                     any_hit: bool, n: int, lanes: int, label: str, reach: float):
+def refill_traversal(tris: LeafTriangles, node_fn, ray: Ray, active, any_hit: bool,
+                     lanes: int, label: str, reach: float):
     """A traversal whose ``lanes`` lanes take a new ray when theirs is done: they start on
     the first ``lanes`` rays of the batch; a lane whose ray has finished writes its result
     and takes the next untraced ray from an atomic counter (``dr.scatter_inc``), so a SIMD
     packet (LLVM) or warp (CUDA) stops paying for its slowest ray until the batch runs out
     (Aila & Laine 2009's persistent threads with dynamic fetch). The rays are evaluated
     first and gathered by index, so this is a query for evaluated batches, not for a
-    caller's megakernel. ``node_fn(sp, cur, to_pop, best_t, o, inv, stack)`` is the
-    accelerator's node step (``o``, ``inv``: ``box_ray``'s, for the accelerator's
-    ``reach``) under ``masked_step`` (returns ``(sp, cur, to_pop)``); each ray's steps are
-    those of the accelerator's own loop, in the same order, so the hits are bitwise the
-    same. Returns what the accelerator's query returns (``found`` for any hit, else a
-    ``ClosestHit``)."""
+    caller's megakernel. ``tris.routine`` is unbound (the lanes change rays).
+    ``node_fn(ray, best_t, stack, to_pop)`` is the accelerator's node step (``ray`` a
+    ``TraversalRay`` for the accelerator's ``reach``) under ``masked_step`` (returns
+    ``(stack, to_pop)``); each ray's steps are those of the accelerator's own loop, in the
+    same order, so the hits are bitwise the same. Returns what the accelerator's query
+    returns (``found`` for any hit, else a ``ClosestHit``)."""
+    t = tris.t
+    n = dr.width(ray.o, ray.d, ray.t_max, active)
     O, D = (v if dr.width(v) == n else v + dr.zeros(t.Array3f, n)
             for v in (t.Array3f(ray.o), t.Array3f(ray.d)))
     TM = t.Float(ray.t_max)
@@ -392,29 +351,27 @@ def refill_traversal(t: Types, routine, tri_data, order, node_fn, ray: Ray, acti
     valid = dr.full(t.Bool, True, lanes)
     o = dr.gather(t.Array3f, O, ray_id)
     d = dr.gather(t.Array3f, D, ray_id)
-    t_max = dr.gather(t.Float, TM, ray_id)
     inv = safe_inv(t, d)
     b_o, b_inv = box_ray(t, o, inv, reach)
-    stack = dr.alloc_local(t.UInt32, STACK_SIZE)
-    sp = dr.zeros(t.UInt32, lanes)
-    cur = dr.select(dr.gather(t.Bool, ACT, ray_id), t.UInt32(0), t.UInt32(DONE))
+    r = TraversalRay(o=o, d=d, inv=inv, box_o=b_o, box_inv=b_inv,
+                     t_max=dr.gather(t.Float, TM, ray_id), robust=robust_scale(t))
+    stack = Stack(data=dr.alloc_local(t.UInt32, STACK_SIZE), sp=dr.zeros(t.UInt32, lanes),
+                  cur=dr.select(dr.gather(t.Bool, ACT, ray_id), t.UInt32(0), t.UInt32(DONE)))
     first = dr.zeros(t.UInt32, lanes)
     end = dr.zeros(t.UInt32, lanes)
-    rec = Closest.empty(t, t_max, lanes)
+    rec = Closest.empty(t, r.t_max, lanes)
 
     while dr.hint(valid, max_iterations=-1, label=label,
-                  exclude=[t, routine, tri_data, order, node_fn, any_hit, n, O, D, TM, ACT,
+                  exclude=[t, tris, node_fn, any_hit, n, O, D, TM, ACT,
                            counter, out_t, out_u, out_v, out_prim, out_found]):
-        is_leaf, is_inner, first, end = enter_leaf(cur, first, end)
-        sp, cur, to_pop = masked_step(
+        is_leaf, is_inner, first, end = enter_leaf(stack.cur, first, end)
+        stack, to_pop = masked_step(
             t, is_inner,
-            lambda sp, cur, to_pop, on, best_t=rec.t, b_o=b_o, b_inv=b_inv: node_fn(
-                sp, cur, to_pop, best_t, b_o, b_inv, stack),
-            (sp, cur, is_leaf | False))
-        sp, cur = pop(stack, sp, cur, to_pop)
-        rec, first = leaf_triangle_step(t, routine, o, d, tri_data, order, first, end,
-                                        t_max, rec, any_hit)
-        busy = (first < end) | (cur != DONE)
+            lambda stack, to_pop, on, best_t=rec.t, r=r: node_fn(r, best_t, stack, to_pop),
+            (stack, is_leaf | False))
+        stack.pop(to_pop)
+        rec, first = leaf_triangle_step(tris, r, first, end, rec, any_hit)
+        busy = (first < end) | (stack.cur != DONE)
         if dr.hint(any_hit, mode="scalar"):
             busy &= ~rec.found
         finish = valid & ~busy
@@ -431,15 +388,17 @@ def refill_traversal(t: Types, routine, tri_data, order, node_fn, ray: Ray, acti
         ray_id = dr.select(finish, nid, ray_id)
         valid = dr.select(finish, nid < n, valid)
         take = finish & valid
-        o = dr.select(take, dr.gather(t.Array3f, O, nid, take), o)
-        d = dr.select(take, dr.gather(t.Array3f, D, nid, take), d)
-        inv = dr.select(take, safe_inv(t, d), inv)
+        o = dr.select(take, dr.gather(t.Array3f, O, nid, take), r.o)
+        d = dr.select(take, dr.gather(t.Array3f, D, nid, take), r.d)
+        inv = dr.select(take, safe_inv(t, d), r.inv)
         n_o, n_inv = box_ray(t, o, inv, reach)
-        b_o, b_inv = dr.select(take, n_o, b_o), dr.select(take, n_inv, b_inv)
-        t_max = dr.select(take, dr.gather(t.Float, TM, nid, take), t_max)
+        t_max = dr.select(take, dr.gather(t.Float, TM, nid, take), r.t_max)
+        r = TraversalRay(o=o, d=d, inv=inv, box_o=dr.select(take, n_o, r.box_o),
+                         box_inv=dr.select(take, n_inv, r.box_inv), t_max=t_max,
+                         robust=r.robust)
         on = dr.gather(t.Bool, ACT, nid, take)
-        cur = dr.select(take, dr.select(on, t.UInt32(0), t.UInt32(DONE)), cur)
-        sp = dr.select(take, 0, sp)
+        stack.cur = dr.select(take, dr.select(on, t.UInt32(0), t.UInt32(DONE)), stack.cur)
+        stack.sp = dr.select(take, 0, stack.sp)
         first = dr.select(take, 0, first)
         end = dr.select(take, 0, end)
         rec = Closest(t=dr.select(take, t_max, rec.t), u=dr.select(take, 0.0, rec.u),

@@ -26,17 +26,12 @@ from __future__ import annotations
 import drjit as dr
 import numpy as np
 
-from ..device import Types, array3, rcp
+from ..device import Types, array3, host_array, rcp
+from ..device import unit_roundoff as unit_roundoff
 from .base import DeviceTriangles, gather_floats
 
 #: Floats per packed triangle.
 STRIDE = 12
-
-
-def unit_roundoff(double: bool) -> float:
-    """Unit roundoff of float64 (``double``) or float32: half the distance from 1 to the
-    next float."""
-    return 2.0 ** -53 if double else 2.0 ** -24
 
 
 def edge_slack(double: bool) -> float:
@@ -82,17 +77,19 @@ def _gamma(n: int, double: bool) -> float:
     return n * u / (1 - n * u)
 
 
-def _edges_float64(x0, y0, x1, y1, x2, y2, e0, e1, e2):
-    """The three edge functions recomputed in float64 from float32 coordinates: the
-    products are exact there, so the one rounding of the difference keeps the sign."""
+def _edges_float64(xy, e):
+    """The three edge functions recomputed in float64 from the float32 sheared vertices
+    ``xy = (x0, y0, x1, y1, x2, y2)``: the products are exact there, so the one rounding
+    of the difference keeps the sign. ``e``: the float32 edge functions (unused)."""
+    x0, y0, x1, y1, x2, y2 = xy
     Float = type(x0)
     F64 = dr.float64_array_t(Float)
     X0, Y0, X1, Y1, X2, Y2 = (F64(c) for c in (x0, y0, x1, y1, x2, y2))
     return (Float(X1 * Y2 - Y1 * X2), Float(X2 * Y0 - Y2 * X0), Float(X0 * Y1 - Y0 * X1))
 
 
-def _edges_as_they_are(x0, y0, x1, y1, x2, y2, e0, e1, e2):
-    return e0, e1, e2
+def _edges_as_they_are(xy, e):
+    return e
 
 
 def _rotate(v, zx, zy):
@@ -134,9 +131,8 @@ def _watertight_bind(o, d):
     last, and the shear) computed once, before the traversal loop, instead of at every
     triangle. The rotation is cyclic (``kx = kz + 1``, ``ky = kz + 2`` mod 3), chosen by
     two Bools, so a vertex is rotated with two selects per component. Both are bitwise the
-    same test; on an H200 they make closest and any hit 1.04-1.12x faster, median 1.06x,
-    than selects on integer axis indices at every test
-    (``results/h200/throughput/experiments/watertight-setup.md``); the CPU is unchanged."""
+    same test as selects on integer axis indices at every test, and cheaper on CUDA
+    (``lab/notes/accel-decisions.md``)."""
     double = dr.type_v(o) == dr.VarType.Float64
     ad = dr.abs(d)
     zx = (ad.x > ad.y) & (ad.x > ad.z)           # largest |d| component: x
@@ -154,7 +150,8 @@ def _watertight_bind(o, d):
         x0, y0 = dr.fma(sx, z0, x0), dr.fma(sy, z0, y0)
         x1, y1 = dr.fma(sx, z1, x1), dr.fma(sy, z1, y1)
         x2, y2 = dr.fma(sx, z2, x2), dr.fma(sy, z2, y2)
-        return _watertight_tail(a0, a1, a2, n, d_, x0, y0, x1, y1, x2, y2, double, t_min)
+        return _watertight_tail((a0, a1, a2), n, d_, (x0, y0, x1, y1, x2, y2), double,
+                                t_min)
     bound.layout = "vertices"
     return bound
 
@@ -169,18 +166,19 @@ def bind_routine(routine, o, d):
     return routine if bind is None else bind(o, d)
 
 
-def _watertight_tail(a0, a1, a2, n, d, x0, y0, x1, y1, x2, y2, double, t_min):
-    """The rest of ``watertight`` from the sheared 2-D vertices ``(x_k, y_k)`` and the
-    translated vertices ``a_k = p_k - o``."""
+def _watertight_tail(a, n, d, xy, double, t_min):
+    """The rest of ``watertight`` from the translated vertices ``a = (a0, a1, a2)``,
+    ``a_k = p_k - o``, and the sheared 2-D vertices ``xy = (x0, y0, x1, y1, x2, y2)``."""
+    a0, a1, a2 = a
+    x0, y0, x1, y1, x2, y2 = xy
     # ---- edge functions (exact sign), float64 where one is exactly 0 in float32 ----------
     e0 = difference_of_products(x1, y2, y1, x2)
     e1 = difference_of_products(x2, y0, y2, x0)
     e2 = difference_of_products(x0, y1, y0, x1)
     if not double:
-        # a symbolic branch: the float64 products cost ~40 % of the test when evaluated
-        # on every lane, and an exactly-zero edge function is rare
-        e0, e1, e2 = dr.if_stmt((x0, y0, x1, y1, x2, y2, e0, e1, e2),
-                                (e0 == 0) | (e1 == 0) | (e2 == 0),
+        # a symbolic branch: the float64 products are a large part of the test when
+        # evaluated on every lane, and an exactly-zero edge function is rare
+        e0, e1, e2 = dr.if_stmt((xy, (e0, e1, e2)), (e0 == 0) | (e1 == 0) | (e2 == 0),
                                 _edges_float64, _edges_as_they_are)
     mixed = ((e0 < 0) | (e1 < 0) | (e2 < 0)) & ((e0 > 0) | (e1 > 0) | (e2 > 0))
     det = e0 + e1 + e2
@@ -252,8 +250,7 @@ def box_reach(scene, routine: str) -> float:
     by up to a few units of roundoff of ``|p - o|`` (pbrt's conservative traversal: the
     slab test never rejects a ray the triangle test would accept); and the slab test's FMA
     form moves its planes by up to a unit of roundoff of ``|o|`` (``traverse.box_ray``,
-    where origins beyond the reach enter every box). Möller–Trumbore's hits lie on the float
-    triangle, so before the FMA form its boxes needed no reach."""
+    where origins beyond the reach enter every box), whichever routine the boxes serve."""
     mags = [float(np.max(np.abs(scene.positions(True)))) if scene.face_count else 0.0]
     mags += [float(np.max(np.abs(c.position))) for c in scene.cameras]
     mags += [float(np.max(np.abs(li.position))) for li in scene.lights]
@@ -280,22 +277,26 @@ def pack(vertices: np.ndarray, faces: np.ndarray, layout: str = "edges") -> np.n
     """float64 (F, STRIDE) packed rows of the triangles ``faces`` (int (F, 3)) of
     ``vertices`` (float (V, 3)); the caller casts to the precision in use. ``layout``
     (``layout_of``): "edges" stores ``v0, v1 - v0, v2 - v0`` (the edges are differences of
-    float64 vertices, rounded once by that cast); "vertices" stores ``p0, p1, p2`` and the
-    unit normal ``normalize((p1 - p0) x (p2 - p0))`` (zero for a degenerate triangle)."""
+    float64 vertices, rounded once by that cast; zero for a triangle without area, which
+    then never hits); "vertices" stores ``p0, p1, p2`` and the unit normal
+    ``normalize((p1 - p0) x (p2 - p0))`` (zero for a triangle without area: never hits)."""
     if layout not in ("edges", "vertices"):
         raise ValueError(f"layout: expected 'edges' or 'vertices', got {layout!r}")
     V = np.asarray(vertices).astype(np.float64)
     p0, p1, p2 = (V[faces[:, k]] for k in range(3))
     packed = np.zeros((faces.shape[0], STRIDE), np.float64)
     packed[:, 0:3] = p0
+    n = np.cross(p1 - p0, p2 - p0)
+    length = np.linalg.norm(n, axis=1, keepdims=True)
     if layout == "edges":
-        packed[:, 3:6] = p1 - p0
-        packed[:, 6:9] = p2 - p0
+        # a triangle without area in these vertices (kept for the other precision, where it
+        # has some) gets zero edges: det = 0, so it never hits
+        flat = length == 0
+        packed[:, 3:6] = np.where(flat, 0.0, p1 - p0)
+        packed[:, 6:9] = np.where(flat, 0.0, p2 - p0)
     else:
         packed[:, 3:6] = p1
         packed[:, 6:9] = p2
-        n = np.cross(p1 - p0, p2 - p0)
-        length = np.linalg.norm(n, axis=1, keepdims=True)
         packed[:, 9:12] = np.where(length > 0, n / np.where(length > 0, length, 1.0), 0.0)
     return packed
 
@@ -332,9 +333,9 @@ def upload_triangles(scene, t: Types, order: np.ndarray | None = None,
     else:
         n0 = n1 = n2 = t.Array3f(0, 0, 0)
     fdt = np.float64 if t.is_double else np.float32
-    tri_data = t.Float(packed.astype(fdt).reshape(-1))
+    tri_data = t.Float(host_array(packed.reshape(-1), fdt))
     tris = DeviceTriangles(
         ng=array3(t, ng), n0=n0, n1=n1, n2=n2,
-        material=t.UInt32(scene.face_material[order].astype(np.uint32)),
-        smooth=t.Bool(smooth), order=t.UInt32(order.astype(np.uint32)))
+        material=t.UInt32(host_array(scene.face_material[order], np.uint32)),
+        smooth=t.Bool(host_array(smooth, bool)), order=t.UInt32(host_array(order, np.uint32)))
     return tri_data, tris

@@ -5,7 +5,7 @@ Conversion (``collapse``): each wide node starts from a binary node's two childr
 repeatedly replaces the inner child of largest surface area by its two children (SAH-greedy
 expansion) until it has ``width`` children or no inner child may be expanded. Leaves are
 the binary tree's leaves unchanged (same triangle order, same packed references of
-``renderer.accel.traverse``), so the wide tree visits the same triangles in a different
+``renderer.accel.layout``), so the wide tree visits the same triangles in a different
 order and the hits are bitwise those of the binary BVH and of brute force.
 
 Stack bound: a closest-hit node step pushes at most ``children - 1`` entries. The
@@ -30,9 +30,8 @@ triangles are moreover read as UInt64 views, two words per 64-bit gather
 
 Node steps sort the hit children by entry distance (a sorting network); closest-hit steps
 go to the nearest and push the rest far to near, any-hit steps go to the farthest and push
-the rest near to far (``traverse.FAR_FIRST``; before, any-hit steps pushed the hit
-children in slot order, which took up to 2.2x the loop iterations on Sponza and
-Conference, and nearest first 3-35 % more than slot order).
+the rest near to far (``traverse.FAR_FIRST``; it takes fewer loop iterations than slot
+order or nearest first: ``lab/notes/accel-decisions.md``).
 """
 from __future__ import annotations
 
@@ -42,7 +41,7 @@ from dataclasses import dataclass, field, replace
 import drjit as dr
 import numpy as np
 
-from ..device import Types
+from ..device import Types, host_array
 from . import traverse
 from .base import (
     Accelerator,
@@ -57,21 +56,19 @@ from .base import (
 )
 from .bvh import traversal_boxes
 from .bvh_build import BINS, LEAF_SIZE, BVHArrays, build_bvh
+from .layout import DONE, LEAF_BIT, STACK_SIZE
+from .query import Closest
 from .traverse import (
-    DONE,
-    LEAF_BIT,
-    STACK_SIZE,
-    Closest,
-    box_ray,
+    LeafTriangles,
+    Stack,
+    TraversalRay,
     cull_t,
     enter_leaf,
     leaf_triangle_step,
     masked_step,
-    pop,
     probe_pad,
     refill_lanes,
     refill_traversal,
-    robust_scale,
     setup,
     slab,
     traversal_result,
@@ -306,23 +303,23 @@ def check_wide(w: WideArrays, a: BVHArrays) -> None:
     assert w.max_stack <= STACK_SIZE
 
 
-def wide_node_step(t: Types, width: int, nodes, refs, o, inv, t_max, robust, stack, sp, cur,
-                   to_pop, any_hit: bool, active=True, pad: float = 0.0):
-    """One wide node ``cur`` where ``active``: test the ray against every child box (grown
-    by ``pad``) at once (``(0, t_max)``), go to the nearest hit child and push the other
-    hit children far to near (any hit with ``traverse.FAR_FIRST``: the farthest, pushing
-    the rest near to far; without: in slot order). Returns ``(sp, cur, to_pop)``,
-    ``to_pop`` grown by the lanes where no child was hit."""
-    W = width
-    boxes = child_boxes(t, W, nodes, cur, active)
-    child = gather_words(t, refs, cur, W, W, active)
+def wide_node_step(wide: "WideBVH", ray: TraversalRay, t_max, stack: Stack, to_pop,
+                   any_hit: bool, active=True, pad: float = 0.0):
+    """One wide node ``stack.cur`` of ``wide`` where ``active``: test the ray against every
+    child box (grown by ``pad``) at once (``(0, t_max)``), go to the nearest hit child and
+    push the other hit children far to near (any hit with ``traverse.FAR_FIRST``: the
+    farthest, pushing the rest near to far; without: in slot order). Returns ``(stack,
+    to_pop)``, ``to_pop`` grown by the lanes where no child was hit."""
+    t, W, cur = wide.types, wide.width, stack.cur
+    boxes = child_boxes(t, W, wide.nodes, cur, active)
+    child = gather_words(t, wide.refs, cur, W, W, active)
     key, ref = [], []
     for k in range(W):
         lo, hi = boxes[k]
         if pad:         # the tie probe's slack reaches beyond the padded boxes
             lo, hi = lo - pad, hi + pad
         r = child[k]
-        hit, tn = slab(t, o, inv, lo, hi, t_max, robust)
+        hit, tn = slab(t, ray, lo, hi, t_max)
         hit &= r != DONE
         if active is not True:
             hit &= active
@@ -334,8 +331,7 @@ def wide_node_step(t: Types, width: int, nodes, refs, o, inv, t_max, robust, sta
             hit = ref[k] != DONE
             take = hit & (nxt == DONE)
             push = hit & ~take
-            stack.write(ref[k], sp, push)
-            sp = dr.select(push, sp + 1, sp)
+            stack.push(ref[k], push)
             nxt = dr.select(take, ref[k], nxt)
     else:
         if any_hit:             # farthest first: the ascending network on negated distances
@@ -345,15 +341,14 @@ def wide_node_step(t: Types, width: int, nodes, refs, o, inv, t_max, robust, sta
             key[i], key[j] = dr.select(swap, key[j], key[i]), dr.select(swap, key[i], key[j])
             ref[i], ref[j] = dr.select(swap, ref[j], ref[i]), dr.select(swap, ref[i], ref[j])
         for k in range(W - 1, 0, -1):
-            push = ref[k] != DONE
-            stack.write(ref[k], sp, push)
-            sp = dr.select(push, sp + 1, sp)
+            stack.push(ref[k], ref[k] != DONE)
         nxt = ref[0]
     missed = nxt == DONE
     if active is not True:
         missed &= active
         nxt = dr.select(active, nxt, cur)
-    return sp, dr.select(missed, cur, nxt), to_pop | missed
+    stack.cur = dr.select(missed, cur, nxt)
+    return stack, to_pop | missed
 
 
 def child_boxes(t: Types, W: int, nodes, cur, active=True) -> list:
@@ -390,7 +385,8 @@ def _network(n: int) -> list[tuple[int, int]]:
 class WideBVH(Accelerator):
     """Wide BVH accelerator (see the module docstring).
 
-    Build with ``WideBVH.build(scene, t, width=4, intersection=..., leaf_size=2, bins=32)``.
+    Build with ``WideBVH.build(scene, t, width=4, intersection=..., leaf_size=2, bins=32)``
+    (``leaf_size``, ``bins`` and the other ``build_bvh`` keywords build the binary tree).
     nodes: Float (6 width N) SoA child boxes; refs: UInt32 (width N) child references;
     tri_data, tris: as ``BVH``; width: 4 or 8; backend, precision, intersection, info.
     """
@@ -403,7 +399,7 @@ class WideBVH(Accelerator):
     backend: str = "llvm"
     precision: str = "float32"
     intersection: str = DEFAULT_ROUTINE
-    tie_break: str = "lowest"          # traverse.TIE_BREAKS; "other" only probes ties
+    tie_break: str = "lowest"          # query.TIE_BREAKS; "other" only probes ties
     tie_window: float = 0.0            # t window (world units) of tie_break "other"
     tie_slack: float = 0.0             # edge slack (world units) of tie_break "other"
     info: dict = field(default_factory=dict, repr=False)
@@ -413,18 +409,19 @@ class WideBVH(Accelerator):
 
     @classmethod
     def build(cls, scene, t: Types, *, width: int = 4, quantized: bool | None = None,
-              intersection: str = DEFAULT_ROUTINE, leaf_size: int = LEAF_SIZE,
-              bins: int = BINS, binary: BVHArrays | None = None,
+              intersection: str = DEFAULT_ROUTINE, binary: BVHArrays | None = None,
               **build_options) -> "WideBVH":
         """``binary``: a binary build of ``scene`` to convert (else one is built with
-        ``leaf_size``, ``bins`` and ``build_options``); ``quantized``: 8-bit child boxes
+        ``build_options``, ``build_bvh``'s keywords); ``quantized``: 8-bit child boxes
         (``quantize``; default for float32), else SoA boxes of the precision (default for
         float64)."""
         triangle_routine(intersection)
         if quantized is None:  # 8-bit boxes are fitted to float32 boxes: float64 keeps floats
             quantized = not t.is_double
+        leaf_size = build_options.get("leaf_size", LEAF_SIZE)
+        bins = build_options.get("bins", BINS)
         a = binary if binary is not None else build_bvh(
-            scene.vertices, scene.faces, leaf_size=leaf_size, bins=bins, **build_options)
+            scene.vertices, scene.faces, **build_options)
         a = replace(a, boxes=traversal_boxes(a, scene, t, intersection))
         w = collapse(a, width)
         tq = time.perf_counter()
@@ -436,10 +433,10 @@ class WideBVH(Accelerator):
         fdt = np.float64 if t.is_double else np.float32
         pairs = uses_pairs(t)
         if quantized:
-            nodes = as_pairs(t, qwords) if pairs else t.UInt32(qwords.reshape(-1))
+            nodes = as_pairs(t, qwords) if pairs else t.UInt32(host_array(qwords.reshape(-1)))
         else:
-            nodes = t.Float(w.boxes.astype(fdt).reshape(-1))
-        refs = as_pairs(t, w.refs) if pairs else t.UInt32(w.refs.reshape(-1))
+            nodes = t.Float(host_array(w.boxes.reshape(-1), fdt))
+        refs = as_pairs(t, w.refs) if pairs else t.UInt32(host_array(w.refs.reshape(-1)))
         tri_trav = traversal_triangles(t, tri_data)
         dr.eval(nodes, refs, tri_data, tri_trav, tris)
         fsize = 8 if t.is_double else 4
@@ -468,69 +465,59 @@ class WideBVH(Accelerator):
         iterations)`` UInt32 per ray, the same traversal as the query with counters."""
         return self._traverse(ray, active, any_hit, counting=True)
 
-    def _loop_inputs(self):
-        """What both traversal loops read: ``(types, width, routine, robust_scale, nodes,
-        refs, order, triangles)``, the triangles in the layout traversal reads
-        (``tri_trav`` where the backend has one)."""
-        t = self.types
-        tri_data = self.tri_data if self.tri_trav is None else self.tri_trav
-        return (t, self.width, triangle_routine(self.intersection), robust_scale(t),
-                self.nodes, self.refs, self.tris.order, tri_data)
+    def _leaf_triangles(self, routine) -> LeafTriangles:
+        """The triangles as the traversal reads them (``tri_trav`` where the backend has
+        one), with ``routine``."""
+        return LeafTriangles(t=self.types, routine=routine, order=self.tris.order,
+                             data=self.tri_data if self.tri_trav is None else self.tri_trav)
 
     def _traverse(self, ray: Ray, active, any_hit: bool, probe=None, counting: bool = False):
         if self.refill and not counting and probe is None:
             n = dr.width(ray.o, ray.d, ray.t_max, active)
             lanes = refill_lanes(n, self.refill)
             if lanes < n:
-                t, W, routine, robust, nodes, refs, order, tri_data = self._loop_inputs()
                 return refill_traversal(
-                    t, routine, tri_data, order,
-                    lambda sp, cur, to_pop, best_t, o, inv, stack: wide_node_step(
-                        t, W, nodes, refs, o, inv, best_t, robust, stack, sp, cur, to_pop,
-                        any_hit, True),
-                    ray, active, any_hit, n, lanes, f"bvh{W}_refill", self.reach)
+                    self._leaf_triangles(triangle_routine(self.intersection)),
+                    lambda r, best_t, stack, to_pop: wide_node_step(
+                        self, r, best_t, stack, to_pop, any_hit, True),
+                    ray, active, any_hit, lanes, f"bvh{self.width}_refill", self.reach)
         return self._traverse_lanes(ray, active, any_hit, probe, counting)
 
     @dr.syntax
     def _traverse_lanes(self, ray: Ray, active, any_hit: bool, probe=None,
                         counting: bool = False):
-        t, W, routine, robust, nodes, refs, order, tri_data = self._loop_inputs()
-        t_max = ray.t_max
-        o, d, inv, active, n = setup(t, ray, active)
-        ob, ib = box_ray(t, o, inv, self.reach)    # the ray as the slab test reads it
-        routine = bind_routine(routine, o, d)
-        stack = dr.alloc_local(t.UInt32, STACK_SIZE)
-        sp = dr.zeros(t.UInt32, n)
-        cur = dr.select(active, dr.zeros(t.UInt32, n), DONE)
+        t, W = self.types, self.width
+        r, active, n = setup(t, ray, active, self.reach)
+        tris = self._leaf_triangles(bind_routine(triangle_routine(self.intersection),
+                                                 r.o, r.d))
+        stack = Stack.start(t, active, n)
         first = dr.zeros(t.UInt32, n)
         end = dr.zeros(t.UInt32, n)
-        rec = Closest.empty(t, t_max, n)
+        rec = Closest.empty(t, r.t_max, n)
         n_node = dr.zeros(t.UInt32, n)
         n_tri = dr.zeros(t.UInt32, n)
         n_iter = dr.zeros(t.UInt32, n)
 
         while dr.hint(active, max_iterations=-1, label=f"bvh{W}",
-                      exclude=[self, t, routine, robust, any_hit, probe, counting, W]):
-            is_leaf, is_inner, first, end = enter_leaf(cur, first, end)
+                      exclude=[self, t, tris, any_hit, probe, counting, W]):
+            is_leaf, is_inner, first, end = enter_leaf(stack.cur, first, end)
             if dr.hint(counting, mode="scalar"):
                 n_node += dr.select(is_inner, 1, 0)
                 n_tri += dr.select(first < end, 1, 0)
                 n_iter += 1
-            cull = cull_t(rec, t_max, probe)   # boxes beyond it are skipped
-            sp, cur, to_pop = masked_step(
+            cull = cull_t(rec, r.t_max, probe)   # boxes beyond it are skipped
+            stack, to_pop = masked_step(
                 t, is_inner,
-                lambda sp, cur, to_pop, on, best_t=cull: wide_node_step(
-                    t, W, nodes, refs, ob, ib, best_t, robust, stack, sp, cur, to_pop,
-                    any_hit, on, probe_pad(probe)),
-                (sp, cur, is_leaf | False))
-            sp, cur = pop(stack, sp, cur, to_pop)
+                lambda stack, to_pop, on, best_t=cull: wide_node_step(
+                    self, r, best_t, stack, to_pop, any_hit, on, probe_pad(probe)),
+                (stack, is_leaf | False))
+            stack.pop(to_pop)
 
-            rec, first = leaf_triangle_step(t, routine, o, d, tri_data, order, first, end,
-                                            t_max, rec, any_hit, probe)
+            rec, first = leaf_triangle_step(tris, r, first, end, rec, any_hit, probe)
             if dr.hint(any_hit, mode="scalar"):
                 active &= ~rec.found
 
-            active &= (first < end) | (cur != DONE)
+            active &= (first < end) | (stack.cur != DONE)
 
         return traversal_result(rec, any_hit, (n_node, n_tri, n_iter) if counting else None)
 

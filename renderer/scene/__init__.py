@@ -7,11 +7,13 @@ from .importers import SCENE_FORMATS, auto_camera, load_scene
 from .model import (
                     COMBINATIONS,
                     FALLOFFS,
+                    LIGHT_SHAPES,
                     MAX_DEPTH_LIMIT,
                     SHADING_MODES,
                     SPAWN_RULES,
                     TERMINATOR_FIXES,
                     Camera,
+                    Light,
                     Material,
                     ObjectInfo,
                     PointLight,
@@ -26,6 +28,6 @@ from .model import (
 
 __all__ = ["SCENE_FORMATS", "auto_camera", "COMBINATIONS", "FALLOFFS", "MAX_DEPTH_LIMIT",
            "SHADING_MODES", "SPAWN_RULES",
-           "TERMINATOR_FIXES", "Camera", "Material",
+           "TERMINATOR_FIXES", "LIGHT_SHAPES", "Camera", "Light", "Material",
            "ObjectInfo", "PointLight", "Scene", "SceneError", "Settings", "check_ranges",
            "load_scene", "precision_limits", "validate_image_size", "validate_settings"]

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import difflib
 import math
+import os
 import tomllib
 import warnings
 from dataclasses import dataclass, replace
@@ -42,8 +43,12 @@ _TOP_KEYS = ("description", "camera", "views", "render", "ambient", "lights", "m
              "objects", "physical", "check")
 _VIEW_KEYS = ("name", "position", "target", "up", "fov_y", "resolution")
 _RENDER_KEYS = ("max_depth", "spp", "exact", "shading", "background", "min_weight",
-                "ray_epsilon", "seed", "spawn", "build")
-_LIGHT_KEYS = ("name", "position", "intensity", "falloff")
+                "ray_epsilon", "seed", "spawn", "build", "shadow_samples")
+_LIGHT_KEYS = ("name", "position", "intensity", "falloff", "type", "radius", "center",
+               "corner", "edge_u", "edge_v", "two_sided")
+#: Keys each light type reads besides name, intensity and falloff.
+_LIGHT_TYPE_KEYS = {"point": ("position",), "sphere": ("position", "center", "radius"),
+                    "rectangle": ("center", "corner", "edge_u", "edge_v", "two_sided")}
 _MATERIAL_KEYS = ("ka", "kd", "ks", "n", "k_refl", "k_refr", "ior", "combination")
 _OBJECT_KEYS = ("name", "material", "mesh", "shape", "translate", "rotate", "scale",
                 "matrix", "smooth", "flip_normals", "subdivide")
@@ -217,7 +222,7 @@ def _read_render(r: _Reader, data: dict, shading: str | None) -> Settings:
     exact = r.boolean(rt["exact"], "render.exact") if "exact" in rt else spp == 1
     max_depth = r.integer(rt.get("max_depth", 5), "render.max_depth", lo=0)
     spawn = r.string(rt.get("spawn", "scale-free"), "render.spawn", SPAWN_RULES)
-    if spawn != "scale-free" and "ray_epsilon" in rt:
+    if "spawn" in rt and "ray_epsilon" in rt:     # either rule, named or the default's
         raise SceneError(f"{r.path}: render.spawn: {spawn!r} and render.ray_epsilon (an "
                          "absolute offset) exclude each other", field="render.spawn")
     try:
@@ -231,9 +236,19 @@ def _read_render(r: _Reader, data: dict, shading: str | None) -> Settings:
         ray_epsilon=(r.number(rt["ray_epsilon"], "render.ray_epsilon", lo=0.0, lo_open=True)
                      if "ray_epsilon" in rt else None),
         seed=r.integer(rt.get("seed", 0), "render.seed", lo=0),
-        spawn=spawn,
+        spawn=spawn, shadow_samples=_shadow_samples(r, rt),
         build=r.string(rt.get("build", "auto"), "render.build", TREE_BUILDS),
     )
+
+
+def _shadow_samples(r: _Reader, rt: dict) -> int:
+    """``render.shadow_samples``: a perfect square >= 1 (default 1)."""
+    n = r.integer(rt.get("shadow_samples", 1), "render.shadow_samples", lo=1)
+    try:
+        validate_settings(shadow_samples=n, where="render")
+    except SceneError as e:
+        raise SceneError(f"{r.path}: {e}", field=e.field) from None
+    return n
 
 
 # ---- ambient and [physical] ------------------------------------------------------------------
@@ -289,28 +304,72 @@ def _read_views(r: _Reader, data: dict) -> list[Camera]:
 # ---- [[lights]] ------------------------------------------------------------------------------
 def _read_lights(r: _Reader, data: dict, mode: str, light_scale: np.ndarray
                  ) -> list[PointLight]:
-    """Point lights; in physical mode inverse-square only, intensities times
-    ``light_scale``."""
+    """Lights (``type`` "point", the default, "sphere" or "rectangle"; docs/MODEL.md); in
+    physical mode inverse-square only, intensities times ``light_scale``. A sphere of
+    ``radius = 0`` is a point light."""
     lights = []
     for i, lt in enumerate(r.array_of_tables(data.get("lights", []), "lights")):
         where = f"lights[{i}]"
         r.keys(lt, _LIGHT_KEYS, where)
-        for req in ("position", "intensity"):
-            if req not in lt:
-                raise r.error(f"{where}.{req}", "missing (required)")
+        kind = r.string(lt.get("type", "point"), f"{where}.type", tuple(_LIGHT_TYPE_KEYS))
+        for key in lt:
+            if key not in ("name", "intensity", "falloff", "type") \
+                    and key not in _LIGHT_TYPE_KEYS[kind]:
+                raise r.error(f"{where}.{key}", f"not a key of a {kind!r} light (keys: "
+                              f"{', '.join(_LIGHT_TYPE_KEYS[kind])})")
+        if "intensity" not in lt:
+            raise r.error(f"{where}.intensity", "missing (required)")
         falloff_default = "none" if mode == "classic" else "inverse_square"
         falloff = r.string(lt.get("falloff", falloff_default), f"{where}.falloff", FALLOFFS)
         if mode == "physical" and falloff != "inverse_square":
             raise r.error(f"{where}.falloff", "physical shading needs 'inverse_square' "
-                          "point lights (Mitsuba's point emitter); remove the key or use "
+                          "lights (Mitsuba's point and area emitters); remove the key or use "
                           "classic shading")
         intensity = r.color(lt["intensity"], f"{where}.intensity")
         if mode == "physical":
             intensity = intensity * light_scale
-        lights.append(PointLight(position=r.vector(lt["position"], f"{where}.position"),
-                                 intensity=intensity, falloff=falloff,
-                                 name=r.string(lt.get("name", f"light{i}"), f"{where}.name")))
+        name = r.string(lt.get("name", f"light{i}"), f"{where}.name")
+        common = dict(intensity=intensity, falloff=falloff, name=name)
+        if kind == "rectangle":
+            lights.append(_read_rectangle(r, lt, where, common))
+            continue
+        if kind == "sphere" and "position" in lt and "center" in lt:
+            raise r.error(f"{where}.center", "give the centre once (center or position)")
+        pos_key = "center" if "center" in lt else "position"
+        if pos_key not in lt:
+            raise r.error(f"{where}.position", "missing (required)")
+        position = r.vector(lt[pos_key], f"{where}.{pos_key}")
+        radius = r.number(lt.get("radius", 0.0), f"{where}.radius", lo=0.0) \
+            if kind == "sphere" else 0.0
+        if kind == "sphere" and "radius" not in lt:
+            raise r.error(f"{where}.radius", "missing (required for a sphere light)")
+        if radius > 0:
+            lights.append(PointLight(position=position, shape="sphere", radius=radius,
+                                     **common))
+        else:
+            lights.append(PointLight(position=position, **common))
     return lights
+
+
+def _read_rectangle(r: _Reader, lt: dict, where: str, common: dict) -> PointLight:
+    """A rectangle light: ``edge_u``, ``edge_v`` and its ``center`` or ``corner`` (one of
+    them), ``two_sided`` (false)."""
+    for req in ("edge_u", "edge_v"):
+        if req not in lt:
+            raise r.error(f"{where}.{req}", "missing (required for a rectangle light)")
+    eu = r.vector(lt["edge_u"], f"{where}.edge_u")
+    ev = r.vector(lt["edge_v"], f"{where}.edge_v")
+    if ("center" in lt) == ("corner" in lt):
+        raise r.error(f"{where}.center", "give exactly one of center and corner")
+    if "center" in lt:
+        centre = r.vector(lt["center"], f"{where}.center")
+    else:
+        centre = r.vector(lt["corner"], f"{where}.corner") + 0.5 * (eu + ev)
+    if not np.linalg.norm(np.cross(eu, ev)) > 0:
+        raise r.error(f"{where}.edge_v", "parallel to edge_u (the rectangle has no area)")
+    two = r.boolean(lt.get("two_sided", False), f"{where}.two_sided")
+    return PointLight(position=centre, shape="rectangle", edge_u=eu, edge_v=ev,
+                      two_sided=two, **common)
 
 
 # ---- [materials.<name>] ----------------------------------------------------------------------
@@ -400,6 +459,8 @@ def _read_objects(r: _Reader, data: dict, material_index: dict[str, int], cache=
             levels = r.integer(ot["subdivide"], f"{where}.subdivide", lo=0)
             if levels > 4:
                 raise r.error(f"{where}.subdivide", f"expected 0..4 levels, got {levels}")
+            _check_size(r, f"{where}.subdivide", len(faces) * 4 ** levels,
+                        f"subdivide = {levels} of {len(faces):,} triangles")
             out = _cached(cache, "mesh", (verts, faces, levels), lambda v=verts, f=faces,
                           n=levels: dict(zip(("v", "f"), subdivide_midpoint(v, f, n))))
             verts, faces = out["v"], out["f"].astype(np.int64)
@@ -452,6 +513,36 @@ def _object_mesh(r: _Reader, ot: dict, where: str):
     return verts, faces, mesh_path.suffix.lower()[1:], mesh_path.stem, mesh_path
 
 
+#: Memory a render takes per triangle at its peak (the loader's arrays, the upload and the
+#: accelerator's build; measured on the subdivided bunny: 1.37 KB at 278K triangles, 1.08 KB
+#: at 1.1M): what a mesh that would not fit is refused with (``_check_size``).
+BYTES_PER_TRIANGLE = 1100
+#: The most triangles one scene may have: 12 packed floats each in one Dr.Jit array (fewer
+#: than 2^32 entries).
+MAX_TRIANGLES = (2 ** 32 - 1) // 12
+
+
+def _physical_memory() -> int | None:
+    try:
+        return int(os.sysconf("SC_PAGE_SIZE")) * int(os.sysconf("SC_PHYS_PAGES"))
+    except (AttributeError, OSError, ValueError):
+        return None
+
+
+def _check_size(r: _Reader, field: str, count: int, what: str) -> None:
+    """Refuse, before anything is built, an object of ``count`` triangles that cannot be
+    rendered: more than ``MAX_TRIANGLES``, or an estimated peak (``BYTES_PER_TRIANGLE``)
+    beyond this machine's physical memory."""
+    need = count * BYTES_PER_TRIANGLE
+    mem = _physical_memory()
+    if count > MAX_TRIANGLES or (mem is not None and need > mem):
+        have = f"this machine has {mem / 1e9:.3g} GB" if mem is not None else "too much"
+        limit = f"; at most {MAX_TRIANGLES:,} triangles fit the device arrays" \
+            if count > MAX_TRIANGLES else ""
+        raise r.error(field, f"{what} makes {count:.3g} triangles, about {need / 1e9:.3g} GB "
+                             f"to render ({have}{limit}); use a smaller value")
+
+
 def _object_shape(r: _Reader, ot: dict, where: str):
     """(vertices, faces, kind) of ``shape = "<name>"`` with its parameters."""
     kind = r.string(ot["shape"], f"{where}.shape", tuple(shapes.SHAPES))
@@ -463,6 +554,9 @@ def _object_shape(r: _Reader, ot: dict, where: str):
     if len(params) > 1:
         raise r.error(f"{where}.{'.'.join(params)}", "give either 'frequency' or "
                                                   "'subdivisions', not both")
+    for key, value in params.items():            # sphere: 20·f² triangles, f = 2^s
+        f = value if key == "frequency" else 2 ** min(value, 64)
+        _check_size(r, f"{where}.{key}", 20 * f * f, f"{key} = {value}")
     verts, faces = shapes.make_shape(kind, **params)
     return verts, faces, kind
 
@@ -499,10 +593,25 @@ def _camera(r: _Reader, defaults: dict, view: dict, where: str, i: int, in_views
     return Camera(position=pos, target=target, up=up, fov_y=fov, width=w, height=h, name=name)
 
 
+def _sin_cos_degrees(deg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(sin, cos)`` of angles in degrees, exact (0, ±1) at multiples of 90°: ``cos(90°)``
+    computed from ``np.radians`` is 6e-17, which tilts a wall rotated upright by a float64
+    ulp, so the floor it stands on pokes through it and a float64 shadow ray from the
+    floor's edge is blocked by the wall. Other angles are ``np.sin``/``np.cos`` as given."""
+    deg = np.asarray(deg, np.float64)
+    s, c = np.sin(np.radians(deg)), np.cos(np.radians(deg))
+    quarter = np.mod(deg, 360.0) / 90.0
+    right = quarter == np.round(quarter)
+    k = np.mod(np.round(quarter), 4).astype(int)
+    s = np.where(right, np.array([0.0, 1.0, 0.0, -1.0])[k], s)
+    c = np.where(right, np.array([1.0, 0.0, -1.0, 0.0])[k], c)
+    return s, c
+
+
 def _rotation(deg: np.ndarray) -> np.ndarray:
-    """Rotation by deg[0] about x, then deg[1] about y, then deg[2] about z."""
-    cx, cy, cz = np.cos(np.radians(deg))
-    sx, sy, sz = np.sin(np.radians(deg))
+    """Rotation by deg[0] about x, then deg[1] about y, then deg[2] about z
+    (``_sin_cos_degrees``: right angles exact)."""
+    (sx, sy, sz), (cx, cy, cz) = _sin_cos_degrees(deg)
     rx = np.array([[1, 0, 0], [0, cx, -sx], [0, sx, cx]])
     ry = np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
     rz = np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1]])
@@ -558,28 +667,40 @@ def _cached(cache, kind: str, inputs: tuple, fn) -> dict:
 
 
 def _part_arrays(world: np.ndarray, faces: np.ndarray) -> dict:
-    """One object's arrays: ``keep`` (faces of nonzero area), ``faces`` (those faces over
-    the compacted vertices), ``verts`` and their averaged ``normals``."""
-    # Zero-area test on the float32 positions the renderer will see (float64 arithmetic).
-    p = world.astype(np.float32).astype(np.float64)
-    cross = np.cross(p[faces[:, 1]] - p[faces[:, 0]], p[faces[:, 2]] - p[faces[:, 0]])
-    area2 = np.linalg.norm(cross, axis=1)
-    keep = area2 > 0
-    faces, cross, area2 = faces[keep], cross[keep], area2[keep]
+    """One object's arrays: ``keep`` (faces with area), ``faces`` (those faces over the
+    compacted vertices), ``verts`` and their averaged ``normals`` (float32's positions) and
+    ``normals64`` (float64's).
+
+    The zero-area test is made on the positions each precision renders (float64
+    arithmetic): a triangle is dropped only where it has no area in either, so a float64
+    render far from the origin keeps the small triangles that float32's grid collapses
+    (those never hit in float32: ``triangle.pack`` stores them degenerate). The vertex
+    normals of each precision come from its own face normals (a face without area in one
+    precision does not count there)."""
+    p32 = world.astype(np.float32).astype(np.float64)
+    cross32 = np.cross(p32[faces[:, 1]] - p32[faces[:, 0]], p32[faces[:, 2]] - p32[faces[:, 0]])
+    cross = np.cross(world[faces[:, 1]] - world[faces[:, 0]],
+                     world[faces[:, 2]] - world[faces[:, 0]])
+    area32, area2 = np.linalg.norm(cross32, axis=1), np.linalg.norm(cross, axis=1)
+    keep = (area32 > 0) | (area2 > 0)
+    faces = faces[keep]
+    cross32, area32, cross, area2 = cross32[keep], area32[keep], cross[keep], area2[keep]
     if len(faces) == 0:
-        return {"keep": keep, "faces": faces, "verts": world[:0], "normals": world[:0]}
+        return {"keep": keep, "faces": faces, "verts": world[:0], "normals": world[:0],
+                "normals64": world[:0]}
     used, faces = np.unique(faces, return_inverse=True)   # compact to used vertices
     faces = faces.reshape(-1, 3)
     verts = world[used]
     return {"keep": keep, "faces": faces, "verts": verts,
-            "normals": _vertex_normals(verts, faces, cross / area2[:, None])}
+            "normals": _vertex_normals(verts, faces, _unit_rows(cross32, area32)),
+            "normals64": _vertex_normals(verts, faces, _unit_rows(cross, area2))}
 
 
 def _assemble(r: _Reader, parts: list[_Part], cameras, settings, lights, materials, ambient,
               sources, cache=None) -> Scene:
     """The flat scene arrays: zero-area triangles dropped, vertices compacted per object,
     vertex normals averaged."""
-    objects, all_v, all_n, all_f, f_mat, f_obj = [], [], [], [], [], []
+    objects, all_v, all_n, all_n64, all_f, f_mat, f_obj = [], [], [], [], [], [], []
     v_base = f_base = 0
     for k, part in enumerate(parts):
         name, kind, mat, smooth, world, faces = (part.name, part.kind, part.material,
@@ -595,12 +716,14 @@ def _assemble(r: _Reader, parts: list[_Part], cameras, settings, lights, materia
         if len(arr["faces"]) == 0:
             raise r.error(where, f"object {name!r} has no triangles left (all zero-area or "
                                  "empty mesh)")
-        faces, verts, normals = arr["faces"], arr["verts"], arr["normals"]
+        faces, verts = arr["faces"], arr["verts"]
+        normals, normals64 = arr["normals"], arr["normals64"]
         objects.append(ObjectInfo(name=name, kind=kind, material=mat, first_face=f_base,
                                   face_count=len(faces), first_vertex=v_base,
                                   vertex_count=len(verts), smooth=smooth))
         all_v.append(verts)
         all_n.append(normals)
+        all_n64.append(normals64)
         all_f.append(faces + v_base)
         f_mat.append(np.full(len(faces), mat, np.int32))
         f_obj.append(np.full(len(faces), k, np.int32))
@@ -616,12 +739,17 @@ def _assemble(r: _Reader, parts: list[_Part], cameras, settings, lights, materia
         vertices=cat(all_v, (0, 3), np.float32),
         normals=cat(all_n, (0, 3), np.float32),
         vertices64=cat(all_v, (0, 3), np.float64),
-        normals64=cat(all_n, (0, 3), np.float64),
+        normals64=cat(all_n64, (0, 3), np.float64),
         faces=cat(all_f, (0, 3), np.int32),
         face_material=cat(f_mat, (0,), np.int32),
         face_object=cat(f_obj, (0,), np.int32),
         ambient=ambient, name=r.path.stem, path=r.path, source_files=sources,
     )
+
+
+def _unit_rows(v: np.ndarray, length: np.ndarray) -> np.ndarray:
+    """Rows of ``v`` divided by ``length`` (0 where the length is 0)."""
+    return np.where(length[:, None] > 0, v / np.where(length > 0, length, 1.0)[:, None], 0.0)
 
 
 def _vertex_normals(verts: np.ndarray, faces: np.ndarray, face_n: np.ndarray) -> np.ndarray:

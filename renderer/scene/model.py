@@ -58,13 +58,15 @@ class SceneError(ValueError):
 
 def validate_settings(*, spp: int | None = None, exact: bool | None = None,
                       max_depth: int | None = None, shading: str | None = None,
-                      spawn: str | None = None, where: str = "settings") -> None:
+                      spawn: str | None = None, shadow_samples: int | None = None,
+                      where: str = "settings") -> None:
     """The one host-side check of the render settings; a None argument is not checked.
 
     spp: an integer k*k >= 1 (k x k strata); with ``exact`` true it must be 1.
     max_depth: an integer in 0..MAX_DEPTH_LIMIT.
     shading: one of SHADING_MODES.
     spawn: one of SPAWN_RULES.
+    shadow_samples: a perfect square k*k >= 1 (shadow rays per light with extent).
     where: prefix of the field names in errors (``"settings"`` gives ``"settings.spp"``;
         the loader passes ``"<file>: render"``, the CLI may pass its own).
     Raises SceneError whose message starts with the field and whose ``field`` names it.
@@ -89,6 +91,10 @@ def validate_settings(*, spp: int | None = None, exact: bool | None = None,
                         f"got {shading!r}")
     if spawn is not None and spawn not in SPAWN_RULES:
         fail("spawn", f"expected one of {', '.join(map(repr, SPAWN_RULES))}, got {spawn!r}")
+    if shadow_samples is not None:
+        ss = shadow_samples
+        if isinstance(ss, bool) or int(ss) != ss or ss < 1 or math.isqrt(int(ss)) ** 2 != ss:
+            fail("shadow_samples", f"expected a perfect square >= 1 (k*k strata), got {ss}")
 
 
 #: Dr.Jit arrays hold fewer than 2^32 entries (UInt32 sizes and indices).
@@ -119,12 +125,23 @@ def precision_limits(double: bool) -> tuple[float, float]:
     return math.sqrt(fmax / 16.0), math.sqrt(float(np.finfo(np.float32).max))
 
 
+def size_limit(double: bool) -> float:
+    """The smallest extent a scene may have in the precision: ``cbrt(tiny / eps)`` (float32
+    4.6e-11, float64 1.0e-97). The intersection routines multiply three lengths of the
+    scene (a triple product, an edge function times a distance); below this their product
+    is subnormal and loses the precision's relative accuracy (at 1e-18 in float32, 10 % of
+    the ray/triangle answers were wrong)."""
+    f = np.finfo(np.float64 if double else np.float32)
+    return float(np.cbrt(float(f.tiny) / float(f.eps)))
+
+
 def check_ranges(scene: "Scene", precision: str = "float32") -> None:
     """Numerical guard before upload: every vertex, camera and light position within the
     precision's coordinate limit and every light intensity within its intensity limit
-    (``precision_limits``; float32: 4.6e18 and 1.8e19; float64: 3.4e153 and 1.8e19).
-    Raises SceneError naming the file and the field (a float32 1e39 intensity would
-    otherwise become inf and NaN pixels)."""
+    (``precision_limits``; float32: 4.6e18 and 1.8e19; float64: 3.4e153 and 1.8e19), and
+    a scene with triangles at least ``size_limit`` across (float32: 4.6e-11). Raises
+    SceneError naming the file and the field (a float32 1e39 intensity would otherwise
+    become inf and NaN pixels)."""
     double = precision == "float64"
     c_lim, i_lim = precision_limits(double)
     src = f"{scene.path}: " if scene.path is not None else f"scene {scene.name!r}: "
@@ -141,6 +158,11 @@ def check_ranges(scene: "Scene", precision: str = "float32") -> None:
             fail(f"lights[{i}].position", "coordinate", np.max(np.abs(light.position)), c_lim)
         if np.max(light.intensity) > i_lim:
             fail(f"lights[{i}].intensity", "intensity", np.max(light.intensity), i_lim)
+        size = max([float(light.radius)] + [float(np.max(np.abs(e)))
+                                             for e in (light.edge_u, light.edge_v)
+                                             if e is not None])
+        if size > c_lim:
+            fail(f"lights[{i}] size", "coordinate", size, c_lim)
     for i, cam in enumerate(scene.cameras):
         if np.max(np.abs(cam.position)) > c_lim:
             fail(f"views[{i}].position", "coordinate", np.max(np.abs(cam.position)), c_lim)
@@ -150,6 +172,15 @@ def check_ranges(scene: "Scene", precision: str = "float32") -> None:
         if v.size and np.max(np.abs(v)) > c_lim:
             fail(f"objects[{k}] ({obj.name!r}) vertices", "coordinate",
                  float(np.max(np.abs(v))), c_lim)
+    if scene.face_count:
+        used = V[scene.faces.reshape(-1)]
+        extent = float(np.max(used.max(axis=0) - used.min(axis=0)))
+        s_lim = size_limit(double)
+        if extent < s_lim:
+            f = "objects vertices"
+            raise SceneError(f"{src}{f}: the scene is {extent:.3g} across, under the "
+                             f"{precision} limit {s_lim:.3g} (products of its lengths "
+                             f"underflow){hint}", field=f)
 
 
 @dataclass(frozen=True)
@@ -171,15 +202,72 @@ class Camera:
     name: str = "view0"
 
 
+#: Light shapes (docs/MODEL.md, "Lights with extent"): a point, a sphere of radius > 0, a
+#: rectangle (parallelogram) of edges ``edge_u``, ``edge_v``.
+LIGHT_SHAPES = ("point", "sphere", "rectangle")
+
+
 @dataclass(frozen=True)
 class PointLight:
-    """position: float64 (3,); intensity: float64 (3,) RGB, >= 0;
-    falloff: "none" | "inverse_square"."""
+    """A light (docs/MODEL.md): a point light unless ``shape`` says otherwise.
+
+    position: float64 (3,), the point, or the centre of a sphere or rectangle light;
+    intensity: float64 (3,) RGB, >= 0 (W/sr in physical shading; for a rectangle along its
+    normal); falloff: "none" | "inverse_square".
+    shape: one of LIGHT_SHAPES; radius: the sphere's radius (> 0 for "sphere", 0 else);
+    edge_u, edge_v: float64 (3,) full edges of a rectangle (None else), its normal
+    ``normalize(edge_u × edge_v)``; two_sided: a rectangle emits on both sides.
+    """
 
     position: np.ndarray
     intensity: np.ndarray
     falloff: str = "inverse_square"
     name: str = ""
+    shape: str = "point"
+    radius: float = 0.0
+    edge_u: np.ndarray | None = None
+    edge_v: np.ndarray | None = None
+    two_sided: bool = False
+
+    def __post_init__(self):
+        if self.shape not in LIGHT_SHAPES:
+            raise SceneError(f"light {self.name!r}: shape: expected one of "
+                             f"{', '.join(map(repr, LIGHT_SHAPES))}, got {self.shape!r}",
+                             field="shape")
+        if self.shape == "sphere" and not self.radius > 0:
+            raise SceneError(f"light {self.name!r}: radius: a sphere light needs radius > 0 "
+                             f"(radius 0 is a point light), got {self.radius}", field="radius")
+        if self.shape == "rectangle":
+            if self.edge_u is None or self.edge_v is None or not np.linalg.norm(
+                    np.cross(self.edge_u, self.edge_v)) > 0:
+                raise SceneError(f"light {self.name!r}: edge_u, edge_v: a rectangle light "
+                                 "needs two non-parallel edges", field="edge_u")
+
+    @property
+    def extent(self) -> bool:
+        """The light has extent (a sphere or a rectangle): its shadows are soft."""
+        return self.shape != "point"
+
+    @property
+    def area(self) -> float:
+        """Emitting area of one side (0 for a point light)."""
+        if self.shape == "sphere":
+            return 4.0 * math.pi * self.radius ** 2
+        if self.shape == "rectangle":
+            return float(np.linalg.norm(np.cross(self.edge_u, self.edge_v)))
+        return 0.0
+
+    @property
+    def radiance(self) -> np.ndarray:
+        """Emitted radiance ``L_e`` of a light with extent (``I / (π r²)`` for a sphere,
+        ``I / A`` for a rectangle; docs/MODEL.md)."""
+        if self.shape == "sphere":
+            return self.intensity / (math.pi * self.radius ** 2)
+        return self.intensity / self.area
+
+
+#: The light record's plain name (every light is a ``PointLight`` with a ``shape``).
+Light = PointLight
 
 
 @dataclass(frozen=True)
@@ -227,7 +315,9 @@ class Settings:
         offset of ``ray_epsilon`` × the scene's bounding-box diagonal.
     spawn: one of SPAWN_RULES, the offset rule when ``ray_epsilon`` is None ("scale-free",
         the default; "mitsuba": Mitsuba 3's own rule, for comparisons with its goldens).
-    seed: seed of the stratified jitter in converged mode.
+    seed: seed of the stratified jitter in converged mode (and of the shadow samples).
+    shadow_samples: shadow rays per light with extent per shading point, a perfect square
+        ``k²`` (k × k strata; docs/MODEL.md, "Lights with extent"); point lights take one.
     terminator: one of TERMINATOR_FIXES, the shadow-terminator treatment of smooth faces
         ("none", the default; "hanika": shadow rays from the lifted hit point). Set in code
         (``Scene.with_settings``); scene files do not read it.
@@ -245,10 +335,11 @@ class Settings:
     seed: int = 0
     spawn: str = "scale-free"
     terminator: str = "none"
+    shadow_samples: int = 1
     build: str = "auto"
 
     def __post_init__(self):
-        validate_settings(spawn=self.spawn)
+        validate_settings(spawn=self.spawn, shadow_samples=self.shadow_samples)
         if self.terminator not in TERMINATOR_FIXES:
             raise SceneError(f"settings.terminator: expected one of "
                              f"{', '.join(map(repr, TERMINATOR_FIXES))}, got "
@@ -284,11 +375,13 @@ class Scene:
         reference and the BVH's binning read).
     normals: float32 (V, 3) unit vertex normals (average of adjacent face normals within
         the object); present for every vertex, used only for smooth objects.
-    vertices64, normals64: float64 (V, 3) the same before rounding to float32 (the loader
-        keeps them, so a float64 render sees the exact transformed positions), or None
+    vertices64, normals64: float64 (V, 3) the positions before rounding to float32 and the
+        normals averaged from their faces (the loader keeps them, so a float64 render sees
+        the exact transformed geometry), or None
         (then ``positions(True)`` is ``vertices`` widened). Read both through
         ``positions(double)`` / ``normals_of(double)``.
-    faces: int32 (F, 3) global vertex indices; no zero-area triangles (dropped at load).
+    faces: int32 (F, 3) global vertex indices; no triangle without area in both precisions
+        (dropped at load; one with area in float64 only never hits in float32).
     face_material: int32 (F,) index into ``materials``.
     face_object: int32 (F,) index into ``objects``.
     cameras: the views; ``cameras[0]`` is the default.
@@ -319,11 +412,16 @@ class Scene:
         # A copy made with ``replace(scene, vertices=...)`` (moved, scaled) keeps the old
         # float64 arrays: they no longer round to the new float32 ones, so drop them (float64
         # renders then widen the float32 positions) rather than render stale geometry.
-        for hi, lo in (("vertices64", "vertices"), ("normals64", "normals")):
-            v64, v32 = getattr(self, hi), getattr(self, lo)
-            if v64 is not None and (v64.shape != np.shape(v32) or not np.array_equal(
-                    v64.astype(np.float32), np.asarray(v32, np.float32))):
-                setattr(self, hi, None)
+        # The float64 normals go with the float64 vertices: they are averaged from the
+        # float64 face normals, so they need not round to the float32 ones (far from the
+        # origin a face can have area in float64 only).
+        v64 = self.vertices64
+        if v64 is not None and (v64.shape != np.shape(self.vertices) or not np.array_equal(
+                v64.astype(np.float32), np.asarray(self.vertices, np.float32))):
+            self.vertices64 = None
+        if self.vertices64 is None or (self.normals64 is not None
+                                       and self.normals64.shape != np.shape(self.normals)):
+            self.normals64 = None
 
     # ---- derived facts -----------------------------------------------------------------------
     @property
@@ -386,14 +484,15 @@ class Scene:
 
     def with_overrides(self, *, spp: int | None = None, exact: bool | None = None,
                        max_depth: int | None = None, shading: str | None = None,
-                       size: tuple[int, int] | None = None, seed: int | None = None
-                       ) -> "Scene":
+                       size: tuple[int, int] | None = None, seed: int | None = None,
+                       shadow_samples: int | None = None) -> "Scene":
         """The same scene with the given overrides (None keeps the scene's value), checked
         by ``validate_settings``: the entry point of the command line and the harnesses.
 
         spp: samples per pixel (k*k); ``spp`` without ``exact`` sets ``exact = spp == 1``.
         exact: one ray per pixel centre (then spp must be 1).
         max_depth: 0..MAX_DEPTH_LIMIT. seed: converged-mode jitter seed (>= 0).
+        shadow_samples: shadow rays per light with extent (k*k).
         size: (width, height) of every view (``with_size``).
         shading: must equal the scene's mode for a scene read from a file (the file's
             ``[physical]`` table and light falloffs are applied when it is read: use
@@ -428,6 +527,9 @@ class Scene:
             changes["shading"] = shading
         if seed is not None:
             changes["seed"] = int(seed)
+        if shadow_samples is not None:
+            validate_settings(shadow_samples=shadow_samples)
+            changes["shadow_samples"] = int(shadow_samples)
         scene = replace(self, settings=replace(s, **changes))
         if size is not None:
             w, h = size
