@@ -7,9 +7,10 @@ name, ``usemtl`` material, smoothing group), a camera framed on its bounding box
 (``auto_camera``) and, when it has no light, one point light at the camera
 (``default_light``), each said in one warning line. ``camera="auto"`` frames any scene.
 
-Geometry goes through the TOML loader's assembly (``loader._assemble``), so every format
-gets the same zero-area check, per-object vertex ranges and float64 copies; file normals
-(OBJ ``vn``, PLY ``nx ny nz``) replace the averaged ones of their objects.
+Geometry goes through the TOML loader's assembly (``loader._assemble``, by
+``parts.assemble``), so every format gets the same zero-area check, per-object vertex
+ranges and float64 copies; file normals (OBJ ``vn``, PLY ``nx ny nz``) replace the averaged
+ones of their objects.
 """
 from __future__ import annotations
 
