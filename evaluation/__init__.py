@@ -29,6 +29,23 @@ def write_result(path, text: str) -> None:
     write_text(path, text, overwrite=True)
 
 
+def at_least(minimum: int):
+    """``argparse`` type of every count option (``--spp``, ``--batches``, ``--seeds``,
+    ``--chunk``, ...): an integer ``>= minimum``; bad input is argparse's one-line error
+    naming the option, exit 2."""
+    import argparse
+
+    def count(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+        if value < minimum:
+            raise argparse.ArgumentTypeError(f"expected an integer >= {minimum}, got {text!r}")
+        return value
+    return count
+
+
 def wxh(text: str) -> tuple[int, int]:
     """``argparse`` type of every ``--size`` (the CLI's and the evaluation scripts'):
     ``"WIDTHxHEIGHT"`` -> (width, height), both > 0; bad input is argparse's one-line error,

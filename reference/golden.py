@@ -124,10 +124,12 @@ def configured_store(cwd=None) -> tuple[Path | None, str]:
         if not py.is_file():
             continue
         try:
-            data = tomllib.loads(py.read_text(encoding="utf-8"))
-        except (OSError, tomllib.TOMLDecodeError) as e:
-            raise GoldenError(f"{py}: cannot read [tool.whitted]: {e}") from None
-        table = data.get("tool", {}).get("whitted")
+            data = tomllib.loads(py.read_bytes().decode("utf-8"))
+        except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as e:
+            reason = " ".join(str(e).split())[:160]
+            raise GoldenError(f"{py}: cannot read [tool.whitted]: {reason}") from None
+        tool = data.get("tool", {})
+        table = tool.get("whitted") if isinstance(tool, dict) else None
         if table is None:
             return None, ""                   # the nearest pyproject.toml decides
         if not isinstance(table, dict) or not isinstance(table.get("goldens", ""), str):
@@ -267,16 +269,19 @@ def full_key(inputs: dict) -> str:
     return _sha(json.dumps(inputs, sort_keys=True).encode())
 
 
-def describe_changes(old: dict, new: dict) -> list[str]:
-    """What differs between two ``golden_inputs``, one phrase each."""
+def describe_changes(old: dict, new: dict, mesh_files=()) -> list[str]:
+    """What differs between two ``golden_inputs``, one phrase each; a changed mesh is named
+    by its file name (``mesh_files``: the new scene's mesh files, in ``meshes`` order)."""
     out = []
+    names = [Path(f).name for f in mesh_files]
     if old.get("scene") != new.get("scene"):
         out.append("scene file content")
     om, nm = old.get("meshes", []), new.get("meshes", [])
     if len(om) != len(nm):
         out.append(f"mesh count {len(om)} -> {len(nm)}")
     else:
-        out += [f"mesh {i}" for i, (a, b) in enumerate(zip(om, nm)) if a != b]
+        out += [f"mesh {names[i] if i < len(names) else i} (its bytes)"
+                for i, (a, b) in enumerate(zip(om, nm)) if a != b]
     for k in ("view", "view_name", "shading", "mode"):
         if old.get(k) != new.get(k):
             out.append(f"{k} {old.get(k)!r} -> {new.get(k)!r}")
@@ -295,10 +300,23 @@ def _sidecars(store: Path):
 
 
 def _read_meta(side: Path) -> dict:
+    """A golden's sidecar JSON; ``GoldenError`` (one line naming the file and key) for
+    one that cannot be read, is not UTF-8 JSON, is not an object or has a key of the
+    wrong type."""
     try:
-        return json.loads(side.read_text())
-    except (OSError, json.JSONDecodeError) as e:
-        raise GoldenError(f"{_display(side)}: unreadable golden sidecar: {e}") from None
+        meta = json.loads(side.read_bytes().decode("utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
+        reason = " ".join(str(e).split())[:160]
+        raise GoldenError(f"{_display(side)}: unreadable golden sidecar: {reason}") from None
+    if not isinstance(meta, dict):
+        raise GoldenError(f"{_display(side)}: golden sidecar: expected a JSON object, got "
+                          f"{type(meta).__name__}")
+    for key, kind in (("content_key", str), ("inputs", dict)):
+        if key in meta and not isinstance(meta[key], kind):
+            raise GoldenError(f"{_display(side)}: golden sidecar key {key!r}: expected "
+                              f"{'a string' if kind is str else 'an object'}, got "
+                              f"{type(meta[key]).__name__}")
+    return meta
 
 
 def _load(exr: Path, meta: dict) -> Golden:
@@ -346,7 +364,8 @@ def find_golden(scene: Scene, *, view: int, shading: str, mode: str, stores) -> 
                           changes=["sidecar format 1 (keyed by path)"],
                           message=f"golden {exr} has a sidecar without content keys "
                                   f"(format 1); re-key or re-render it with `{cmd}`")
-        changes = describe_changes(old, inputs) or ["its key"]
+        changes = describe_changes(old, inputs, [Path(f) for f in scene.source_files][1:]) \
+            or ["its key"]
         cmd = regenerate_command(scene.path, store)
         return Lookup("stale", path=side.with_suffix(".exr"), changes=changes, command=cmd,
                       message=f"golden {exr} is stale ({', '.join(changes)} changed since "

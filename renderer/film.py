@@ -69,15 +69,29 @@ def write_exr(path, image, *, layers: dict | None = None, overwrite: bool = Fals
     return path
 
 
+#: The first four bytes of every OpenEXR file.
+EXR_MAGIC = bytes((0x76, 0x2F, 0x31, 0x01))
+
+
 def read_exr_layers(path) -> dict[str, np.ndarray]:
     """Read an OpenEXR file written by ``write_exr``: ``{"": RGB image, name: layer, ...}``,
-    each float32 (H, W, 3) (a layer is the channels ``<name>.R/G/B``)."""
+    each float32 (H, W, 3) (a layer is the channels ``<name>.R/G/B``). A file that is not
+    OpenEXR, or is truncated or damaged, is a ``ValueError`` naming it; one that cannot be
+    opened the ``OSError`` of opening it."""
     import OpenEXR
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"{path}: no such EXR file")
-    with OpenEXR.File(str(path), separate_channels=True) as f:
-        ch = {k: np.asarray(v.pixels, np.float32) for k, v in f.channels().items()}
+    with open(path, "rb") as f:          # an unreadable file is the OSError it is
+        magic = f.read(4)
+    if magic != EXR_MAGIC:
+        raise ValueError(f"{path}: not an OpenEXR file (starts with {magic!r})")
+    try:
+        with OpenEXR.File(str(path), separate_channels=True) as f:
+            ch = {k: np.asarray(v.pixels, np.float32) for k, v in f.channels().items()}
+    except Exception as e:               # OpenEXR's RuntimeError for a damaged file
+        raise ValueError(f"{path}: truncated or damaged OpenEXR file "
+                         f"({' '.join(str(e).split())[:120]})") from None
     missing = [c for c in "RGB" if c not in ch]
     if missing:
         raise ValueError(f"{path}: missing channels {missing} (has {sorted(ch)})")

@@ -83,10 +83,33 @@ def check_output_file(path, *, overwrite: bool = False, flag: str = "--overwrite
     path = Path(path)
     if path.is_dir():
         raise OutputError(f"{path}: is a folder; expected a file path")
+    if path.exists() and not path.is_file():
+        raise OutputError(f"{path}: is not a regular file (a device, pipe or socket); "
+                          "it is never replaced")
     if path.exists() and not overwrite:
         raise OutputExistsError(f"{path}: exists (pass {flag} to replace it)")
     check_output_dir(path.parent)
     return path
+
+
+def check_replaceable(path, *, ours, force: bool = False, what: str = "file",
+                      flag: str = "--force") -> Path:
+    """Check that ``path`` can be written, for an output that is rewritten on every run (a
+    report): a missing path as in ``check_output_file``; an existing regular file only when
+    ``ours(path)`` recognises it as one this tool wrote (a ``what``), or with ``force``;
+    a device, pipe or socket never. Raises ``OutputExistsError`` / ``OutputError``."""
+    path = Path(path)
+    if path.exists() and path.is_file() and not force and not _is_ours(ours, path):
+        raise OutputExistsError(f"{path}: exists and is not a {what} written by whitted "
+                                f"(pass {flag} to replace it)")
+    return check_output_file(path, overwrite=True, flag=flag)
+
+
+def _is_ours(ours, path: Path) -> bool:
+    try:
+        return bool(ours(path))
+    except (OSError, ValueError):
+        return False
 
 
 def _umask() -> int:

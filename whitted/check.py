@@ -22,8 +22,8 @@ from reference import MODES
 from reference import golden as golden_store
 from renderer.accel import ACCELERATORS
 from renderer.device import PRECISIONS
-from renderer.outputs import check_output_dir, check_output_file
-from renderer.scene import SHADING_MODES
+from renderer.outputs import check_output_dir, check_replaceable
+from renderer.scene import SHADING_MODES, SceneError, load_scene
 
 from .options import EXIT, EXIT_CODE_HELP, CliError, add_backend_option, scene_arg
 from .progress import render_view
@@ -62,7 +62,9 @@ def add_check_options(p: argparse.ArgumentParser) -> None:
                    help="write JUnit XML, one testcase per scene/view/shading/mode")
     p.add_argument("--report", type=Path, metavar="DIR",
                    help="write the HTML report (failures first) into DIR")
-    p.add_argument("--force", action="store_true", help="replace an existing --report folder")
+    p.add_argument("--force", action="store_true",
+                   help="replace an existing --report folder, or a --json / --junit file "
+                        "that is not a report of this tool")
     p.add_argument("--quiet", action="store_true", help="print only the summary line")
 
 
@@ -70,6 +72,26 @@ def _views(values):
     if not values:
         return None
     return {int(v) if v.isdigit() else v for v in values}
+
+
+def check_views(scenes, views) -> None:
+    """Every ``--view`` value must name a view (index or name) of at least one of the
+    scenes, else a ``CliError`` naming it (exit 2), before anything renders. A scene file
+    that cannot be loaded is left to its own ERROR verdict."""
+    if not views:
+        return
+    found: set = set()
+    for path in scenes:
+        try:
+            cams = load_scene(path).cameras
+        except (SceneError, OSError):
+            return
+        found |= set(range(len(cams))) | {c.name for c in cams}
+    missing = [v for v in views if (int(v) if v.isdigit() else v) not in found]
+    if missing:
+        raise CliError(f"--view {missing[0]}: no such view in "
+                       + ", ".join(str(s) for s in scenes)
+                       + f" (views: {sorted(str(v) for v in found if isinstance(v, str))})")
 
 
 def stores_for(args) -> list[Path]:
@@ -84,19 +106,22 @@ def stores_for(args) -> list[Path]:
 
 def check_outputs(args) -> None:
     """Before any rendering (``renderer.outputs``'s checks): ``--report`` must not hold a
-    report unless ``--force``, and ``--json`` / ``--junit`` must be writable files (they are
-    replaced: a gate's artefacts are rewritten on every run). Raises ``OutputError``."""
+    report unless ``--force``, and ``--json`` / ``--junit`` must be writable files that are
+    missing or hold a report of this tool (a gate's artefacts are rewritten on every run;
+    any other file, e.g. a scene named by mistake, only with ``--force``; a device, pipe
+    or socket never). Raises ``CliError`` (exit 4, one line)."""
     if args.report is not None:
         out = args.report
         if out.exists() and (not out.is_dir() or any(out.iterdir())) and not args.force:
             raise CliError(f"--report {out}: exists; pass --force to replace it",
                            code=EXIT["file"])
         check_output_dir(out)
-    for flag, value in (("--json", args.json), ("--junit", args.junit)):
+    for flag, value, ours, what in (("--json", args.json, vd.is_our_json, "verdict JSON"),
+                                    ("--junit", args.junit, vd.is_our_junit, "JUnit report")):
         if value is None or value == "-":
             continue
         try:
-            check_output_file(value, overwrite=True)
+            check_replaceable(value, ours=ours, force=args.force, what=what)
         except OSError as e:
             raise CliError(f"{flag} {e}", code=EXIT["file"]) from e
 
@@ -124,6 +149,7 @@ def cmd_check(args: argparse.Namespace) -> int:
     out = sys.stderr if args.json == "-" else sys.stdout
     stores = stores_for(args)
     check_outputs(args)
+    check_views(args.scenes, args.views)
     if not args.quiet:
         print("goldens: " + ", ".join(golden_store._display(s) for s in stores), file=out)
 

@@ -17,6 +17,7 @@ import sys
 import time
 from pathlib import Path
 
+from evaluation import at_least
 from renderer.accel import ACCELERATORS, DEFAULT_ROUTINE, ROUTINES
 from renderer.device import PRECISIONS
 
@@ -49,9 +50,11 @@ def register(subparsers) -> None:
     p.add_argument("--intersections", type=_csv(tuple(ROUTINES)), default=tuple(ROUTINES),
                    help=f"triangle routines (default all; the default routine is "
                         f"{DEFAULT_ROUTINE})")
-    p.add_argument("--rays", type=int, help="case 1: random interior rays per BVH variant "
-                                            "(brute force and boxes trace 1/100)")
-    p.add_argument("--chunk", type=int, default=1 << 20, help="rays per device batch")
+    p.add_argument("--rays", type=at_least(1),
+                   help="case 1: random interior rays per BVH variant "
+                        "(brute force and boxes trace 1/100)")
+    p.add_argument("--chunk", type=at_least(1), default=1 << 20,
+                   help="rays per device batch")
     p.add_argument("--seed", type=int, default=1)
     p.set_defaults(func=cmd_hard_cases)
 

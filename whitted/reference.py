@@ -6,6 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from evaluation import at_least
 from reference import golden
 from reference.mitsuba_scene import (
     check_export,
@@ -40,21 +41,21 @@ def register(subparsers) -> None:
                    help="render what is missing or stale, keep what is up to date (the "
                         "default; stale files still need --force)")
     p.add_argument("--force", action="store_true", help="replace stale goldens")
-    p.add_argument("--spp", type=int, default=golden.CONVERGED_SPP,
+    p.add_argument("--spp", type=at_least(1), default=golden.CONVERGED_SPP,
                    help=f"converged samples per pixel (default {golden.CONVERGED_SPP})")
-    p.add_argument("--batches", type=int, default=golden.CONVERGED_BATCHES,
+    p.add_argument("--batches", type=at_least(1), default=golden.CONVERGED_BATCHES,
                    help="independent batches of the converged render (variance estimate; "
                         f"default {golden.CONVERGED_BATCHES})")
-    p.add_argument("--size", type=int, default=golden.DEFAULT_SIZE,
+    p.add_argument("--size", type=at_least(1), default=golden.DEFAULT_SIZE,
                    help=f"image height in pixels (default {golden.DEFAULT_SIZE})")
-    p.add_argument("--converged-size", type=int, default=golden.CONVERGED_SIZE,
+    p.add_argument("--converged-size", type=at_least(1), default=golden.CONVERGED_SIZE,
                    help=f"image height of converged goldens (default {golden.CONVERGED_SIZE})")
     p.add_argument("--modes", nargs="+", choices=golden.MODES,
                    help="default: the scene's [check] modes, else exact")
     p.add_argument("--shadings", nargs="+", choices=SHADING_MODES,
                    help="default: the scene's [check] shadings, else both")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
-    p.add_argument("--workers", type=int, default=0,
+    p.add_argument("--workers", type=at_least(0), default=0,
                    help="render the goldens on a Dask LocalCluster of N worker processes "
                         "(one GPU each where there are GPUs; default: in this process)")
     p.add_argument("--scheduler", help="render the goldens on an existing Dask scheduler")
@@ -74,7 +75,7 @@ def register(subparsers) -> None:
     p.add_argument("--portable", action="store_true",
                    help="stock Mitsuba plugins only (diffuse, conductor, dielectric, point, "
                         "direct/path): physical shading, no ambient or background")
-    p.add_argument("--spp", type=int, default=None,
+    p.add_argument("--spp", type=at_least(1), default=None,
                    help="samples per pixel of the exported sampler (a perfect square; "
                         "default: the scene's, 16 with --portable)")
     p.add_argument("--force", action="store_true",

@@ -16,11 +16,13 @@ either with ``@OFFSET`` (the scene translated far from the origin).
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from pathlib import Path
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
+    from evaluation import at_least
     from evaluation.study import PROFILES, SEED_SCENES
     p.add_argument("scenes", nargs="*", default=list(SEED_SCENES),
                    help="scene files, names or PATH@OFFSET (default: the seed scenes and "
@@ -32,16 +34,18 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--backend", default="llvm", choices=("llvm", "cuda"))
     p.add_argument("--shading", choices=("classic", "physical"),
                    help="shading mode (default: each scene's own)")
-    p.add_argument("--size", type=int, help="image height in pixels (default: the profile's)")
-    p.add_argument("--seeds", type=int, help="seeds per point (default: the profile's, 5)")
+    p.add_argument("--size", type=at_least(1),
+                   help="image height in pixels (default: the profile's)")
+    p.add_argument("--seeds", type=at_least(1),
+                   help="seeds per point (default: the profile's, 5)")
     p.add_argument("--factors", help="comma-separated factors to sweep (default: all)")
     p.add_argument("--no-grid", action="store_true", help="skip the spp x depth grid")
-    p.add_argument("--workers", type=int, default=0,
+    p.add_argument("--workers", type=at_least(0), default=0,
                    help="run points on a Dask LocalCluster of N worker processes")
     p.add_argument("--scheduler", help="run points on an existing Dask scheduler (address)")
     p.add_argument("--budget-minutes", type=float,
                    help="stop taking new points after this many minutes (resume later)")
-    p.add_argument("--max-points", type=int, help="stop after this many new points")
+    p.add_argument("--max-points", type=at_least(1), help="stop after this many new points")
     p.add_argument("--report-only", action="store_true",
                    help="only write markdown, plots and HTML from OUT/study.json")
     p.add_argument("--readme", type=Path,
@@ -63,6 +67,14 @@ def resolve_scenes(texts) -> list[str]:
     out = []
     for text in texts:
         path, at, offset = str(text).partition("@")
+        if at:
+            try:
+                ok = math.isfinite(float(offset))
+            except ValueError:
+                ok = False
+            if not ok:
+                raise CliError(f"{text}: expected PATH@OFFSET with a finite number as OFFSET, "
+                               f"got {offset!r}")
         p = Path(path)
         if not p.is_file():
             stem = p.stem if p.suffix == ".toml" else p.name
@@ -77,12 +89,26 @@ def resolve_scenes(texts) -> list[str]:
     return out
 
 
+def _load(study, path: Path) -> dict:
+    """``study.load_results`` with a file that is not a study as one line (exit 4)."""
+    from .options import EXIT, CliError
+    try:
+        return study.load_results(path)
+    except study.StudyFileError as e:
+        raise CliError(str(e), EXIT["file"]) from None
+
+
 def run(args) -> int:
     from dataclasses import replace
 
     from evaluation import study
+
+    from .options import CliError
+    if args.readme is not None and not args.report_only:
+        raise CliError("--readme: only with --report-only (the README is rewritten from "
+                       "OUT/study.json)")
     if args.report_only:
-        data = study.load_results(args.out / "study.json")
+        data = _load(study, args.out / "study.json")
         if not data["points"]:
             print(f"error: no points in {args.out / 'study.json'}", file=sys.stderr)
             return 2
@@ -122,6 +148,7 @@ def run(args) -> int:
     changes.pop("name")
     profile = replace(prof, **changes) if changes else args.profile
     args.scenes = resolve_scenes(args.scenes)
+    _load(study, args.out / "study.json")        # a resumed file must be a study
     if args.check_executor:
         ok = study.executor_check(args.scenes, args.out, profile=profile, backend=args.backend,
                                   workers=args.workers or 1)

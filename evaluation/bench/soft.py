@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import platform
 import sys
 from pathlib import Path
 
@@ -81,9 +80,8 @@ def main(argv=None) -> int:
     p.add_argument("--force", action="store_true", help="replace an earlier run's files")
     a = p.parse_args(argv)
     check_output_dir(a.out)
-    import drjit as dr
-    device = (dr.detail.cuda_device_name() if a.backend == "cuda"
-              and hasattr(dr.detail, "cuda_device_name") else platform.processor() or "CPU")
+    from . import device_info
+    device = device_info(a.backend)["device"]
 
     def save(rows):
         data = {"scene": SCENE, "backend": a.backend, "device": device, "rows": rows}

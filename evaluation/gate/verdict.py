@@ -111,15 +111,32 @@ def _unknown(scene, where: str, name: str, valid) -> SceneError:
                       f"{', '.join(valid)}){hint}")
 
 
+#: The values a threshold may take: name -> (test, what it must be). Any other name: a
+#: number >= 0.
+_RANGES = {
+    "alpha": (lambda v: 0 < v < 1, "a probability strictly between 0 and 1"),
+    "batches": (lambda v: isinstance(v, int) and v >= 2,
+                "an integer >= 2 (the t-test needs a variance of ours)"),
+}
+
+
+def _check_range(scene, where: str, name: str, value) -> None:
+    test, what = _RANGES.get(name, (lambda v: v >= 0, "a number >= 0"))
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not test(value):
+        raise SceneError(f"{scene.path}: {where}: expected {what}, got {value!r}")
+
+
 def thresholds_for(scene, mode: str) -> dict[str, Threshold]:
     """The thresholds of ``mode`` for ``scene``: ``evaluation.gate.rules.THRESHOLDS[mode]`` with the
     scene file's ``[check.<mode>]`` values in place of the defaults they name. Raises
-    ``SceneError`` (file and field) for a name the rule does not have."""
+    ``SceneError`` (file and field) for a name the rule does not have or a value out of its
+    range (``_RANGES``)."""
     out = dict(THRESHOLDS[mode])
     reason = scene.check.get("reason", "")
     for name, value in scene.check.get(mode, {}).items():
         if name not in out:
             raise _unknown(scene, f"check.{mode}", name, out)
+        _check_range(scene, f"check.{mode}.{name}", name, value)
         why = f"set in {Path(scene.path).name} [check.{mode}]" + (f": {reason}" if reason
                                                                   else "")
         out[name] = Threshold(value, why)
@@ -381,6 +398,41 @@ def _atomic_write(path: Path, data: bytes) -> None:
 def write_json(verdicts, path) -> None:
     _atomic_write(Path(path), (json.dumps(to_json(verdicts), indent=1, default=str) + "\n")
                   .encode())
+
+
+#: Largest file the report sniffers read (a report of this tool is far smaller).
+_SNIFF_LIMIT = 256 << 20
+
+
+def is_our_json(path) -> bool:
+    """Whether ``path`` holds a verdict JSON as ``write_json`` writes it (an object with
+    ``exit_code``, ``counts``, ``exit_codes`` and ``verdicts``): the only file ``--json``
+    replaces without ``--force``."""
+    path = Path(path)
+    if path.stat().st_size > _SNIFF_LIMIT:
+        return False
+    try:
+        data = json.loads(path.read_bytes().decode("utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError):
+        return False
+    return (isinstance(data, dict) and {"exit_code", "counts", "exit_codes", "verdicts"}
+            <= data.keys() and isinstance(data["verdicts"], list))
+
+
+def is_our_junit(path) -> bool:
+    """Whether ``path`` holds JUnit XML as ``write_junit`` writes it (``testsuites`` whose
+    suites are named ``whitted ...``): the only file ``--junit`` replaces without
+    ``--force``."""
+    path = Path(path)
+    if path.stat().st_size > _SNIFF_LIMIT:
+        return False
+    try:
+        root = ET.fromstring(path.read_bytes())
+    except ET.ParseError:
+        return False
+    suites = root.findall("testsuite")
+    return (root.tag == "testsuites" and bool(suites)
+            and all(str(s.get("name", "")).startswith("whitted") for s in suites))
 
 
 def junit_xml(verdicts, suite: str = "whitted check") -> bytes:

@@ -81,6 +81,7 @@ from .report import (
     write_outputs,
 )
 from .run import (
+    StudyFileError,
     block_mean,
     error_metrics,
     executor_check,
@@ -95,7 +96,8 @@ from .run import (
 __all__ = [
     "FACTORS", "METRICS", "PROFILES", "REFS", "SEED_SCENES", "block_mean", "build_sweep",
     "equal_time_rows", "err_of", "error_metrics", "executor_check", "factor_line",
-    "factor_sentences", "golden_for", "load_results", "markdown", "metrics_available",
+    "factor_sentences", "golden_for", "load_results", "StudyFileError", "markdown",
+    "metrics_available",
     "pareto", "prepare_scene", "readme_marker", "readme_section", "render_seeds", "run_study",
     "scene_points", "strip_timings", "summary_sentences", "time_of", "update_readme",
     "write_outputs"

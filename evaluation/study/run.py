@@ -254,13 +254,35 @@ def run_point(item) -> dict:
 # =========================================================================================
 # The results file (atomic rewrites; resumable)
 # =========================================================================================
+class StudyFileError(ValueError):
+    """A study.json that cannot be resumed (not JSON, not UTF-8, not a study of this
+    schema); the message is one line naming the file."""
+
+
 def load_results(path: Path) -> dict:
+    """The study saved at ``path``, or an empty one when there is none. A file that is there
+    but is not a study of ``SCHEMA`` raises ``StudyFileError`` (it is never replaced by a
+    fresh study)."""
     path = Path(path)
-    if path.exists():
-        data = json.loads(path.read_text())
-        if data.get("schema") == SCHEMA:
-            return data
-    return {"schema": SCHEMA, "meta": {}, "scenes": {}, "points": {}}
+    if not path.exists():
+        return {"schema": SCHEMA, "meta": {}, "scenes": {}, "points": {}}
+    try:
+        data = json.loads(path.read_bytes().decode("utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as e:
+        raise StudyFileError(f"{path}: not a study JSON file ({type(e).__name__}: "
+                             f"{' '.join(str(e).split())[:120]}); move it away or pick "
+                             "another --out") from None
+    except IsADirectoryError:
+        raise StudyFileError(f"{path}: is a folder, expected study.json") from None
+    if not isinstance(data, dict) or data.get("schema") != SCHEMA:
+        found = data.get("schema") if isinstance(data, dict) else type(data).__name__
+        raise StudyFileError(f"{path}: not a study of schema {SCHEMA!r} (found {found!r}); "
+                             "move it away or pick another --out")
+    for key in ("meta", "scenes", "points"):
+        if not isinstance(data.get(key, {}), dict):
+            raise StudyFileError(f"{path}: field {key!r} is not an object")
+        data.setdefault(key, {})
+    return data
 
 
 def save_results(path: Path, data: dict) -> None:
