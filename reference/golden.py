@@ -74,7 +74,7 @@ HARNESS_FILES = (
 #: with them.
 IMPORT_FILES = (
     "renderer/scene/importers.py", "renderer/scene/objmtl.py",
-    "renderer/scene/mitsuba_xml.py", "renderer/scene/plyattrs.py",
+    "renderer/scene/mitsuba_xml.py", "renderer/scene/plyattrs.py", "renderer/scene/parts.py",
 )
 #: Environment variable naming the user's golden store.
 STORE_ENV = "WHITTED_GOLDENS"

@@ -15,6 +15,8 @@ loop at all (one closest hit and local shading); reflection without refraction i
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import drjit as dr
 
 from .accel import Ray
@@ -31,13 +33,21 @@ from .shade import (
 )
 
 
+@dataclass
+class ShadowDraw:
+    """The shadow samples' random ``key`` (UInt32 per ray) and ``hit_no`` (the hit's number
+    along the ray's tree walk); both None without soft shadows."""
+
+    key: object = None
+    hit_no: object = None
+
+
 def _shade_hit(sa: SceneArrays, ray: Ray, hit, t: Types, fx: EffectSet, opt: TraceOptions,
-               active, key=None, hit_no=None):
+               active, draw: ShadowDraw):
     """Surface point and I_local (Array3f) at the closest hits ``hit`` of ``ray``
-    (``key``, ``hit_no``: the shadow samples' random key and hit number, soft shadows
-    only)."""
+    (``draw``: the shadow samples' random key and hit number, soft shadows only)."""
     sp = surface_point(sa.accel, ray, hit, t, fx, opt.terminator)
-    ctx = shading_context(sp, ray.d, active, key, hit_no)
+    ctx = shading_context(sp, ray.d, active, draw.key, draw.hit_no)
     I_local = local_light(ctx, sa, t, fx, opt)
     return sp, I_local
 
@@ -49,7 +59,7 @@ def _no_secondary(sa: SceneArrays, o, d, t: Types, fx: EffectSet, opt: TraceOpti
     ray = Ray(o=o, d=d, t_max=t.Float(dr.inf))
     hit = sa.accel.intersect(ray, active)
     hit_no = dr.zeros(t.UInt32, dr.width(d)) if fx.soft_shadows else None
-    sp, I_local = _shade_hit(sa, ray, hit, t, fx, opt, hit.found, key, hit_no)
+    sp, I_local = _shade_hit(sa, ray, hit, t, fx, opt, hit.found, ShadowDraw(key, hit_no))
     return dr.select(hit.found, I_local, t.Array3f(sa.background))
 
 
@@ -106,7 +116,8 @@ def trace(sa: SceneArrays, o, d, t: Types, fx: EffectSet, opt: TraceOptions, key
         on_surface = active & hit.found
 
         # ---- local light ---------------------------------------------------------------------
-        sp, I_local = _shade_hit(sa, ray, hit, t, fx, opt, on_surface, key, hit_no)
+        sp, I_local = _shade_hit(sa, ray, hit, t, fx, opt, on_surface,
+                                 ShadowDraw(key, hit_no))
         if dr.hint(fx.soft_shadows, mode="scalar"):
             hit_no += 1
         radiance = dr.select(on_surface, dr.fma(weight, I_local, radiance), radiance)

@@ -159,8 +159,8 @@ def sample_light(lights: DeviceLights, i, p, t: Types, *,
     if u is None:
         return point
     kind = dr.gather(t.UInt32, lights.kind, i)
-    sph = _sample_sphere(lights, i, p, lp, to_light, dist2, intensity, att, u, t,
-                         physical=all_inverse_square)
+    sph = _sample_sphere(lights, i, SphereTarget(p=p, c=lp, to_c=to_light, dc2=dist2),
+                         intensity, att, u, t, physical=all_inverse_square)
     rect = _sample_rectangle(lights, i, p, lp, intensity, att, u, t)
 
     def pick(name):
@@ -169,9 +169,21 @@ def sample_light(lights: DeviceLights, i, p, t: Types, *,
     return LightSample(wi=pick("wi"), dist=pick("dist"), Li=pick("Li"), p=pick("p"))
 
 
-def _sample_sphere(lights, i, p, c, to_c, dc2, intensity, att, u, t: Types, *,
+@dataclass
+class SphereTarget:
+    """The shaded points ``p`` seen towards a sphere light's centre ``c``: ``to_c = c - p``
+    and its squared length ``dc2``."""
+
+    p: object
+    c: object
+    to_c: object
+    dc2: object
+
+
+def _sample_sphere(lights, i, target: SphereTarget, intensity, att, u, t: Types, *,
                    physical: bool) -> LightSample:
-    """Cone sampling of sphere light ``i`` (centre ``c``, ``to_c = c - p``)."""
+    """Cone sampling of sphere light ``i`` as seen from ``target.p`` (``target``)."""
+    p, to_c, dc2 = target.p, target.to_c, target.dc2
     r = dr.gather(t.Float, lights.radius, i)
     r2 = r * r
     inv_dc = rsqrt(dc2)

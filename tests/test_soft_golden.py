@@ -57,10 +57,10 @@ def test_wrong_cone_pdf_is_caught(monkeypatch):
     scene, g = _case("physical")
     good = lights_module._sample_sphere
 
-    def wrong_pdf(lights, i, p, c, to_c, dc2, intensity, att, u, t, *, physical):
-        ls = good(lights, i, p, c, to_c, dc2, intensity, att, u, t, physical=physical)
+    def wrong_pdf(lights, i, target, intensity, att, u, t, *, physical):
+        ls = good(lights, i, target, intensity, att, u, t, physical=physical)
         r = dr.gather(t.Float, lights.radius, i)
-        cos_max = dr.sqrt(1.0 - dr.minimum(r * r / dc2, 1.0))
+        cos_max = dr.sqrt(1.0 - dr.minimum(r * r / target.dc2, 1.0))
         ls.Li = ls.Li * (1.0 + cos_max)
         return ls
     monkeypatch.setattr(lights_module, "_sample_sphere", wrong_pdf)

@@ -27,7 +27,7 @@ pixels): the binary BVH on CUDA, the 4-wide BVH on LLVM. The measurements behind
 """
 from __future__ import annotations
 
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 from ..device import Types
 from .base import Accelerator, ClosestHit, DeviceTriangles, Ray
@@ -46,8 +46,8 @@ ACCELERATORS = {"brute": BruteForce, "boxes": ObjectBoxes, "bvh": BVH, "bvh4": B
 DEFAULT_ACCELS = {"cuda": "bvh", "llvm": "bvh4"}
 
 __all__ = ["ACCELERATORS", "BUILDS", "BVH", "BVH4", "BVH8", "DEFAULT_ACCELS", "DEFAULT_ROUTINE",
-           "ROUTINES", "TIE_BREAKS", "TREE_ACCELS", "Accelerator", "BruteForce", "ClosestHit",
-           "DeviceTriangles",
+           "ROUTINES", "TIE_BREAKS", "TREE_ACCELS", "Accelerator", "BruteForce", "BuildRequest",
+           "ClosestHit", "DeviceTriangles",
            "ObjectBoxes", "Ray", "WideBVH", "build_accelerator", "default_accel",
            "triangle_routine"]
 
@@ -63,19 +63,36 @@ def default_accel(backend: str) -> str:
 TREE_ACCELS = ("bvh", "bvh4", "bvh8")
 
 
-def build_accelerator(name: str, scene, t: Types, *, intersection: str = DEFAULT_ROUTINE,
-                      tie_break: str = "lowest", tie_window: float = 0.0,
-                      tie_slack: float = 0.0, build: str = "sah", cache=None,
-                      frames: int | None = None, progress=None) -> Accelerator:
-    """Build the accelerator ``name`` (a key of ``ACCELERATORS``) for ``scene`` with the
-    triangle routine ``intersection`` (a key of ``ROUTINES``). ``tie_break`` (a value of
-    ``TIE_BREAKS``), ``tie_window`` and ``tie_slack`` (world-space distances) choose the
-    closest hit among near-equal ones (``query.tie_probe``); the default, "lowest", is
-    the renderer's (window and slack unused). ``build`` (``builders.BUILDS``), ``cache`` (a
-    ``cache.TreeCache`` or None) and ``frames`` (frames the caller renders, None: unknown)
-    choose how the tree of a ``TREE_ACCELS`` accelerator is got (``builders.binary_tree``,
-    which calls ``progress(build, levels_done)`` during a build);
-    ``acc.info`` then names it (``tree_build``, ``tree_cached``, ``tree_seconds``)."""
+@dataclass(frozen=True)
+class BuildRequest:
+    """How ``build_accelerator`` builds: the triangle routine ``intersection`` (a key of
+    ``ROUTINES``); ``tie_break`` (a value of ``TIE_BREAKS``), ``tie_window`` and
+    ``tie_slack`` (world-space distances) choose the closest hit among near-equal ones
+    (``query.tie_probe``); the default, "lowest", is the renderer's (window and slack
+    unused). ``build`` (``builders.BUILDS``), ``cache`` (a ``cache.TreeCache`` or None) and
+    ``frames`` (frames the caller renders, None: unknown) choose how the tree of a
+    ``TREE_ACCELS`` accelerator is got (``builders.binary_tree``, which calls
+    ``progress(build, levels_done)`` during a build)."""
+
+    intersection: str = DEFAULT_ROUTINE
+    tie_break: str = "lowest"
+    tie_window: float = 0.0
+    tie_slack: float = 0.0
+    build: str = "sah"
+    cache: object = None
+    frames: int | None = None
+    progress: object = None
+
+
+def build_accelerator(name: str, scene, t: Types, request: BuildRequest | None = None,
+                      **keywords) -> Accelerator:
+    """Build the accelerator ``name`` (a key of ``ACCELERATORS``) for ``scene`` as
+    ``request`` says (a ``BuildRequest``; its fields may also be given as ``keywords``,
+    which override it). ``acc.info`` then names how the tree was got (``tree_build``,
+    ``tree_cached``, ``tree_seconds``)."""
+    req = replace(request or BuildRequest(), **keywords)
+    intersection, tie_break = req.intersection, req.tie_break
+    tie_window, tie_slack, build = req.tie_window, req.tie_slack, req.build
     if name not in ACCELERATORS:
         raise ValueError(f"accel: expected one of {sorted(ACCELERATORS)}, got {name!r}")
     if tie_break not in TIE_BREAKS:
@@ -87,8 +104,8 @@ def build_accelerator(name: str, scene, t: Types, *, intersection: str = DEFAULT
     triangle_routine(intersection)
     check_build(build)
     if name in TREE_ACCELS:
-        tree, how = binary_tree(scene, t.backend, build=build, cache=cache, frames=frames,
-                                progress=progress)
+        tree, how = binary_tree(scene, t.backend, build=build, cache=req.cache,
+                                frames=req.frames, progress=req.progress)
         acc = ACCELERATORS[name].build(scene, t, intersection=intersection, binary=tree)
         acc.info.update(tree_build=how.build, tree_cached=how.cached,
                         tree_seconds=how.seconds)

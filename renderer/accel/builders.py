@@ -17,13 +17,15 @@ the SAH tree.
 from __future__ import annotations
 
 import time
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
 
 from ..scene.model import TREE_BUILDS
-from .bvh_build import LEAF_SIZE, BVHArrays
-from .cache import TreeCache, code_version, content_key
+from .bvh_build import LEAF_SIZE, BVHArrays, build_bvh
+from .cache import CacheWarning, TreeCache, code_version, content_key
+from .device_build import build_device
 from .traverse import LEAF_BIT
 
 BUILDS = TREE_BUILDS
@@ -95,11 +97,9 @@ def binary_tree(scene, backend: str, *, build: str = "sah", cache: TreeCache | N
             if a is not None:
                 return a, TreeInfo(chosen, True, time.perf_counter() - t0)
     if chosen == "device":
-        from .device_build import build_device
         a = build_device(scene.vertices, scene.faces, backend, leaf_size=leaf_size,
                          progress=progress and (lambda k: progress("device", k)))
     else:
-        from .bvh_build import build_bvh
         a = build_bvh(scene.vertices, scene.faces, leaf_size=leaf_size,
                       progress=progress and (lambda k: progress("sah", k)))
     seconds = time.perf_counter() - t0
@@ -123,9 +123,6 @@ def _to_entry(a: BVHArrays) -> tuple[dict, dict]:
 def _from_entry(e: dict, face_count: int) -> BVHArrays | None:
     """The tree of a verified entry, or None (a ``CacheWarning``) when its arrays do not
     make a tree over ``face_count`` triangles."""
-    import warnings
-
-    from .cache import CacheWarning
     try:
         boxes, children, order = e["boxes"], e["children"], e["order"]
         meta = e["meta"]

@@ -29,21 +29,19 @@ import os
 import sys
 import warnings
 from dataclasses import dataclass
-from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
 
+from ..cache_key import CODE_MODULES, code_version, content_key
 from ..outputs import OutputError, atomic_path
+
+__all__ = ["CODE_MODULES", "MAGIC", "MAX_BYTES", "CacheWarning", "TreeCache", "code_version",
+           "content_key", "default_folder"]
 
 MAGIC = b"whitted-cache 1\n"
 #: Default bound on the folder's size (bytes).
 MAX_BYTES = 2 << 30
-#: Modules whose source text is part of every key (they decide what a stored tree holds).
-CODE_MODULES = ("bvh_build.py", "device_build.py", "optimize.py", "spatial.py",
-                "traverse.py", "cache.py", "builders.py")
-
-
 class CacheWarning(UserWarning):
     """A cache entry that could not be used or written (the work is redone)."""
 
@@ -57,37 +55,6 @@ def default_folder() -> Path:
         return Path.home() / "Library" / "Caches" / "whitted"
     xdg = os.environ.get("XDG_CACHE_HOME")
     return (Path(xdg) if xdg else Path.home() / ".cache") / "whitted"
-
-
-@lru_cache(maxsize=None)
-def code_version(extra: tuple[str, ...] = ()) -> str:
-    """SHA-256 (hex, 16 digits) of the source text of ``CODE_MODULES`` and of the files
-    ``extra`` (paths relative to the ``renderer`` package)."""
-    h = hashlib.sha256()
-    here = Path(__file__).resolve().parent
-    for name in CODE_MODULES:
-        p = here / name
-        h.update(name.encode() + b"\0" + (p.read_bytes() if p.exists() else b""))
-    for rel in extra:
-        p = here.parent / rel
-        h.update(rel.encode() + b"\0" + (p.read_bytes() if p.exists() else b""))
-    return h.hexdigest()[:16]
-
-
-def content_key(*parts) -> str:
-    """SHA-256 (hex) of ``parts``: numpy arrays (dtype, shape and bytes), strings, numbers
-    and JSON-able dicts, in order."""
-    h = hashlib.sha256()
-    for p in parts:
-        if isinstance(p, np.ndarray):
-            a = np.ascontiguousarray(p)
-            h.update(f"array {a.dtype.str} {a.shape}\0".encode())
-            h.update(a.tobytes())
-        elif isinstance(p, (bytes, bytearray)):
-            h.update(b"bytes\0" + bytes(p))
-        else:
-            h.update(("json " + json.dumps(p, sort_keys=True, default=str) + "\0").encode())
-    return h.hexdigest()
 
 
 @dataclass

@@ -1,7 +1,8 @@
 """The scene: the data model (``model``), the scene-file loader (``loader``) and the mesh
 sources it reads (``meshio`` for OBJ/PLY files, ``shapes`` for built-in shapes,
 ``subdivide`` for midpoint subdivision), and the readers of other tools' scenes
-(``importers`` for OBJ + MTL and PLY, with ``objmtl`` and ``plyattrs``; ``mitsuba_xml``).
+(``importers`` for OBJ + MTL and PLY, with ``objmtl`` and ``plyattrs``; ``mitsuba_xml``;
+both make their scenes of mesh parts through ``parts``).
 ``load_scene`` reads any of them by suffix (``SCENE_FORMATS``)."""
 from .importers import SCENE_FORMATS, auto_camera, load_scene
 from .model import (

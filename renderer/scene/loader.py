@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..cache_key import code_version, content_key
 from . import meshio, shapes
 from .model import (
     COMBINATIONS,
@@ -27,6 +28,7 @@ from .model import (
     SHADING_MODES,
     SPAWN_RULES,
     TREE_BUILDS,
+    Assembly,
     Camera,
     Material,
     ObjectInfo,
@@ -192,8 +194,8 @@ def load_scene(path, *, shading: str | None = None, cache=None) -> Scene:
     objects, sources = _read_objects(r, data, {m.name: i for i, m in enumerate(materials)},
                                      cache)
     check = _read_check(r, data)
-    scene = _assemble(r, objects, cameras, settings, lights, materials, look.ambient,
-                      [path.resolve(), *sources], cache)
+    scene = _assemble(r, objects, Assembly(cameras, settings, lights, materials, look.ambient,
+                                           [path.resolve(), *sources]), cache)
     return replace(scene, check=check)
 
 
@@ -656,7 +658,6 @@ def _cached(cache, kind: str, inputs: tuple, fn) -> dict:
     (None: ``fn()``) under a key of ``inputs`` and the loader's code."""
     if cache is None:
         return fn()
-    from ..accel.cache import code_version, content_key
     key = content_key(kind, *inputs, code_version(("scene/loader.py", "scene/subdivide.py")))
     got = cache.get(kind, key)
     if got is not None:
@@ -696,10 +697,11 @@ def _part_arrays(world: np.ndarray, faces: np.ndarray) -> dict:
             "normals64": _vertex_normals(verts, faces, _unit_rows(cross, area2))}
 
 
-def _assemble(r: _Reader, parts: list[_Part], cameras, settings, lights, materials, ambient,
-              sources, cache=None) -> Scene:
+def _assemble(r: _Reader, parts: list[_Part], a: Assembly, cache=None) -> Scene:
     """The flat scene arrays: zero-area triangles dropped, vertices compacted per object,
-    vertex normals averaged."""
+    vertex normals averaged; the rest of the scene from ``a``."""
+    cameras, settings, lights, materials = a.cameras, a.settings, a.lights, a.materials
+    ambient, sources = a.ambient, a.sources
     objects, all_v, all_n, all_n64, all_f, f_mat, f_obj = [], [], [], [], [], [], []
     v_base = f_base = 0
     for k, part in enumerate(parts):

@@ -37,8 +37,9 @@ from pathlib import Path
 
 import numpy as np
 
-from . import importers, loader, meshio, shapes
-from .model import Camera, Material, PointLight, Scene, SceneError, Settings
+from . import loader, meshio, shapes
+from . import parts as mesh_parts
+from .model import Assembly, Camera, Material, PointLight, Scene, SceneError, Settings
 
 __all__ = ["EMITTERS", "SHAPES", "BSDFS", "INTEGRATORS", "load_xml", "parse_defines"]
 
@@ -610,10 +611,11 @@ def load_xml(path, *, shading: str | None = None, defines: dict | None = None,
                          f"integrator's falloff_none names {sorted(b.falloff_none)}")
     settings = Settings(max_depth=b.max_depth, min_weight=b.min_weight, shading=mode,
                         background=b.background)
-    scene = importers.assemble(path, b.parts, b.normals, cameras=b.cameras,
-                               settings=settings, lights=lights, materials=b.materials,
-                               ambient=b.ambient, sources=ctx.sources, cache=cache)
-    return importers._frame_and_light(scene, path)
+    scene = mesh_parts.assemble(path, b.parts, b.normals,
+                                Assembly(cameras=b.cameras, settings=settings, lights=lights,
+                                         materials=b.materials, ambient=b.ambient,
+                                         sources=ctx.sources), cache=cache)
+    return mesh_parts._frame_and_light(scene, path)
 
 
 def _integrator(ctx: _Ctx, node: Node | None, b: _Build, root: Node) -> None:
@@ -804,8 +806,8 @@ def _shape(ctx: _Ctx, node: Node, b: _Build) -> None:
             if kind == "obj":
                 parts, normals = _obj_shape(ctx, node, mesh, m, material, flat, name, b)
             else:
-                part, fn, _ = importers.ply_part(mesh, m, material=material, name=name,
-                                                 flat=flat)
+                part, fn, _ = mesh_parts.ply_part(mesh, m, material=material, name=name,
+                                                  flat=flat)
                 if fn is None and not flat:
                     ctx.warn(node, f"{fname}: no vertex normals: averaged normals (Mitsuba "
                                    "weights them by angle: an approximation)")
@@ -837,7 +839,7 @@ def _obj_shape(ctx, node, mesh, m, material, flat, name, b):
     mats: list[Material] = []
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")          # usemtl / mtllib: Mitsuba ignores them
-        parts, normals, _ = importers.obj_parts(mesh, mats, m, flat=flat, taken=set())
+        parts, normals, _ = mesh_parts.obj_parts(mesh, mats, m, flat=flat, taken=set())
     if any(fn is None for fn in normals) and not flat:
         ctx.warn(node, f"{mesh.name}: faces without vertex normals: averaged normals "
                        "(Mitsuba weights them by angle: an approximation)")

@@ -368,6 +368,20 @@ class ObjectInfo:
 
 
 @dataclass
+class Assembly:
+    """What a scene holds besides its geometry, as a reader hands it to the assembly of its
+    parts (``loader._assemble``, ``parts.assemble``): ``cameras``, ``settings``,
+    ``lights``, ``materials``, ``ambient`` (RGB) and ``sources`` (the files read)."""
+
+    cameras: list
+    settings: Settings
+    lights: list
+    materials: list
+    ambient: np.ndarray
+    sources: list
+
+
+@dataclass
 class Scene:
     """Everything needed to render, on the host.
 

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .loader import _vertex_normals
 from .model import Scene
 
 __all__ = ["mesh_folder", "scene_files", "ply_bytes"]
@@ -61,7 +62,6 @@ def _str(s: str) -> str:
 
 def _averaged(scene: Scene, obj) -> bool:
     """Whether an object's normals are those the loader averages from its geometry."""
-    from .loader import _vertex_normals
     vs = slice(obj.first_vertex, obj.first_vertex + obj.vertex_count)
     v = scene.positions(True)[vs]
     f = scene.faces[obj.first_face:obj.first_face + obj.face_count] - obj.first_vertex
