@@ -17,7 +17,7 @@ import evaluation.hard.runners as hard_runners
 from evaluation.hard.cases import Config, load_cases
 from renderer.accel import ACCELERATORS, BruteForce, build_accelerator
 from renderer.accel.bvh_build import MAX_LEVELS, check_bvh
-from renderer.accel.device_build import build_device, sorted_keys
+from renderer.accel.device_build import build_device
 from renderer.accel.traverse import COUNT_SHIFT, FIRST_MASK, LEAF_BIT
 from renderer.device import types
 from renderer.render import Renderer
@@ -179,51 +179,3 @@ def test_cuda_device_tree_is_valid_and_matches_brute_force():
     for name in ("bvh", "bvh4"):
         acc = build_accelerator(name, scene, t, build="device")
         assert_same_hits(hits(acc, ray, active, t), ref)
-
-
-
-def reference_topology(codes, leaf_size):
-    """The children references of the split rule in ``device_build``'s docstring, on the
-    host, one level at a time (inner nodes numbered level by level in child order)."""
-    level, n_nodes, children = [(0, len(codes))], 0, []
-    depth = 0
-    while level:
-        nxt = []
-        for s, count in level:
-            e = s + count - 1
-            diff = int(codes[s]) ^ int(codes[e])
-            if diff:
-                bit = 1 << (diff.bit_length() - 1)
-                left = int(np.argmax((codes[s:e + 1] & bit) != 0))
-            else:
-                left = count >> 1
-            big = max(left, count - left)
-            leaves = -(-big // leaf_size)
-            need = (leaves - 1).bit_length() if leaves > 1 else 0
-            if depth + 1 + need > MAX_LEVELS:
-                left = count >> 1
-            row = []
-            for f, c in ((s, left), (s + left, count - left)):
-                if c <= leaf_size:
-                    row.append(LEAF_BIT | ((c - 1) << COUNT_SHIFT) | f)
-                else:
-                    row.append(n_nodes + len(level) + len(nxt))
-                    nxt.append((f, c))
-            children.append(row)
-        n_nodes += len(level)
-        level, depth = nxt, depth + 1
-    return np.array(children, np.uint32)
-
-
-@pytest.mark.parametrize("leaf_size", [1, 3])
-def test_device_topology_is_the_split_rule(leaf_size):
-    V, faces = soup(2000, seed=7)
-    V = np.concatenate([V, [[-3, -3, 0], [4, -3, 0], [0, 4, 0]]])       # one big triangle
-    faces = np.concatenate([faces, [[len(V) - 3, len(V) - 2, len(V) - 1]]])
-    a = build_device(V, faces, "llvm", leaf_size=leaf_size)
-    check_bvh(a)
-    codes, order = sorted_keys(V, faces, "llvm")
-    assert np.array_equal(order, a.order)
-    ref = reference_topology(codes, leaf_size)
-    assert np.array_equal(a.children, ref)
-

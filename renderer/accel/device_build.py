@@ -1,6 +1,6 @@
 """BVH build on the device (Dr.Jit, the same code on CUDA and LLVM): a Morton-code radix tree.
 
-Steps, each a few Dr.Jit kernels over all triangles or the nodes of one level:
+Steps, each a few Dr.Jit kernels over all triangles or all nodes of one level:
 
 1. triangle boxes and the scene box (device reductions);
 2. 30-bit Morton codes of the box centres in the scene box, large triangles
@@ -10,13 +10,10 @@ Steps, each a few Dr.Jit kernels over all triangles or the nodes of one level:
    flips (a binary search over the range: the Karras radix-tree split), at the range's
    middle where the codes are equal or where the radix split would need more than
    ``MAX_LEVELS`` levels (so the traversal stack never overflows). Children of at most
-   ``leaf_size`` triangles are leaves; the others are the next level's nodes, numbered by
-   a prefix sum on the device. The level's first node, node count and depth are device
-   values, so every level runs the same cached kernels; the host reads the count back
-   only every ``CHECK_EVERY`` levels (to stop and to size the next levels' lanes);
-4. the child boxes bottom up, one kernel per level, deepest first: a leaf's box reduced
-   over its (at most ``leaf_size``) triangles, an inner child's the union of its own two
-   child boxes, padded and written to the output with the node's SAH area.
+   ``leaf_size`` triangles are leaves; the others are the next level's nodes, compacted by
+   ``dr.compress`` (one count read per level, the only host round trips of the build);
+4. the child boxes bottom up, deepest level first: a leaf's box reduced over its (at most
+   ``leaf_size``) triangles, an inner child's the union of its own two child boxes.
 
 The result is a ``BVHArrays`` like ``bvh_build.build_bvh``'s (inner nodes numbered level
 by level, so every level is one contiguous run of nodes), its boxes padded on the device by
@@ -45,10 +42,6 @@ MORTON_BITS = 10                 # bits per axis: 30-bit codes
 #: and none, 1/4 gives the lowest SAH cost on the bunny, Sponza and Conference
 #: (``lab/notes/device-build.md``).
 BIG_TRIANGLE = 0.25
-#: The top-down loop reads the next level's node count back every this many levels: to stop
-#: after the last level and to size the following levels' lanes (at most twice the nodes of
-#: the level before).
-CHECK_EVERY = 4
 
 
 def _module(backend: str):
@@ -89,17 +82,9 @@ def _bisect(UInt32, code, bit, a, b):
     return dr.select(has, a, mid), dr.select(has, mid, b)
 
 
-def sorted_keys(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm"):
-    """The sort keys of step 2 (uint32 (F,), ascending) and the face order (int64 (F,)) the
-    build sorts ``faces`` of ``vertices`` into."""
-    keys: dict = {}
-    build_device(vertices, faces, backend, leaf_size=1, _keys=keys)
-    return keys["code"], keys["order"]
-
-
 def build_device(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm", *,
                  leaf_size: int = LEAF_SIZE, progress=None,
-                 phases: dict | None = None, _keys: dict | None = None) -> BVHArrays:
+                 phases: dict | None = None) -> BVHArrays:
     """Build a BVH over ``faces`` (int (F, 3)) of ``vertices`` (float (V, 3)) on ``backend``
     ("cuda" or "llvm"; see the module docstring). ``leaf_size``: most triangles per leaf
     (1..16). ``progress``: called as ``progress(levels_done)`` after each level.
@@ -156,39 +141,17 @@ def build_device(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm",
     del lo, hi
     if phases is not None:
         _phase(phases, "Morton codes and sort", t_phase)
-    if _keys is not None:       # sorted_keys: the keys and order, no tree
-        _keys["code"] = np.asarray(code.numpy(), np.uint32)
-        _keys["order"] = np.asarray(perm.numpy(), np.int64)
-        return None
 
     # ---- 3. topology, top down ------------------------------------------------------------
-    # Node ``i`` of the tree covers the sorted range ``[n_first[i], n_first[i] + n_count[i])``;
-    # level ``d`` is the nodes ``base_d .. base_d + k_d - 1``, with ``base_d`` and ``k_d``
-    # one-lane device arrays, so the level loop launches the same kernels every level and
-    # reads nothing back: each level runs over a fixed ``cap`` lanes (no level has more
-    # nodes than ``min(2^d, F // (leaf_size + 1))``), the lanes past ``k_d`` inactive, and
-    # numbers its inner children by an exclusive prefix sum in lane order (child ``side`` of
-    # node ``i`` before those of ``i + 1``), as a compaction would.
-    NI = F - 1                                       # inner nodes of any tree over F leaves
-    n_first = dr.zeros(UInt32, NI)
-    n_count = dr.zeros(UInt32, NI)
-    dr.scatter(n_count, UInt32(F), UInt32(0))
-    refs_all = dr.zeros(UInt32, 2 * NI)
-    ks = dr.zeros(UInt32, MAX_LEVELS + 1)            # k_d of every level, read once at the end
-    base, k = dr.opaque(UInt32, 0, 1), dr.opaque(UInt32, 1, 1)
-    level = dr.opaque(UInt32, 0, 1)                  # the depth, counted on the device
-    max_level = F // (leaf_size + 1)
-    bases, known, known_depth = [], 1, 0             # k_d read at the last check: k_d bound
-    for depth in range(MAX_LEVELS):
-        cap = min(known << (depth - known_depth), max_level)
-        bases.append(base)
-        dr.scatter(ks, k, level)
-        lane = dr.arange(UInt32, cap)
-        active = lane < k
-        nid = base + lane
-        s = dr.gather(UInt32, n_first, nid, active)
-        count = dr.gather(UInt32, n_count, nid, active)
-        e = dr.select(active, s + count - 1, s)
+    first, count = dr.opaque(UInt32, 0, 1), dr.opaque(UInt32, F, 1)   # the root level
+    level_base, level_size, level_refs = [], [], []
+    n_nodes, k = 0, 1
+    while k:
+        depth = len(level_base)
+        level_base.append(n_nodes)
+        level_size.append(k)
+        n_nodes += k
+        s, e = first, first + count - 1
         cs, ce = dr.gather(UInt32, code, s), dr.gather(UInt32, code, e)
         diff = cs ^ ce
         bit = UInt32(1) << (31 - dr.lzcnt(dr.maximum(diff, 1)))
@@ -200,66 +163,58 @@ def build_device(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm",
             label="device_build_split")
         left = dr.select(diff != 0, b - s, count >> 1)
         big = dr.maximum(left, count - left)
-        over = level + 1 + _levels_needed(big, leaf_size) > MAX_LEVELS
+        over = dr.opaque(UInt32, depth + 1) + _levels_needed(big, leaf_size) > MAX_LEVELS
         left = dr.select(over, count >> 1, left)
-        inner0 = active & (left > leaf_size)
-        inner1 = active & (count - left > leaf_size)
-        q = dr.select(inner0, UInt32(1), 0) + dr.select(inner1, UInt32(1), 0)
-        dr.eval(s, count, left, q)
-        slot = dr.prefix_sum(q)                # exclusive
-        dr.eval(slot)
-        last, any_node = k - 1, k > 0
-        k_next = dr.gather(UInt32, slot, last, any_node) + dr.gather(UInt32, q, last, any_node)
-        next_base = base + k
-        for side in range(2):
-            c_first = s + (left if side else 0)
-            c_count = (count - left) if side else left
-            leaf = c_count <= leaf_size
-            child = next_base + slot + (dr.select(inner0, UInt32(1), 0) if side else 0)
-            ref = dr.select(leaf, LEAF_BIT | ((c_count - 1) << COUNT_SHIFT) | c_first, child)
-            dr.scatter(refs_all, ref, 2 * nid + side, active)
-            dr.scatter(n_first, c_first, child, active & ~leaf)
-            dr.scatter(n_count, c_count, child, active & ~leaf)
-        base, k, level = next_base, k_next, level + 1
-        dr.eval(refs_all, n_first, n_count, base, k, ks, level)
+        dr.eval(left)
+        # children: lane 2 i + side is child ``side`` of this level's node i
+        lane = dr.arange(UInt32, 2 * k)
+        node = lane >> 1
+        side = lane & 1
+        n_first = dr.gather(UInt32, first, node)
+        n_count = dr.gather(UInt32, count, node)
+        n_left = dr.gather(UInt32, left, node)
+        c_first = dr.select(side == 0, n_first, n_first + n_left)
+        c_count = dr.select(side == 0, n_left, n_count - n_left)
+        leaf = c_count <= leaf_size
+        ref = dr.select(leaf, LEAF_BIT | ((c_count - 1) << COUNT_SHIFT) | c_first, 0)
+        dr.eval(ref, c_first, c_count, leaf)
+        pend = dr.compress(~leaf)                          # the next level's nodes
+        k = dr.width(pend)
+        if k:           # inner children: the next level's nodes, numbered in lane order
+            dr.scatter(ref, dr.opaque(UInt32, n_nodes) + dr.arange(UInt32, k), pend)
+            first = dr.gather(UInt32, c_first, pend)
+            count = dr.gather(UInt32, c_count, pend)
+            dr.eval(ref, first, count)
+        level_refs.append(ref)
         if progress is not None:
-            progress(depth + 1)
-        if depth % CHECK_EVERY == CHECK_EVERY - 1:    # the only host reads of the loop
-            known, known_depth = int(k.numpy()[0]), depth + 1
-            if not known:
-                break
-    ks_h = np.asarray(ks.numpy(), np.int64)
-    levels = int(np.count_nonzero(ks_h))
-    N = int(ks_h[:levels].sum())
-    del n_first, n_count
+            progress(len(level_base))
+    levels = len(level_base)
     if phases is not None:
         _phase(phases, "topology", t_phase)
 
-    # ---- 4. child boxes bottom up, padded, and the SAH areas ------------------------------
-    # One kernel per level, deepest first: a leaf child's box reduced over its (at most
-    # ``leaf_size``) triangles, an inner child's the node box its level wrote; each level
-    # writes its node boxes to the other of two buffers than the one it reads.
-    extent = dr.maximum(dr.maximum(s_hi[0] - s_lo[0], s_hi[1] - s_lo[1]), s_hi[2] - s_lo[2])
-    u32 = float(32 * unit_roundoff(False))
-    nb = [[dr.zeros(Float, N) for _ in range(6)] for _ in range(2)]
-    boxes_d = dr.zeros(Float, 12 * N)
-    area_d = dr.zeros(m.Float64, N)
+    # ---- 4. child boxes, bottom up ---------------------------------------------------------
+    # (unpadded, as BVHArrays.boxes; every inner child of a level's node is in the next level)
+    below, level_boxes = None, []
     for depth in reversed(range(levels)):
-        size = int(ks_h[depth])
+        size, refs = level_size[depth], level_refs[depth]
         i = dr.arange(UInt32, size)
-        nid = bases[depth] + i
-        below, out = nb[(depth + 1) % 2], nb[depth % 2]
-        node_lo = [dr.full(Float, dr.inf, size) for _ in range(3)]
-        node_hi = [dr.full(Float, -dr.inf, size) for _ in range(3)]
-        area = dr.zeros(m.Float64, size)
+        out = []
         for side in range(2):
-            ref = dr.gather(UInt32, refs_all, 2 * nid + side)
+            ref = dr.gather(UInt32, refs, 2 * i + side)
             is_leaf = (ref & LEAF_BIT) != 0
             inner = ~is_leaf
-            lo_c = [dr.gather(Float, below[a], ref, inner) for a in range(3)]
-            hi_c = [dr.gather(Float, below[3 + a], ref, inner) for a in range(3)]
-            lo_c = [dr.select(inner, x, dr.inf) for x in lo_c]
-            hi_c = [dr.select(inner, x, -dr.inf) for x in hi_c]
+            lo_c, hi_c = [dr.full(Float, dr.inf, size) for _ in range(3)], \
+                [dr.full(Float, -dr.inf, size) for _ in range(3)]
+            if below is not None:
+                j = ref - dr.opaque(UInt32, level_base[depth + 1])
+                for a in range(3):
+                    lo_c[a] = dr.select(inner, dr.minimum(dr.gather(Float, below[a], j, inner),
+                                                          dr.gather(Float, below[6 + a], j,
+                                                                    inner)), lo_c[a])
+                    hi_c[a] = dr.select(inner, dr.maximum(dr.gather(Float, below[3 + a], j,
+                                                                    inner),
+                                                          dr.gather(Float, below[9 + a], j,
+                                                                    inner)), hi_c[a])
             f0 = ref & ((1 << COUNT_SHIFT) - 1)
             cnt = ((ref >> COUNT_SHIFT) & 15) + 1
             for jj in range(leaf_size):
@@ -271,28 +226,44 @@ def build_device(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm",
                     hi_c[a] = dr.select(on, dr.maximum(hi_c[a],
                                                        dr.gather(Float, shi[a], f0 + jj, on)),
                                         hi_c[a])
-            d = []
-            for a in range(3):             # pad_boxes: 32 roundoff x (magnitude + extent)
-                node_lo[a] = dr.minimum(node_lo[a], lo_c[a])
-                node_hi[a] = dr.maximum(node_hi[a], hi_c[a])
-                pad = (dr.maximum(abs(lo_c[a]), abs(hi_c[a])) + extent) * u32
-                p_lo, p_hi = lo_c[a] - pad, hi_c[a] + pad
-                dr.scatter(boxes_d, p_lo, 12 * nid + 6 * side + a)
-                dr.scatter(boxes_d, p_hi, 12 * nid + 6 * side + 3 + a)
-                d.append(m.Float64(p_hi - p_lo))
-            half = d[0] * d[1] + d[1] * d[2] + d[2] * d[0]
-            area += half * dr.select(is_leaf, m.Float64(cnt), 1.0)
-        for a in range(3):
-            dr.scatter(out[a], node_lo[a], nid)
-            dr.scatter(out[3 + a], node_hi[a], nid)
-        dr.scatter(area_d, area, nid)
-        dr.eval(boxes_d, area_d, out)
-    del nb
-    area = dr.sum(area_d)
-    refs_d = dr.gather(UInt32, refs_all, dr.arange(UInt32, 2 * N))
-    dr.eval(area, refs_d)
+            out += lo_c + hi_c
+        dr.eval(out)
+        level_boxes.append(out)
+        below = out
+    level_boxes.reverse()
+
     if phases is not None:
         _phase(phases, "boxes bottom up", t_phase)
+
+    # ---- 5. padded boxes and references in the host layout, on the device -----------------
+    N = n_nodes
+    extent = dr.maximum(dr.maximum(s_hi[0] - s_lo[0], s_hi[1] - s_lo[1]), s_hi[2] - s_lo[2])
+    u32 = float(32 * unit_roundoff(False))
+    boxes_d = dr.zeros(Float, 12 * N)
+    refs_d = dr.zeros(UInt32, 2 * N)
+    area = dr.zeros(m.Float64, 1)
+    for depth in range(levels):
+        base, size = dr.opaque(UInt32, level_base[depth]), level_size[depth]
+        i = dr.arange(UInt32, size)
+        ids = base + i
+        lb, refs = level_boxes[depth], level_refs[depth]
+        for side in range(2):
+            ref = dr.gather(UInt32, refs, 2 * i + side)
+            padded = []
+            for a in range(3):             # pad_boxes: 32 roundoff x (magnitude + extent)
+                lo_a, hi_a = lb[6 * side + a], lb[6 * side + 3 + a]
+                e = (dr.maximum(abs(lo_a), abs(hi_a)) + extent) * u32
+                padded.append((lo_a - e, hi_a + e))
+            for a in range(3):
+                dr.scatter(boxes_d, padded[a][0], 12 * ids + 6 * side + a)
+                dr.scatter(boxes_d, padded[a][1], 12 * ids + 6 * side + 3 + a)
+            d = [m.Float64(padded[a][1] - padded[a][0]) for a in range(3)]
+            half = d[0] * d[1] + d[1] * d[2] + d[2] * d[0]
+            weight = dr.select((ref & LEAF_BIT) != 0,
+                               m.Float64(((ref >> COUNT_SHIFT) & 15) + 1), 1.0)
+            area += dr.sum(half * weight)
+        dr.scatter(refs_d, refs, 2 * base + dr.arange(UInt32, 2 * size))
+    dr.eval(boxes_d, refs_d, area)
 
     # ---- the host arrays ------------------------------------------------------------------
     boxes = np.asarray(boxes_d.numpy(), np.float32).reshape(N, 12)
