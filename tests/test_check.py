@@ -375,5 +375,7 @@ def test_reference_on_dask_workers_writes_the_same_store(user, tmp_path, capsys)
     assert main(args[:-1] + [str(edited), "--workers", "2"]) == 4
     assert "pass --force" in capsys.readouterr().err
     assert _tree_hashes(mine) == before
-    assert main(args + ["--workers", "-1"]) == 2
+    with pytest.raises(SystemExit) as bad:         # argparse's one line, exit 2
+        main(args + ["--workers", "-1"])
+    assert bad.value.code == 2
     assert "--workers" in capsys.readouterr().err
