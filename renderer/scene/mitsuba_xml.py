@@ -821,7 +821,8 @@ def _area_light(ctx: _Ctx, node: Node, b: _Build, *, nested: bool) -> None:
         radius = r.float("radius", 1.0, lo=0.0, lo_open=True)
         a = m[:3, :3] * radius
         scale = np.linalg.norm(a, axis=0)
-        if not np.allclose(a.T @ a, np.diag(scale ** 2), rtol=0, atol=1e-9 * scale.max() ** 2):
+        if not np.allclose(a.T @ a, scale[0] ** 2 * np.eye(3), rtol=0,
+                           atol=1e-9 * scale.max() ** 2):
             raise ctx.error(node, "to_world: a sphere light scales uniformly (an ellipsoid "
                                   "is outside the model): refused")
         if flip:
