@@ -19,6 +19,13 @@ those inputs without the Mitsuba version; ``key`` adds the version. No path ente
 an identical copy of a bundled scene anywhere finds its bundled golden; sidecars store no
 absolute path.
 
+**Size.** A golden is rendered at the scene's own resolution (each view's), unless the
+scene's ``[check]`` table sets ``size = [w, h]`` (and, for converged goldens,
+``converged_size``) or the command gives a height (``golden_size``); the sidecar's
+``resolution`` records it, and ``check`` renders ours at that size, so pixel coordinates in
+verdicts are the golden's. ``[check]`` is not part of the key: changing the size there does
+not make a golden stale (re-render it with ``--force``).
+
 **Lookup** (``find_golden``): the stores in order, the first golden whose ``content_key``
 matches wins (with Mitsuba installed, its version must match too). Otherwise, a golden of the
 same scene name, view, shading and mode is *stale* and the message says exactly which inputs
@@ -58,9 +65,6 @@ GOLDEN_DIR = BUNDLED_STORE           # the name older callers use
 #: Converged goldens: total spp and the number of independent batches (variance estimate).
 CONVERGED_SPP = 64
 CONVERGED_BATCHES = 16
-DEFAULT_SIZE = 256
-#: Converged goldens are rendered at this height (2 CPU cores: 16 x 4 spp at 256² is slow).
-CONVERGED_SIZE = 128
 #: Sidecar format: 2 = content keys (``key``, ``content_key``, ``inputs``).
 FORMAT = 2
 #: Source files whose code decides what a golden holds (package-relative to the project root).
@@ -231,6 +235,62 @@ def scene_content_hash(path) -> str:
     return _sha(json.dumps(data, sort_keys=True, separators=(",", ":")).encode())
 
 
+#: A scene field whose value is longer than this (as JSON) is recorded by its sha256 only.
+FIELD_VALUE_CHARS = 120
+#: At most this many changed scene fields are named in a STALE message.
+FIELDS_NAMED = 4
+
+
+def _leaves(value, where: str, out: dict) -> None:
+    if isinstance(value, dict):
+        for k in sorted(value):
+            _leaves(value[k], f"{where}.{k}" if where else str(k), out)
+    elif isinstance(value, list) and value and all(isinstance(v, dict) for v in value):
+        for i, v in enumerate(value):                  # an array of tables: [[lights]]
+            _leaves(v, f"{where}[{i}]", out)
+    else:                                              # TOML dates and times: as text
+        text = json.dumps(value, sort_keys=True, default=str)
+        out[where] = json.loads(text) if len(text) <= FIELD_VALUE_CHARS else \
+            {"sha256": _sha(text.encode())}
+
+
+def scene_fields(path) -> dict | None:
+    """The scene file's fields without ``[check]``, flattened to dotted TOML paths
+    (``materials.white.kd``, ``lights[0].position``, ``render.spp``) -> value (a long value:
+    ``{"sha256": ...}``), as a golden's sidecar records them so that a STALE line can name
+    the fields that changed. None for an imported scene (OBJ, PLY, XML: bytes only)."""
+    if is_imported(path):
+        return None
+    data = tomllib.loads(Path(path).read_text(encoding="utf-8"))
+    data.pop("check", None)
+    out: dict = {}
+    _leaves(data, "", out)
+    return out
+
+
+def _show(value) -> str:
+    if isinstance(value, dict) and set(value) == {"sha256"}:
+        return "(a long value)"
+    return json.dumps(value, default=str)
+
+
+def describe_fields(old: dict, new: dict) -> list[str]:
+    """The fields that differ between two ``scene_fields``, one phrase each
+    (``materials.white.kd 0.5 -> 0.4``, ``lights[1] added``), at most ``FIELDS_NAMED``
+    and a count of the rest."""
+    out = []
+    for key in sorted(set(old) | set(new)):
+        if key not in old:
+            out.append(f"{key} added ({_show(new[key])})")
+        elif key not in new:
+            out.append(f"{key} removed (was {_show(old[key])})")
+        elif json.dumps(old[key], sort_keys=True) != json.dumps(new[key], sort_keys=True):
+            out.append(f"{key} {_show(old[key])} -> {_show(new[key])}")
+    if len(out) > FIELDS_NAMED:
+        out = out[:FIELDS_NAMED] + [f"{len(out) - FIELDS_NAMED} more scene fields"]
+    return out
+
+
 def mitsuba_version() -> str | None:
     """The installed Mitsuba's version (without importing it), or None."""
     from importlib import metadata
@@ -269,13 +329,19 @@ def full_key(inputs: dict) -> str:
     return _sha(json.dumps(inputs, sort_keys=True).encode())
 
 
-def describe_changes(old: dict, new: dict, mesh_files=()) -> list[str]:
-    """What differs between two ``golden_inputs``, one phrase each; a changed mesh is named
-    by its file name (``mesh_files``: the new scene's mesh files, in ``meshes`` order)."""
+def describe_changes(old: dict, new: dict, mesh_files=(), old_fields=None,
+                     new_fields=None) -> list[str]:
+    """What differs between two ``golden_inputs``, one phrase each: the scene fields that
+    changed (``describe_fields``, when both ``scene_fields`` are given; else "scene file
+    content"), a mesh by its file name (``mesh_files``: the new scene's mesh files, in
+    ``meshes`` order), the view, shading or mode, a harness file by its path, the Mitsuba
+    version."""
     out = []
     names = [Path(f).name for f in mesh_files]
     if old.get("scene") != new.get("scene"):
-        out.append("scene file content")
+        fields = describe_fields(old_fields, new_fields) \
+            if isinstance(old_fields, dict) and isinstance(new_fields, dict) else []
+        out += fields or ["scene file content"]
     om, nm = old.get("meshes", []), new.get("meshes", [])
     if len(om) != len(nm):
         out.append(f"mesh count {len(om)} -> {len(nm)}")
@@ -286,10 +352,10 @@ def describe_changes(old: dict, new: dict, mesh_files=()) -> list[str]:
         if old.get(k) != new.get(k):
             out.append(f"{k} {old.get(k)!r} -> {new.get(k)!r}")
     oc, nc = old.get("code", {}), new.get("code", {})
-    out += [f"code {f}" for f in sorted(set(oc) | set(nc)) if oc.get(f) != nc.get(f)]
+    out += [f"harness file {f}" for f in sorted(set(oc) | set(nc)) if oc.get(f) != nc.get(f)]
     ov, nv = old.get("mitsuba_version"), new.get("mitsuba_version")
     if nv is not None and ov != nv:
-        out.append(f"Mitsuba {ov} -> {nv}")
+        out.append(f"Mitsuba version {ov} -> {nv}")
     return out
 
 
@@ -364,12 +430,13 @@ def find_golden(scene: Scene, *, view: int, shading: str, mode: str, stores) -> 
                           changes=["sidecar format 1 (keyed by path)"],
                           message=f"golden {exr} has a sidecar without content keys "
                                   f"(format 1); re-key or re-render it with `{cmd}`")
-        changes = describe_changes(old, inputs, [Path(f) for f in scene.source_files][1:]) \
-            or ["its key"]
+        fields = scene_fields(scene.path) if "scene_fields" in meta else None
+        changes = describe_changes(old, inputs, [Path(f) for f in scene.source_files][1:],
+                                   meta.get("scene_fields"), fields) or ["its key"]
         cmd = regenerate_command(scene.path, store)
         return Lookup("stale", path=side.with_suffix(".exr"), changes=changes, command=cmd,
-                      message=f"golden {exr} is stale ({', '.join(changes)} changed since "
-                              f"it was rendered); re-render it with `{cmd}`")
+                      message=f"golden {exr} is stale (changed since it was rendered: "
+                              f"{'; '.join(changes)}); re-render it with `{cmd}`")
     users = [s for s in stores if not is_bundled(s)]
     cmd = (f"whitted reference --goldens {_display(users[0]) if users else 'DIR'} "
            f"{_display(Path(scene.path))}")
@@ -393,13 +460,26 @@ def load_golden(scene: Scene, *, view: int, shading: str, mode: str, root=None,
 
 
 # ---- rendering ------------------------------------------------------------------------------
-def _resize(scene: Scene, size: int | None) -> Scene:
-    """``scene`` with every view ``size`` pixels high, the width following the aspect of
-    the scene's resolution (None: unchanged)."""
-    if size is None:
-        return scene
-    cam = scene.cameras[0]
-    return scene.with_size(max(1, int(round(size * cam.width / cam.height))), int(size))
+def golden_size(scene: Scene, mode: str, size: int | None = None,
+                converged_size: int | None = None) -> tuple[int, int] | None:
+    """(width, height) of the goldens of ``scene`` in ``mode``, or None for the scene's own
+    resolution (each view's). In order: a height given here (``converged_size`` for a
+    converged golden, else ``size``; the width follows the aspect of the scene's first
+    view), else the scene's ``[check]`` ``converged_size`` (converged goldens) or ``size``,
+    else None."""
+    height = converged_size if mode == "converged" and converged_size is not None else size
+    if height is not None:
+        cam = scene.cameras[0]
+        return max(1, int(round(height * cam.width / cam.height))), int(height)
+    check = scene.check or {}
+    wh = check.get("converged_size") if mode == "converged" else None
+    wh = wh or check.get("size")
+    return (int(wh[0]), int(wh[1])) if wh else None
+
+
+def _sized(scene: Scene, size) -> Scene:
+    """``scene`` with every view ``size`` = (width, height) pixels (None: unchanged)."""
+    return scene if size is None else scene.with_size(int(size[0]), int(size[1]))
 
 
 def _progress_bar(total: int, enabled: bool):
@@ -418,19 +498,36 @@ def _progress_bar(total: int, enabled: bool):
     return step
 
 
-def plan_goldens(scene_paths, *, root, modes=MODES, shadings=SHADING_MODES):
+def plan_goldens(scene_paths, *, root, modes=MODES, shadings=SHADING_MODES,
+                 size: int | None = None, converged_size: int | None = None):
     """For each scene x shading x mode x view: (scene_path, shading, mode, view, Lookup in
-    ``root`` alone). Raises ``SceneError`` for a bad scene file."""
+    ``root`` alone). A golden whose key matches but whose size is not the one asked for
+    (``golden_size``; the view's resolution by default) is stale, its change the size.
+    Raises ``SceneError`` for a bad scene file."""
     plan = []
     for scene_path in scene_paths:
         for shading in shadings:
             scene = load_scene(scene_path, shading=shading)
             for mode in modes:
-                for v in range(len(scene.cameras)):
+                wh = golden_size(scene, mode, size, converged_size)
+                for v, cam in enumerate(scene.cameras):
                     found = find_golden(scene, view=v, shading=shading, mode=mode,
                                         stores=[root])
+                    want = list(wh) if wh else [cam.width, cam.height]
+                    have = found.golden.meta.get("resolution") if found.golden else None
+                    if found.status == "ok" and have != want:
+                        found = _resized_lookup(found, scene_path, root, have, want)
                     plan.append((scene_path, shading, mode, v, found))
     return plan
+
+
+def _resized_lookup(found: Lookup, scene_path, root, have, want) -> Lookup:
+    """The stale ``Lookup`` of an up-to-date golden of another size than ``want``."""
+    change = f"size {'x'.join(map(str, have or ['?']))} -> {want[0]}x{want[1]}"
+    cmd = regenerate_command(scene_path, root)
+    return Lookup("stale", path=found.path, changes=[change], command=cmd,
+                  message=f"golden {_display(found.path)} is stale ({change}: the size asked "
+                          f"for); re-render it with `{cmd}`")
 
 
 def _check_store(root: Path, bundled: bool) -> None:
@@ -444,7 +541,7 @@ def _check_store(root: Path, bundled: bool) -> None:
 
 
 def golden_jobs(scene_paths, *, spp: int = CONVERGED_SPP, batches: int = CONVERGED_BATCHES,
-                size: int = DEFAULT_SIZE, converged_size: int | None = CONVERGED_SIZE,
+                size: int | None = None, converged_size: int | None = None,
                 modes=MODES, shadings=SHADING_MODES, root: Path = BUNDLED_STORE,
                 bundled: bool = False, force: bool = False, plan=None) -> list[dict]:
     """The goldens of every scene x shading x mode x view that are missing or stale in the
@@ -453,12 +550,14 @@ def golden_jobs(scene_paths, *, spp: int = CONVERGED_SPP, batches: int = CONVERG
     content key included (the job checks it against the scene it loads).
 
     An up-to-date golden gets no job; a stale one is a ``GoldenError`` unless ``force``;
-    the bundled store is refused unless ``bundled``. plan: ``plan_goldens``'s answer when
-    the caller already has it (else it is made here)."""
+    the bundled store is refused unless ``bundled``. size / converged_size: image heights
+    (``golden_size``; None: the scene's ``[check]`` size, else its own resolution). plan:
+    ``plan_goldens``'s answer when the caller already has it (else it is made here)."""
     root = Path(root)
     _check_store(root, bundled)
     if plan is None:
-        plan = plan_goldens(scene_paths, root=root, modes=modes, shadings=shadings)
+        plan = plan_goldens(scene_paths, root=root, modes=modes, shadings=shadings,
+                            size=size, converged_size=converged_size)
     stale = [p for p in plan if p[4].status == "stale"]
     if stale and not force:
         lines = "; ".join(p[4].message.split("; re-render")[0] for p in stale[:3])
@@ -469,13 +568,14 @@ def golden_jobs(scene_paths, *, spp: int = CONVERGED_SPP, batches: int = CONVERG
     for scene_path, shading, mode, v, found in plan:
         if found.status == "ok":
             continue
-        h = size if mode == "exact" or converged_size is None else converged_size
-        scene = _resize(load_scene(scene_path, shading=shading), h)
+        scene = load_scene(scene_path, shading=shading)
+        wh = golden_size(scene, mode, size, converged_size)
+        scene = _sized(scene, wh)
         out = golden_path(scene.name, scene.cameras[v].name, shading, mode, root)
         replaces = found.path if found.status == "stale" and found.path else None
         jobs.append({
             "scene": str(scene_path), "shading": shading, "mode": mode, "view": v,
-            "height": h, "spp": spp, "batches": batches,
+            "size": list(wh) if wh else None, "spp": spp, "batches": batches,
             "root": str(root), "bundled": bool(bundled), "out": str(out),
             "status": found.status,
             "replaces": str(replaces) if replaces is not None and replaces != out else "",
@@ -504,7 +604,7 @@ def render_golden_job(job: dict, step=None) -> str:
     step = step or (lambda label="": None)
     scene_path, v, mode, batches = job["scene"], job["view"], job["mode"], job["batches"]
     shading = job["shading"]
-    scene = _resize(load_scene(scene_path, shading=shading), job["height"])
+    scene = _sized(load_scene(scene_path, shading=shading), job["size"])
     cam = scene.cameras[v]
     out = Path(job["out"])
     inputs = golden_inputs(scene, view=v, shading=shading, mode=mode, mitsuba=mi.__version__)
@@ -537,8 +637,8 @@ def render_golden_job(job: dict, step=None) -> str:
 
 
 def render_goldens(scene_paths, *, force: bool = False, spp: int = CONVERGED_SPP,
-                   batches: int = CONVERGED_BATCHES, size: int = DEFAULT_SIZE,
-                   converged_size: int | None = CONVERGED_SIZE, modes=MODES,
+                   batches: int = CONVERGED_BATCHES, size: int | None = None,
+                   converged_size: int | None = None, modes=MODES,
                    shadings=SHADING_MODES, progress: bool = True,
                    root: Path = BUNDLED_STORE, bundled: bool = False,
                    report=None, executor=None) -> list[Path]:
@@ -549,8 +649,9 @@ def render_goldens(scene_paths, *, force: bool = False, spp: int = CONVERGED_SPP
     spp: converged samples per pixel in total (``batches`` independent renders of
     ``spp // batches`` each, for the per-pixel variance). size: image height in pixels (width
     follows the camera's aspect); converged_size: the same for converged goldens (None:
-    ``size``). bundled: allow ``root`` to be the bundled store (a developer action).
-    report: called with one line per golden kept or written. executor: an
+    ``size``); with neither, the scene's ``[check]`` ``size`` / ``converged_size``, else its
+    own resolution (``golden_size``). bundled: allow ``root`` to be the bundled store (a
+    developer action). report: called with one line per golden kept or written. executor: an
     ``evaluation.gate.executor`` object (``.map(fn, items)`` yielding ``(index, result)``, e.g.
     Dask workers, one GPU each) to render the jobs (``golden_jobs``) on; None: here, one
     after another. The files are the same either way. Returns the written EXR paths (in
@@ -558,7 +659,8 @@ def render_goldens(scene_paths, *, force: bool = False, spp: int = CONVERGED_SPP
     """
     root = Path(root)
     _check_store(root, bundled)
-    plan = plan_goldens(scene_paths, root=root, modes=modes, shadings=shadings)
+    plan = plan_goldens(scene_paths, root=root, modes=modes, shadings=shadings, size=size,
+                        converged_size=converged_size)
     jobs = golden_jobs(scene_paths, spp=spp, batches=batches, size=size,
                        converged_size=converged_size, modes=modes, shadings=shadings,
                        root=root, bundled=bundled, force=force, plan=plan)
@@ -606,7 +708,7 @@ def sidecar(scene: Scene, inputs: dict, *, resolution, spp: int, batch_spp: int,
         "spp": spp, "batch_spp": batch_spp, "batches": batches,
         "resolution": list(resolution), "mitsuba_version": inputs["mitsuba_version"],
         "variant": variant, "max_depth": scene.settings.max_depth, "spawn": GOLDEN_SPAWN,
-        "inputs": inputs,
+        "inputs": inputs, "scene_fields": scene_fields(scene.path),
         "date": date or datetime.datetime.now(datetime.timezone.utc).isoformat(
             timespec="seconds"),
     }
@@ -686,11 +788,19 @@ def main(argv=None) -> int:
     p.add_argument("--verify", nargs="*", choices=MODES, default=list(MODES),
                    help="with --rekey: the modes whose goldens are re-rendered and compared "
                         "first (default both; converged re-renders are slow)")
-    p.add_argument("--size", type=int, default=DEFAULT_SIZE)
-    p.add_argument("--converged-size", type=int, default=CONVERGED_SIZE)
+    p.add_argument("--size", type=int, default=None,
+                   help="image height (default: the scene's [check] size, else its own "
+                        "resolution)")
+    p.add_argument("--converged-size", type=int, default=None,
+                   help="image height of converged goldens (default: --size, else the "
+                        "scene's [check] converged_size or size, else its resolution)")
     p.add_argument("--modes", nargs="+", default=list(MODES), choices=MODES)
     p.add_argument("--shadings", nargs="+", default=list(SHADING_MODES), choices=SHADING_MODES)
     args = p.parse_args(argv)
+    for name in ("size", "converged_size"):
+        if getattr(args, name) is not None and getattr(args, name) < 1:
+            p.error(f"--{name.replace('_', '-')}: expected a height >= 1, got "
+                    f"{getattr(args, name)}")
     try:
         if args.rekey:
             rekey(args.scenes, verify=tuple(args.verify))

@@ -23,7 +23,7 @@ def rendered(tmp_path_factory):
     base = tmp_path_factory.mktemp("plugin")
     scenes = base / "my_scenes"
     scenes.mkdir()
-    text = (ROOT / "scenes/analytic_quad.toml").read_text()
+    text = (ROOT / "scenes/analytic_quad.toml").read_text().split("\n[check]")[0]
     (scenes / "quad.toml").write_text(text + '\n[check]\nshadings = ["classic"]\n')
     store = base / "my_goldens"
     assert main(["reference", str(scenes / "quad.toml"), "--goldens", str(store),

@@ -46,10 +46,12 @@ def register(subparsers) -> None:
     p.add_argument("--batches", type=at_least(1), default=golden.CONVERGED_BATCHES,
                    help="independent batches of the converged render (variance estimate; "
                         f"default {golden.CONVERGED_BATCHES})")
-    p.add_argument("--size", type=at_least(1), default=golden.DEFAULT_SIZE,
-                   help=f"image height in pixels (default {golden.DEFAULT_SIZE})")
-    p.add_argument("--converged-size", type=at_least(1), default=golden.CONVERGED_SIZE,
-                   help=f"image height of converged goldens (default {golden.CONVERGED_SIZE})")
+    p.add_argument("--size", type=at_least(1), default=None,
+                   help="image height in pixels, the width following the view's aspect "
+                        "(default: the scene's [check] size, else its own resolution)")
+    p.add_argument("--converged-size", type=at_least(1), default=None,
+                   help="image height of converged goldens (default: --size, else the "
+                        "scene's [check] converged_size or size, else its own resolution)")
     p.add_argument("--modes", nargs="+", choices=golden.MODES,
                    help="default: the scene's [check] modes, else exact")
     p.add_argument("--shadings", nargs="+", choices=SHADING_MODES,
