@@ -575,7 +575,8 @@ def golden_jobs(scene_paths, *, spp: int = CONVERGED_SPP, batches: int = CONVERG
         replaces = found.path if found.status == "stale" and found.path else None
         jobs.append({
             "scene": str(scene_path), "shading": shading, "mode": mode, "view": v,
-            "size": list(wh) if wh else None, "spp": spp, "batches": batches,
+            "width": wh[0] if wh else 0, "height": wh[1] if wh else 0,   # 0: the view's own
+            "spp": spp, "batches": batches,
             "root": str(root), "bundled": bool(bundled), "out": str(out),
             "status": found.status,
             "replaces": str(replaces) if replaces is not None and replaces != out else "",
@@ -604,7 +605,8 @@ def render_golden_job(job: dict, step=None) -> str:
     step = step or (lambda label="": None)
     scene_path, v, mode, batches = job["scene"], job["view"], job["mode"], job["batches"]
     shading = job["shading"]
-    scene = _sized(load_scene(scene_path, shading=shading), job["size"])
+    scene = _sized(load_scene(scene_path, shading=shading),
+                   (job["width"], job["height"]) if job["height"] else None)
     cam = scene.cameras[v]
     out = Path(job["out"])
     inputs = golden_inputs(scene, view=v, shading=shading, mode=mode, mitsuba=mi.__version__)

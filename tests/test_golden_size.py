@@ -99,13 +99,15 @@ def test_converged_size_sets_the_converged_goldens(tmp_path):
     scene.write_text(SCENE + "\n[check]\nsize = [40, 30]\nconverged_size = [8, 6]\n")
     jobs = golden.golden_jobs([scene], modes=("exact", "converged"), shadings=("classic",),
                               root=tmp_path / "g")
-    assert {j["mode"]: j["size"] for j in jobs} == {"exact": [40, 30], "converged": [8, 6]}
+    assert {j["mode"]: (j["width"], j["height"]) for j in jobs} == \
+        {"exact": (40, 30), "converged": (8, 6)}
     plain = tmp_path / "plain" / "quad.toml"
     plain.parent.mkdir()
     plain.write_text(SCENE)
     jobs = golden.golden_jobs([plain], modes=("exact", "converged"), shadings=("classic",),
                               root=tmp_path / "g")
-    assert {j["mode"]: j["size"] for j in jobs} == {"exact": None, "converged": None}
+    assert {j["mode"]: (j["width"], j["height"]) for j in jobs} == \
+        {"exact": (0, 0), "converged": (0, 0)}          # 0: each view's own resolution
 
 
 def test_a_golden_of_another_size_is_stale_for_reference_and_replaced_with_force(tmp_path,
