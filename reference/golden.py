@@ -12,7 +12,8 @@ reason in the commit).
 **Keys.** ``golden_inputs`` lists everything a golden depends on: the scene file's content
 (its parsed TOML without the ``[check]`` table, so thresholds and comments can change without
 re-rendering; the bytes of an OBJ, PLY or Mitsuba XML scene file), the bytes of every mesh
-(and MTL) file it reads, the view (index and name), shading, mode, the
+(and MTL) file it reads, how a Mitsuba XML file was read (its ``-D`` defines and
+``--approximate``, when given: ``Scene.read``), the view (index and name), shading, mode, the
 source of the reference harness, the scene loader and shapes (``HARNESS_FILES``, the bytes of
 each file), and the Mitsuba version. ``content_key`` is the sha256 of
 those inputs without the Mitsuba version; ``key`` adds the version. No path enters a key, so
@@ -23,13 +24,16 @@ absolute path.
 scene's ``[check]`` table sets ``size = [w, h]`` (and, for converged goldens,
 ``converged_size``) or the command gives a height (``golden_size``); the sidecar's
 ``resolution`` records it, and ``check`` renders ours at that size, so pixel coordinates in
-verdicts are the golden's. ``[check]`` is not part of the key: changing the size there does
-not make a golden stale (re-render it with ``--force``).
+verdicts are the golden's. ``[check]`` is not part of the key: after the size there changes,
+``check`` still uses the golden it finds, while ``render_goldens`` (``whitted reference``)
+calls that golden stale (its size) and replaces it with ``force``.
 
 **Lookup** (``find_golden``): the stores in order, the first golden whose ``content_key``
 matches wins (with Mitsuba installed, its version must match too). Otherwise, a golden of the
 same scene name, view, shading and mode is *stale* and the message says exactly which inputs
-changed and the command that re-renders it; with neither it is *missing*.
+changed (the scene fields by TOML path with their old and new values, as the sidecar's
+``scene_fields`` records them; a mesh by file name; a harness file; the Mitsuba version) and
+the command that re-renders it; with neither it is *missing*.
 
 **Writing** (``render_goldens``): only what is missing or stale is rendered; a stale file is
 replaced only with ``force``; every file is written to a temporary name in its folder and
@@ -314,6 +318,7 @@ def golden_inputs(scene: Scene, *, view: int, shading: str, mode: str,
         "view": view, "view_name": scene.cameras[view].name,
         "shading": shading, "mode": mode,
         "code": {**harness_hashes(), **(import_hashes() if imported else {})},
+        **({"read": scene.read} if scene.read else {}),     # -D defines, --approximate
         "mitsuba_version": mitsuba or mitsuba_version(),
     }
 
@@ -327,6 +332,12 @@ def content_key(inputs: dict) -> str:
 def full_key(inputs: dict) -> str:
     """sha256 of ``inputs`` including the Mitsuba version."""
     return _sha(json.dumps(inputs, sort_keys=True).encode())
+
+
+def _read_text(inputs: dict) -> str:
+    read = inputs.get("read", {})
+    parts = [f"-D {k}={v}" for k, v in sorted(read.get("defines", {}).items())]
+    return " ".join(parts + (["--approximate"] if read.get("approximate") else [])) or "none"
 
 
 def describe_changes(old: dict, new: dict, mesh_files=(), old_fields=None,
@@ -351,6 +362,9 @@ def describe_changes(old: dict, new: dict, mesh_files=(), old_fields=None,
     for k in ("view", "view_name", "shading", "mode"):
         if old.get(k) != new.get(k):
             out.append(f"{k} {old.get(k)!r} -> {new.get(k)!r}")
+    if old.get("read", {}) != new.get("read", {}):
+        out.append(f"how the file is read (-D, --approximate) {_read_text(old)} -> "
+                   f"{_read_text(new)}")
     oc, nc = old.get("code", {}), new.get("code", {})
     out += [f"harness file {f}" for f in sorted(set(oc) | set(nc)) if oc.get(f) != nc.get(f)]
     ov, nv = old.get("mitsuba_version"), new.get("mitsuba_version")
@@ -499,15 +513,17 @@ def _progress_bar(total: int, enabled: bool):
 
 
 def plan_goldens(scene_paths, *, root, modes=MODES, shadings=SHADING_MODES,
-                 size: int | None = None, converged_size: int | None = None):
+                 size: int | None = None, converged_size: int | None = None,
+                 read: dict | None = None):
     """For each scene x shading x mode x view: (scene_path, shading, mode, view, Lookup in
     ``root`` alone). A golden whose key matches but whose size is not the one asked for
     (``golden_size``; the view's resolution by default) is stale, its change the size.
+    read: how the files are read (``load_scene``'s ``defines`` and ``approximate``).
     Raises ``SceneError`` for a bad scene file."""
     plan = []
     for scene_path in scene_paths:
         for shading in shadings:
-            scene = load_scene(scene_path, shading=shading)
+            scene = load_scene(scene_path, shading=shading, **(read or {}))
             for mode in modes:
                 wh = golden_size(scene, mode, size, converged_size)
                 for v, cam in enumerate(scene.cameras):
@@ -543,7 +559,8 @@ def _check_store(root: Path, bundled: bool) -> None:
 def golden_jobs(scene_paths, *, spp: int = CONVERGED_SPP, batches: int = CONVERGED_BATCHES,
                 size: int | None = None, converged_size: int | None = None,
                 modes=MODES, shadings=SHADING_MODES, root: Path = BUNDLED_STORE,
-                bundled: bool = False, force: bool = False, plan=None) -> list[dict]:
+                bundled: bool = False, force: bool = False, plan=None,
+                read: dict | None = None) -> list[dict]:
     """The goldens of every scene x shading x mode x view that are missing or stale in the
     store ``root``, one picklable spec each (a plain dict of str / int / bool): what
     ``render_golden_job`` needs to render and write that golden in any process, the sidecar's
@@ -552,12 +569,13 @@ def golden_jobs(scene_paths, *, spp: int = CONVERGED_SPP, batches: int = CONVERG
     An up-to-date golden gets no job; a stale one is a ``GoldenError`` unless ``force``;
     the bundled store is refused unless ``bundled``. size / converged_size: image heights
     (``golden_size``; None: the scene's ``[check]`` size, else its own resolution). plan:
-    ``plan_goldens``'s answer when the caller already has it (else it is made here)."""
+    ``plan_goldens``'s answer when the caller already has it (else it is made here). read:
+    how the scene files are read (``plan_goldens``; a job carries it as JSON text)."""
     root = Path(root)
     _check_store(root, bundled)
     if plan is None:
         plan = plan_goldens(scene_paths, root=root, modes=modes, shadings=shadings,
-                            size=size, converged_size=converged_size)
+                            size=size, converged_size=converged_size, read=read)
     stale = [p for p in plan if p[4].status == "stale"]
     if stale and not force:
         lines = "; ".join(p[4].message.split("; re-render")[0] for p in stale[:3])
@@ -568,7 +586,7 @@ def golden_jobs(scene_paths, *, spp: int = CONVERGED_SPP, batches: int = CONVERG
     for scene_path, shading, mode, v, found in plan:
         if found.status == "ok":
             continue
-        scene = load_scene(scene_path, shading=shading)
+        scene = load_scene(scene_path, shading=shading, **(read or {}))
         wh = golden_size(scene, mode, size, converged_size)
         scene = _sized(scene, wh)
         out = golden_path(scene.name, scene.cameras[v].name, shading, mode, root)
@@ -576,7 +594,7 @@ def golden_jobs(scene_paths, *, spp: int = CONVERGED_SPP, batches: int = CONVERG
         jobs.append({
             "scene": str(scene_path), "shading": shading, "mode": mode, "view": v,
             "width": wh[0] if wh else 0, "height": wh[1] if wh else 0,   # 0: the view's own
-            "spp": spp, "batches": batches,
+            "spp": spp, "batches": batches, "read": json.dumps(read or {}, sort_keys=True),
             "root": str(root), "bundled": bool(bundled), "out": str(out),
             "status": found.status,
             "replaces": str(replaces) if replaces is not None and replaces != out else "",
@@ -605,7 +623,8 @@ def render_golden_job(job: dict, step=None) -> str:
     step = step or (lambda label="": None)
     scene_path, v, mode, batches = job["scene"], job["view"], job["mode"], job["batches"]
     shading = job["shading"]
-    scene = _sized(load_scene(scene_path, shading=shading),
+    read = json.loads(job.get("read") or "{}")
+    scene = _sized(load_scene(scene_path, shading=shading, **read),
                    (job["width"], job["height"]) if job["height"] else None)
     cam = scene.cameras[v]
     out = Path(job["out"])
@@ -643,7 +662,7 @@ def render_goldens(scene_paths, *, force: bool = False, spp: int = CONVERGED_SPP
                    converged_size: int | None = None, modes=MODES,
                    shadings=SHADING_MODES, progress: bool = True,
                    root: Path = BUNDLED_STORE, bundled: bool = False,
-                   report=None, executor=None) -> list[Path]:
+                   report=None, executor=None, read: dict | None = None) -> list[Path]:
     """Render the goldens of every scene x view x shading x mode into the store ``root`` that
     are missing there or stale; an up-to-date golden is kept, a stale one is replaced only
     with ``force`` (else ``GoldenError`` before anything is rendered).
@@ -656,16 +675,17 @@ def render_goldens(scene_paths, *, force: bool = False, spp: int = CONVERGED_SPP
     developer action). report: called with one line per golden kept or written. executor: an
     ``evaluation.gate.executor`` object (``.map(fn, items)`` yielding ``(index, result)``, e.g.
     Dask workers, one GPU each) to render the jobs (``golden_jobs``) on; None: here, one
-    after another. The files are the same either way. Returns the written EXR paths (in
-    job order).
+    after another. The files are the same either way. read: how the scene files are read
+    (``load_scene``'s ``defines`` and ``approximate``; part of the key). Returns the
+    written EXR paths (in job order).
     """
     root = Path(root)
     _check_store(root, bundled)
     plan = plan_goldens(scene_paths, root=root, modes=modes, shadings=shadings, size=size,
-                        converged_size=converged_size)
+                        converged_size=converged_size, read=read)
     jobs = golden_jobs(scene_paths, spp=spp, batches=batches, size=size,
                        converged_size=converged_size, modes=modes, shadings=shadings,
-                       root=root, bundled=bundled, force=force, plan=plan)
+                       root=root, bundled=bundled, force=force, plan=plan, read=read)
     for p in plan:
         if p[4].status == "ok" and report:
             report(f"up to date: {_display(p[4].path)}")

@@ -286,13 +286,15 @@ def _ours(renderers: dict, scene, view: int, mode: str, golden, opts: dict, th: 
 
 def check_scene(scene_path, stores, *, modes=None, shadings=None, views=None,
                 backend: str = "llvm", precision: str = "float32", accel: str | None = None,
-                keep_images: bool = False, progress=None, render=None) -> list[Verdict]:
+                keep_images: bool = False, progress=None, render=None,
+                read: dict | None = None) -> list[Verdict]:
     """Every verdict of one scene file against the golden ``stores`` (searched in order).
 
     modes / shadings / views: what to check (default ``plan_for``; views: every view).
     backend, precision, accel: how our renderer runs. keep_images: keep ours and the golden
     on each verdict (for a report). progress: called with each verdict as it is made.
-    render: how our image is rendered (``_ours``)."""
+    render: how our image is rendered (``_ours``). read: how the file is read
+    (``load_scene``'s ``defines`` and ``approximate``: ``-D``, ``--approximate``)."""
     scene_path = Path(scene_path)
     shown = str(scene_path)
     opts = {"backend": backend, "precision": precision}
@@ -307,7 +309,8 @@ def check_scene(scene_path, stores, *, modes=None, shadings=None, views=None,
         return v
 
     try:
-        base = load_scene(scene_path)
+        read = read or {}
+        base = load_scene(scene_path, **read)
         modes, shadings = plan_for(base, modes, shadings)
         ths = {m: thresholds_for(base, m) for m in modes}
     except SceneError as e:
@@ -316,7 +319,7 @@ def check_scene(scene_path, stores, *, modes=None, shadings=None, views=None,
         return [error(f"{scene_path}: cannot read: {e}")]
     out = []
     for shading in shadings:
-        scene = load_scene(scene_path, shading=shading)
+        scene = load_scene(scene_path, shading=shading, **read)
         renderers: dict = {}
         for v, cam in enumerate(scene.cameras):
             if views is not None and v not in views and cam.name not in views:
