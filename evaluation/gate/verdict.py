@@ -80,10 +80,15 @@ class Verdict:
     ours: np.ndarray | None = field(default=None, repr=False)
     ref: np.ndarray | None = field(default=None, repr=False)
     ties: np.ndarray | None = field(default=None, repr=False)   # exact: the tie mask
+    #: image metadata of both sides (``evaluation.gate.imagemeta``): {"ours": ..., "golden": ...}
+    metadata: dict[str, dict] = field(default_factory=dict)
+    #: the metadata fields that differ (``imagemeta.differences``), one phrase each
+    differences: list[str] = field(default_factory=list)
+    label: str = ""                  # the name to show instead of scene/view shading mode
 
     @property
     def name(self) -> str:
-        return f"{self.scene}/{self.view_name} {self.shading} {self.mode}"
+        return self.label or f"{self.scene}/{self.view_name} {self.shading} {self.mode}"
 
     @property
     def exit_code(self) -> int:
@@ -91,7 +96,8 @@ class Verdict:
 
     def as_dict(self) -> dict:
         keys = ("scene", "scene_file", "view", "view_name", "shading", "mode", "status",
-                "reason", "excused", "result", "thresholds", "golden", "command", "seconds")
+                "reason", "excused", "result", "thresholds", "golden", "command", "seconds",
+                "metadata", "differences")
         out = {k: getattr(self, k) for k in keys}
         out["exit_code"] = self.exit_code
         out["name"] = self.name
@@ -343,6 +349,7 @@ def check_scene(scene_path, stores, *, modes=None, shadings=None, views=None,
                                                  scene.check.get("warn"), scene, ties)
                         verdict.command = golden_store.regenerate_command(
                             scene.path, g.path.parent.parent)
+                        _describe(verdict, matching(scene, g), v, mode, g, opts)
                         if keep_images:
                             verdict.ours = (ours.mean.astype(np.float32)
                                             if isinstance(ours, Batches) else ours)
@@ -354,6 +361,25 @@ def check_scene(scene_path, stores, *, modes=None, shadings=None, views=None,
                     progress(verdict)
                 out.append(verdict)
     return out
+
+
+def _describe(verdict: Verdict, sized, view: int, mode: str, golden, opts: dict) -> None:
+    """The metadata of ours (``sized``: the scene as rendered, at the golden's size) and of
+    the golden (its EXR header, else its sidecar) on ``verdict``, and the fields that
+    differ other than who rendered each."""
+    from renderer.device import types
+
+    from .imagemeta import differences, image_metadata, ours_metadata
+
+    spp = None
+    if mode == "converged":
+        spp = int(golden.meta.get("batch_spp", 1)) * int(golden.meta.get("batches", 1))
+    ours = ours_metadata(sized, view, backend=types(opts["backend"], opts["precision"]).backend,
+                         precision=opts["precision"], exact=mode == "exact", spp=spp)
+    theirs = image_metadata(golden.path) if golden.path and golden.path.is_file() else {}
+    verdict.metadata = {"ours": ours, "golden": theirs}
+    verdict.differences = differences(ours, theirs, names=("ours", "golden"),
+                                      ignore=("renderer",))
 
 
 def check_scenes(scene_paths, stores, **kw) -> list[Verdict]:
@@ -486,7 +512,9 @@ def report_entries(verdicts):
             verdict=v.status, verdict_reason=v.reason,
             thresholds={k: (t["value"], t["why"]) for k, t in v.thresholds.items()},
             info={"golden": v.golden or "—", "excused pixels": excused,
-                  "re-render the golden": v.command},
+                  "re-render the golden": v.command,
+                  **({"metadata differs": "; ".join(v.differences)} if v.differences else {})},
+            metadata=v.metadata,
             overlay=exact_overlay(v.ours, v.ref, {k: (t["value"],) for k, t in
                                                   v.thresholds.items()}, v.ties)
             if v.mode == "exact" and v.status == "FAIL" else None))
