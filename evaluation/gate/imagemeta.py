@@ -109,7 +109,9 @@ def image_metadata(path) -> dict[str, str]:
 def differences(a: dict, b: dict, names=("A", "B"), ignore=()) -> list[str]:
     """The fields whose values differ between metadata ``a`` and ``b``, in ``FIELDS`` order
     (then any other field), one phrase each: ``spp 1 (A) vs 16 (B)``; a field only one side
-    has is listed as ``absent`` on the other. Nothing when either side has no metadata."""
+    has is listed as ``absent`` on the other. Nothing when either side has no metadata. The
+    scene's name is not listed when both have the same ``scene_key`` (same content, another
+    file name); a golden's ``content_key`` only when both have one."""
     if not a or not b:
         return []
     keys = [k for k in FIELDS if k in a or k in b]
@@ -118,6 +120,8 @@ def differences(a: dict, b: dict, names=("A", "B"), ignore=()) -> list[str]:
     for k in keys:
         if k in ignore or a.get(k) == b.get(k):
             continue
+        if k == "scene" and a.get("scene_key") and a.get("scene_key") == b.get("scene_key"):
+            continue        # a file name; the content is the same
         if k == "content_key" and (k not in a or k not in b):
             continue        # a golden's lookup key: absent from ours by design
         out.append(f"{k} {a.get(k, 'absent')} ({names[0]}) vs {b.get(k, 'absent')} "
