@@ -293,6 +293,7 @@ def golden_metadata(meta: dict) -> dict[str, str]:
            "max_depth": meta.get("max_depth"),
            "backend": variant.split("_")[0] if variant else None,
            "precision": "float64" if "double" in variant else "float32" if variant else None,
+           "batches": meta.get("batches") if meta.get("mode") == "converged" else None,
            "content_key": meta.get("content_key")}
     return {k: str(v) for k, v in out.items() if v is not None}
 

@@ -140,6 +140,42 @@ def read_exr(path) -> np.ndarray:
     return read_exr_layers(path)[""]
 
 
+#: The first eight bytes of every PNG file.
+PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+
+
+def srgb_decode(values) -> np.ndarray:
+    """sRGB-encoded values in [0, 1] -> linear RGB (the inverse of ``srgb_encode``'s curve),
+    float32."""
+    x = np.asarray(values, np.float64)
+    return np.where(x <= 0.04045, x / 12.92, ((x + 0.055) / 1.055) ** 2.4).astype(np.float32)
+
+
+def read_png(path) -> np.ndarray:
+    """Read a PNG (8- or 16-bit; grey, grey + alpha, RGB or RGBA; alpha is dropped) as
+    linear RGB float32 (H, W, 3) through ``srgb_decode``. A file that is not a PNG, or is
+    damaged, is a ``ValueError`` naming it; one that cannot be opened its ``OSError``."""
+    import imageio.v3 as iio
+    path = Path(path)
+    with open(path, "rb") as f:
+        magic = f.read(8)
+    if magic != PNG_MAGIC:
+        raise ValueError(f"{path}: not a PNG file (starts with {magic[:4]!r})")
+    try:
+        data = np.asarray(iio.imread(path, extension=".png"))
+    except Exception as e:               # Pillow's errors for a truncated or damaged file
+        raise ValueError(f"{path}: truncated or damaged PNG file "
+                         f"({' '.join(str(e).split())[:120]})") from None
+    top = 65535.0 if data.dtype == np.uint16 or data.max(initial=0) > 255 else 255.0
+    if data.ndim == 2:
+        data = data[:, :, None]
+    if data.shape[2] in (2, 4):
+        data = data[:, :, :-1]           # drop alpha
+    if data.shape[2] == 1:
+        data = np.repeat(data, 3, axis=2)
+    return srgb_decode(data.astype(np.float64) / top)
+
+
 def srgb_encode(image) -> np.ndarray:
     """Linear RGB -> 8-bit sRGB (clamped to [0, 1]); uint8 (H, W, 3)."""
     x = np.clip(np.nan_to_num(np.asarray(image, np.float64), nan=0.0), 0.0, 1.0)

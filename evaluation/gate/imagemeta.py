@@ -21,6 +21,8 @@ spp           samples per pixel
 max_depth     the specular depth limit
 backend       ``llvm`` or ``cuda``
 precision     ``float32`` or ``float64``
+batches       a converged golden's number of independent batches (its ``var`` layer is the
+              variance of one batch); converged goldens only
 content_key   a golden's lookup key (``reference.golden.content_key``); goldens only
 ============  ===============================================================================
 
@@ -40,7 +42,7 @@ from renderer.film import EXR_MAGIC, read_exr_metadata
 
 #: Every field, in the order ``differences`` lists them.
 FIELDS = ("renderer", "scene", "scene_key", "view", "resolution", "shading", "mode", "spp",
-          "max_depth", "backend", "precision", "content_key")
+          "max_depth", "backend", "precision", "batches", "content_key")
 
 
 def renderer_version() -> str:
