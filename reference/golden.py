@@ -3,7 +3,8 @@
 **Stores.** A golden store is any folder. Inside it a golden is two files,
 ``<scene>/<view>_<shading>_<mode>.exr`` (linear RGB, float32, ZIP compressed; converged
 goldens also hold a ``var`` layer, channels ``var.R/G/B``: the per-pixel variance of one
-``batch_spp`` estimate, see ``render_converged_with_variance``) and its JSON sidecar ``.json``.
+``batch_spp`` estimate, see ``render_converged_with_variance``; its header carries the image
+metadata of ``golden_metadata``) and its JSON sidecar ``.json``.
 The folder names are only for people: a golden is *found* by its key. The bundled store
 (``reference/goldens``, ``BUNDLED_STORE``) is read-only to the command line; re-rendering a
 bundled golden is a developer action (``python -m reference.golden --bundled ...``, with the
