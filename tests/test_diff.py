@@ -230,6 +230,20 @@ def test_reports_are_written_and_files_not_ours_are_refused(pair, capsys):
     assert png.max() == 255 and png[1, 2].max() == 255 and png[0, 0].max() == 0
 
 
+def test_the_converged_rule_judges_two_converged_goldens(capsys):
+    """Converged goldens carry a var layer and their batch count (sidecar): a golden
+    against itself passes the t-test, against another view's it fails, and the line below
+    names the view."""
+    from reference.golden import BUNDLED_STORE
+
+    g = BUNDLED_STORE / "analytic_quad"
+    top, oblique = g / "top_classic_converged.exr", g / "oblique_classic_converged.exr"
+    assert _diff(top, top, "--rule", "converged", capsys=capsys)[0] == EXIT["ok"]
+    code, out, _ = _diff(top, oblique, "--rule", "converged", capsys=capsys)
+    assert code == EXIT["fail"] and out.startswith("FAIL ") and "t-test:" in out
+    assert "metadata differs: view top (A) vs oblique (B); content_key " in out
+
+
 def test_images_from_different_settings_print_the_fields_that_differ(tmp_path, capsys):
     """Two of our renders of one scene, one at 1 spp (exact) and one at 4 spp in float64:
     diff prints the metadata fields that differ (mode, spp, precision), not the ones that

@@ -111,7 +111,8 @@ def image_metadata(path) -> dict[str, str]:
 def differences(a: dict, b: dict, names=("A", "B"), ignore=()) -> list[str]:
     """The fields whose values differ between metadata ``a`` and ``b``, in ``FIELDS`` order
     (then any other field), one phrase each: ``spp 1 (A) vs 16 (B)``; a field only one side
-    has is listed as ``absent`` on the other. Nothing when either side has no metadata. The
+    has is listed as ``absent`` on the other; keys are shown by their first 12 hex digits.
+    Nothing when either side has no metadata. The
     scene's name is not listed when both have the same ``scene_key`` (same content, another
     file name); a golden's ``content_key`` only when both have one."""
     if not a or not b:
@@ -126,9 +127,13 @@ def differences(a: dict, b: dict, names=("A", "B"), ignore=()) -> list[str]:
             continue        # a file name; the content is the same
         if k == "content_key" and (k not in a or k not in b):
             continue        # a golden's lookup key: absent from ours by design
-        out.append(f"{k} {a.get(k, 'absent')} ({names[0]}) vs {b.get(k, 'absent')} "
-                   f"({names[1]})")
+        out.append(f"{k} {_shown(k, a)} ({names[0]}) vs {_shown(k, b)} ({names[1]})")
     return out
+
+
+def _shown(key: str, meta: dict) -> str:
+    value = meta.get(key, "absent")
+    return value[:12] if key in ("scene_key", "content_key") else value
 
 
 def format_differences(diff: list[str]) -> str:
