@@ -3,7 +3,8 @@
 **Stores.** A golden store is any folder. Inside it a golden is two files,
 ``<scene>/<view>_<shading>_<mode>.exr`` (linear RGB, float32, ZIP compressed; converged
 goldens also hold a ``var`` layer, channels ``var.R/G/B``: the per-pixel variance of one
-``batch_spp`` estimate, see ``render_converged_with_variance``) and its JSON sidecar ``.json``.
+``batch_spp`` estimate, see ``render_converged_with_variance``; its header carries the image
+metadata of ``golden_metadata``) and its JSON sidecar ``.json``.
 The folder names are only for people: a golden is *found* by its key. The bundled store
 (``reference/goldens``, ``BUNDLED_STORE``) is read-only to the command line; re-rendering a
 bundled golden is a developer action (``python -m reference.golden --bundled ...``, with the
@@ -334,6 +335,35 @@ def full_key(inputs: dict) -> str:
     return _sha(json.dumps(inputs, sort_keys=True).encode())
 
 
+def scene_key(inputs: dict) -> str:
+    """sha256 of the scene's own content in ``inputs`` (``golden_inputs``: the scene file's
+    ``scene_content_hash`` and its meshes' bytes), without view, mode or code: equal for
+    every image of the same scene content, ours or a golden (image metadata)."""
+    body = {"scene": inputs.get("scene"), "meshes": list(inputs.get("meshes", []))}
+    return _sha(json.dumps(body, sort_keys=True).encode())
+
+
+def golden_metadata(meta: dict) -> dict[str, str]:
+    """The image metadata of a golden (``renderer.film.write_exr(metadata=)``'s fields) from
+    its sidecar ``meta``: who rendered it, the scene's ``scene_key``, view, resolution and
+    settings, and the backend and precision of its Mitsuba variant. A golden written
+    before its EXR carried metadata is described by its sidecar through this too."""
+    inputs = meta.get("inputs") if isinstance(meta.get("inputs"), dict) else {}
+    variant = str(meta.get("variant", ""))
+    out = {"renderer": f"mitsuba {meta.get('mitsuba_version')} ({variant or '?'})",
+           "scene": meta.get("scene_name"), "scene_key": scene_key(inputs) if inputs else None,
+           "view": meta.get("view_name"),
+           "resolution": "x".join(str(int(x)) for x in meta.get("resolution", []))
+           if isinstance(meta.get("resolution"), list) else None,
+           "shading": meta.get("shading"), "mode": meta.get("mode"), "spp": meta.get("spp"),
+           "max_depth": meta.get("max_depth"),
+           "backend": variant.split("_")[0] if variant else None,
+           "precision": "float64" if "double" in variant else "float32" if variant else None,
+           "batches": meta.get("batches") if meta.get("mode") == "converged" else None,
+           "content_key": meta.get("content_key")}
+    return {k: str(v) for k, v in out.items() if v is not None}
+
+
 def _read_text(inputs: dict) -> str:
     read = inputs.get("read", {})
     parts = [f"-D {k}={v}" for k, v in sorted(read.get("defines", {}).items())]
@@ -648,7 +678,8 @@ def render_golden_job(job: dict, step=None) -> str:
                    variant=variant)
     # the image first, its sidecar last: an interrupted run leaves no sidecar that vouches
     # for a missing image (both writes are atomic: renderer.outputs)
-    write_exr(out, img, layers=None if var is None else {"var": var}, overwrite=True)
+    write_exr(out, img, layers=None if var is None else {"var": var}, overwrite=True,
+              metadata=golden_metadata(meta))
     write_text(out.with_suffix(".json"), json.dumps(meta, indent=1) + "\n", overwrite=True)
     if job.get("replaces"):
         old = Path(job["replaces"])

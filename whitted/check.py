@@ -18,6 +18,7 @@ import sys
 from pathlib import Path
 
 from evaluation.gate import verdict as vd
+from evaluation.gate.imagemeta import format_differences
 from reference import MODES
 from reference import golden as golden_store
 from renderer.accel import ACCELERATORS
@@ -169,6 +170,8 @@ def cmd_check(args: argparse.Namespace) -> int:
     def show(v):
         if not args.quiet:
             print(vd.format_line(v), file=out, flush=True)
+            if v.status != "PASS" and v.differences:
+                print(format_differences(v.differences), file=out, flush=True)
 
     verdicts = vd.check_scenes(args.scenes, stores, modes=args.modes, shadings=args.shadings,
                                views=_views(args.views), backend=args.backend,

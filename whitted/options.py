@@ -31,7 +31,7 @@ EXIT = {"ok": EXIT_CODES["PASS"], "warn": EXIT_CODES["WARN"], "fail": EXIT_CODES
 
 
 #: The exit-code table of ``whitted --help`` (and ``check --help``), from ``EXIT``.
-EXIT_CODE_HELP = f"""exit codes (idiff's style; check and compare: the largest verdict's):
+EXIT_CODE_HELP = f"""exit codes (idiff's style; check, compare, diff: the largest verdict's):
   {EXIT["ok"]}    PASS: done, or every comparison passed
   {EXIT["warn"]}    WARN: passed, but a [check.warn] level of a scene file was exceeded
   {EXIT["fail"]}    FAIL: an image differs from its golden; or a bad request (usage, option
