@@ -37,6 +37,13 @@ def test_metadata_round_trips_through_the_exr_header(tmp_path):
         read_exr_metadata(tmp_path / "x.exr")
 
 
+def with_check(text: str, lines: str) -> str:
+    """The scene text with ``lines`` in its ``[check]`` table (added when it has none)."""
+    if "\n[check]\n" in text:
+        return text.replace("\n[check]\n", "\n[check]\n" + lines, 1)
+    return text + "\n[check]\n" + lines
+
+
 def test_our_scene_key_is_the_golden_s_for_the_same_content(tmp_path):
     """ours_metadata's scene_key equals the bundled golden's (its sidecar) for the bundled
     scene and for a copy with another [check] table, and differs for an edited material."""
@@ -46,7 +53,7 @@ def test_our_scene_key_is_the_golden_s_for_the_same_content(tmp_path):
     ours = ours_metadata(load_scene(QUAD), 0, backend="llvm", precision="float32")
     assert ours["scene_key"] == theirs["scene_key"] and len(ours["scene_key"]) == 64
     copy = tmp_path / "copy.toml"
-    copy.write_text(QUAD.read_text() + '\n[check]\nshadings = ["classic"]\n')
+    copy.write_text(with_check(QUAD.read_text(), 'shadings = ["classic"]\n'))
     assert ours_metadata(load_scene(copy), 0, backend="llvm",
                          precision="float32")["scene_key"] == theirs["scene_key"]
     edited = tmp_path / "edited.toml"
@@ -67,8 +74,7 @@ def test_our_scene_key_is_the_golden_s_for_the_same_content(tmp_path):
 def store(tmp_path_factory):
     base = tmp_path_factory.mktemp("meta")
     scene = base / "quad.toml"
-    scene.write_text(QUAD.read_text() + '\n[check]\nshadings = ["classic"]\n'
-                     'modes = ["exact"]\n')
+    scene.write_text(with_check(QUAD.read_text(), 'shadings = ["classic"]\nmodes = ["exact"]\n'))
     store = base / "goldens"
     assert main(["reference", str(scene), "--goldens", str(store), "--size", "8",
                  "--quiet"]) == 0
