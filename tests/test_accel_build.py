@@ -143,9 +143,9 @@ def test_precision_constants_follow_the_precision():
 
 def test_reinsertion_memory_is_a_few_values_per_node():
     """The optimisation's tree is typed arrays (8 bytes a value), not Python objects: its
-    peak allocation (tracemalloc, output included) stays under 300 bytes per node, where a tree of lists and
-    box tuples takes about 570 (for the bunny subdivided four times, 17.8 M triangles,
-    about 10 GB)."""
+    peak allocation (tracemalloc, output included) stays under 300 bytes per node, where a
+    tree of lists and box tuples takes about 570 (for the bunny subdivided four times,
+    17.8 M triangles, about 10 GB)."""
     import tracemalloc
     V, faces = soup(20000, seed=3)
     a = build_bvh(V, faces, optimize=0)
