@@ -18,12 +18,12 @@ from __future__ import annotations
 
 import time
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from ..scene.model import TREE_BUILDS
-from .bvh_build import LEAF_SIZE, BVHArrays, build_bvh
+from .bvh_build import LEAF_SIZE, BVHArrays, build_bvh, raw_boxes
 from .cache import CacheWarning, TreeCache, code_version, content_key
 from .device_build import build_device
 from .traverse import LEAF_BIT
@@ -104,20 +104,44 @@ def binary_tree(scene, backend: str, *, build: str = "sah", cache: TreeCache | N
                       progress=progress and (lambda k: progress("sah", k)))
     seconds = time.perf_counter() - t0
     if cache is not None:
+        a = with_raw(a, scene)
         cache.put("tree", keys.get(chosen) or tree_key(scene, chosen, leaf_size),
                   *_to_entry(a))
     return a, TreeInfo(chosen, False, seconds)
+
+
+def with_raw(a: BVHArrays, scene) -> BVHArrays:
+    """``a`` with its unpadded float32 child boxes (``BVHArrays.raw``) of ``scene``'s
+    vertices, which a cache entry keeps so a cached tree's upload only pads them."""
+    if a.raw is not None or a.order.size == 0:
+        return a
+    return replace(a, raw=raw_boxes(a, scene.vertices, scene.faces, np.float32))
 
 
 def _to_entry(a: BVHArrays) -> tuple[dict, dict]:
     arrays = {"boxes": a.boxes, "children": a.children, "order": a.order,
               "bounds_lo": np.asarray(a.bounds[0], np.float64),
               "bounds_hi": np.asarray(a.bounds[1], np.float64)}
+    if a.raw is not None:
+        arrays["raw"] = a.raw
     if a.cells is not None:
         arrays["cell_lo"], arrays["cell_hi"] = a.cells
     meta = {"levels": a.levels, "leaf_count": a.leaf_count, "sah_cost": a.sah_cost,
             "build_seconds": a.build_seconds, "optimize_seconds": a.optimize_seconds}
     return arrays, meta
+
+
+def _raw_fits(raw: np.ndarray, boxes: np.ndarray) -> bool:
+    """Whether ``raw`` can be a tree's unpadded child boxes: float32 of the boxes' shape,
+    inside the (padded) boxes wherever those are finite."""
+    if raw.dtype != np.float32 or raw.shape != boxes.shape:
+        return False
+    with np.errstate(invalid="ignore"):
+        fin = np.isfinite(boxes)
+        lo = np.zeros(boxes.shape[1], bool)
+        lo[[0, 1, 2, 6, 7, 8]] = True
+        inside = np.where(lo, raw >= boxes, raw <= boxes)
+    return bool(np.all(inside | ~fin))
 
 
 def _from_entry(e: dict, face_count: int) -> BVHArrays | None:
@@ -136,10 +160,12 @@ def _from_entry(e: dict, face_count: int) -> BVHArrays | None:
         inner = ref[(ref & LEAF_BIT) == 0]
         ok = ok and (inner.size == 0 or int(inner.max()) < n)
         cells = (e["cell_lo"], e["cell_hi"]) if "cell_lo" in e else None
+        raw = e.get("raw")
+        ok = ok and (raw is None or _raw_fits(raw, boxes))
         a = BVHArrays(boxes, children, order, int(meta["levels"]), int(meta["leaf_count"]),
                       float(meta["sah_cost"]), float(meta["build_seconds"]),
                       (e["bounds_lo"], e["bounds_hi"]), cells,
-                      float(meta.get("optimize_seconds", 0.0)))
+                      float(meta.get("optimize_seconds", 0.0)), raw)
     except (KeyError, TypeError, ValueError):
         ok = False
     if not ok:
