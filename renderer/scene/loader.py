@@ -678,10 +678,8 @@ def _part_arrays(world: np.ndarray, faces: np.ndarray) -> dict:
     (those never hit in float32: ``triangle.pack`` stores them degenerate). The vertex
     normals of each precision come from its own face normals (a face without area in one
     precision does not count there)."""
-    p32 = world.astype(np.float32).astype(np.float64)
-    cross32 = np.cross(p32[faces[:, 1]] - p32[faces[:, 0]], p32[faces[:, 2]] - p32[faces[:, 0]])
-    cross = np.cross(world[faces[:, 1]] - world[faces[:, 0]],
-                     world[faces[:, 2]] - world[faces[:, 0]])
+    cross32 = _face_cross(world.astype(np.float32).astype(np.float64), faces)
+    cross = _face_cross(world, faces)
     area32, area2 = np.linalg.norm(cross32, axis=1), np.linalg.norm(cross, axis=1)
     keep = (area32 > 0) | (area2 > 0)
     faces = faces[keep]
@@ -695,6 +693,13 @@ def _part_arrays(world: np.ndarray, faces: np.ndarray) -> dict:
     return {"keep": keep, "faces": faces, "verts": verts,
             "normals": _vertex_normals(verts, faces, _unit_rows(cross32, area32), weld),
             "normals64": _vertex_normals(verts, faces, _unit_rows(cross, area2), weld)}
+
+
+def _face_cross(points: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """``(p1 - p0) x (p2 - p0)`` of each face (F, 3) over ``points`` (V, 3), from one
+    gather of the corners."""
+    P = points[faces]                                      # (F, 3 corners, 3)
+    return np.cross(P[:, 1] - P[:, 0], P[:, 2] - P[:, 0])
 
 
 def _compact(faces: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
