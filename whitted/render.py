@@ -14,6 +14,7 @@ import sys
 import time
 from pathlib import Path
 
+from renderer.device import start_backend
 from renderer.film import write_exr, write_png
 from renderer.orbit import PLAYBACK_FPS, mp4_available, render_orbit, write_gif, write_mp4
 from renderer.outputs import check_output_file
@@ -99,6 +100,7 @@ def output_files(scene, views: list[int], out: Path, orbit: bool) -> list[dict]:
 def cmd_render(args: argparse.Namespace) -> int:
     from . import STARTED
     t_imports = time.perf_counter() - STARTED
+    start_backend(args.backend)          # overlaps the device's start with the scene load
     t_load = time.perf_counter()
     scene, views = load_for_cli(args)
     t_load = time.perf_counter() - t_load
