@@ -98,7 +98,7 @@ def binary_tree(scene, backend: str, *, build: str = "sah", cache: TreeCache | N
                 return a, TreeInfo(chosen, True, time.perf_counter() - t0)
     if chosen == "device":
         a = build_device(scene.vertices, scene.faces, backend, leaf_size=leaf_size,
-                         progress=progress and (lambda k: progress("device", k)))
+                         progress=progress and (lambda k: progress("device", k)), raw=True)
     else:
         a = build_bvh(scene.vertices, scene.faces, leaf_size=leaf_size,
                       progress=progress and (lambda k: progress("sah", k)))
