@@ -262,3 +262,18 @@ def test_entry_whose_unpadded_boxes_leave_the_tree_is_rebuilt(tmp_path):
     assert not info.cached
     assert sum(issubclass(x.category, CacheWarning) for x in w) == 1
     _same_tree(a, b)
+
+
+def test_background_writes_are_whole_entries_after_flush(tmp_path):
+    """``TreeCache(background=True)``: ``put`` returns at once, ``flush`` waits, and the
+    entry then reads back as the synchronous cache's (reference: the tree built without a
+    cache)."""
+    scene = _scene()
+    cache = TreeCache(tmp_path, background=True)
+    a, _ = binary_tree(scene, "llvm", build="device", cache=cache)
+    cache.flush()
+    assert not cache._pending
+    b, info = binary_tree(scene, "llvm", build="device", cache=TreeCache(tmp_path))
+    assert info.cached
+    _same_tree(a, b)
+    _same_tree(b, binary_tree(scene, "llvm", build="device")[0])

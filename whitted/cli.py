@@ -116,6 +116,9 @@ def error_code(e: BaseException) -> tuple[int, str] | None:
 def _run(args: argparse.Namespace, box: dict, done: threading.Event) -> None:
     try:
         box["code"] = args.func(args) or 0
+        cache = getattr(args, "_cache", None)     # options.cache_for_cli's writes
+        if cache is not None:
+            cache.flush()
     except BaseException as e:  # noqa: BLE001 - handed to the main thread as it is
         box["error"] = e
     finally:

@@ -122,9 +122,14 @@ def read_scene(args: argparse.Namespace, path=None, *, cache=None) -> Scene:
 
 
 def cache_for_cli(args: argparse.Namespace):
-    """The tree cache the command line asks for: None with ``--no-cache``."""
+    """The tree cache the command line asks for: None with ``--no-cache``; one per command
+    (kept on ``args``), writing in the background (the command calls its ``flush``)."""
     from renderer.accel.cache import TreeCache
-    return None if getattr(args, "no_cache", False) else TreeCache()
+    if getattr(args, "no_cache", False):
+        return None
+    if getattr(args, "_cache", None) is None:
+        args._cache = TreeCache(background=True)
+    return args._cache
 
 
 #: The option (and ``Scene.with_overrides`` argument) each settings field comes from on the
