@@ -77,13 +77,23 @@ def version() -> str:
         return "0+unknown"
 
 
+class _Version(argparse.Action):
+    """``--version``: prints ``whitted <version>`` and exits; the version is read from the
+    installed metadata only then (importing ``importlib.metadata`` costs start-up time)."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        print(f"whitted {version()}")
+        parser.exit()
+
+
 def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
     """The command line's parser; given ``argv``, only with the subcommand it names (when
     it names one: ``command_modules``)."""
     parser = argparse.ArgumentParser(prog="whitted", description=__doc__.split("\n")[0],
                                      epilog=EXIT_CODE_HELP,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--version", action="version", version=f"whitted {version()}")
+    parser.add_argument("--version", action=_Version, nargs=0,
+                        help="show program's version number and exit")
     sub = parser.add_subparsers(dest="command", required=True)
     for module in command_modules([] if argv is None else argv):
         module.register(sub)

@@ -113,11 +113,16 @@ def add_import_options(p: argparse.ArgumentParser) -> None:
 def read_scene(args: argparse.Namespace, path=None, *, cache=None) -> Scene:
     """``load_scene`` of ``path`` (default ``args.scene``) with the options of
     ``add_import_options``, ``--shading`` and the tree cache ``cache``."""
-    from renderer.scene.mitsuba_xml import parse_defines
+    items = getattr(args, "defines", [])
+    if items:                        # the XML reader is imported only where -D is given
+        from renderer.scene.mitsuba_xml import parse_defines
+        defines = parse_defines(items)
+    else:
+        defines = {}
     return load_scene(args.scene if path is None else path,
                       shading=getattr(args, "shading", None),
                       camera=getattr(args, "camera", None),
-                      defines=parse_defines(getattr(args, "defines", [])),
+                      defines=defines,
                       approximate=getattr(args, "approximate", False), cache=cache)
 
 
