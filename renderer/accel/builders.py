@@ -63,11 +63,18 @@ class TreeInfo:
     seconds: float
 
 
-def tree_key(scene, build: str, leaf_size: int = LEAF_SIZE) -> str:
-    """The cache key of ``scene``'s tree from ``build`` ("sah" or "device")."""
-    return content_key(np.asarray(scene.vertices, np.float32),
-                       np.asarray(scene.faces, np.int64), build,
-                       {"leaf_size": leaf_size}, code_version())
+def triangles_key(scene) -> str:
+    """The content hash of ``scene``'s triangles (float32 vertices, faces)."""
+    return content_key(np.asarray(scene.vertices, np.float32), np.asarray(scene.faces))
+
+
+def tree_key(scene, build: str, leaf_size: int = LEAF_SIZE, triangles: str | None = None
+             ) -> str:
+    """The cache key of ``scene``'s tree from ``build`` ("sah" or "device");
+    ``triangles``: ``triangles_key(scene)`` when the caller has it (it hashes every
+    vertex and face)."""
+    return content_key(triangles or triangles_key(scene), build, {"leaf_size": leaf_size},
+                       code_version())
 
 
 def binary_tree(scene, backend: str, *, build: str = "sah", cache: TreeCache | None = None,
@@ -80,8 +87,9 @@ def binary_tree(scene, backend: str, *, build: str = "sah", cache: TreeCache | N
     check_build(build)
     t0 = time.perf_counter()
     keys = {}
+    tri = triangles_key(scene) if cache is not None else None
     if cache is not None:
-        keys["sah"] = tree_key(scene, "sah", leaf_size)
+        keys["sah"] = tree_key(scene, "sah", leaf_size, tri)
         if build == "auto":
             got = cache.get("tree", keys["sah"])
             if got is not None:
@@ -90,7 +98,7 @@ def binary_tree(scene, backend: str, *, build: str = "sah", cache: TreeCache | N
                     return a, TreeInfo("sah", True, time.perf_counter() - t0)
     chosen = resolve_build(build, scene.face_count, frames, False)
     if cache is not None and not (build == "auto" and chosen == "sah"):
-        keys[chosen] = keys.get(chosen) or tree_key(scene, chosen, leaf_size)
+        keys[chosen] = keys.get(chosen) or tree_key(scene, chosen, leaf_size, tri)
         got = cache.get("tree", keys[chosen])
         if got is not None:
             a = _from_entry(got, scene.face_count)
@@ -105,7 +113,7 @@ def binary_tree(scene, backend: str, *, build: str = "sah", cache: TreeCache | N
     seconds = time.perf_counter() - t0
     if cache is not None:
         a = with_raw(a, scene)
-        cache.put("tree", keys.get(chosen) or tree_key(scene, chosen, leaf_size),
+        cache.put("tree", keys.get(chosen) or tree_key(scene, chosen, leaf_size, tri),
                   *_to_entry(a))
     return a, TreeInfo(chosen, False, seconds)
 

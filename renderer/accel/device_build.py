@@ -19,7 +19,10 @@ The result is a ``BVHArrays`` like ``bvh_build.build_bvh``'s (inner nodes number
 by level, so every level is one contiguous run of nodes), its boxes padded on the device by
 ``pad_boxes``'s rule (the same float32 operations) and its SAH cost summed there, so the
 traversal, the wide conversion and the refit read it as they read the SAH tree, and the
-hits are the same bit for bit.
+hits are the same bit for bit. With ``raw=True`` it also carries the unpadded child boxes
+(``BVHArrays.raw``), which the traversal pads for its ray origins instead of refitting on
+the host. The interface to any other device builder is the same ``BVHArrays`` (boxes
+padded by ``pad_boxes``'s rule, children, order, levels, SAH cost, optionally ``raw``).
 """
 from __future__ import annotations
 
