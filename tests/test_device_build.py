@@ -179,3 +179,22 @@ def test_cuda_device_tree_is_valid_and_matches_brute_force():
     for name in ("bvh", "bvh4"):
         acc = build_accelerator(name, scene, t, build="device")
         assert_same_hits(hits(acc, ray, active, t), ref)
+
+
+@pytest.mark.parametrize("leaf_size", [1, 2])
+def test_device_raw_boxes_are_the_host_refit(leaf_size):
+    """``build_device(raw=True)``'s unpadded boxes are those ``bvh_build.raw_boxes`` computes
+    on the host over the same tree (reference), and padding them gives ``refit_boxes``'s
+    bytes; without ``raw`` the tree is the same and carries none."""
+    from renderer.accel.bvh_build import pad_refit, raw_boxes, refit_boxes
+
+    V, faces = soup(3000, seed=7)
+    a = build_device(V, faces, "llvm", leaf_size=leaf_size, raw=True)
+    ref = raw_boxes(a, V, faces, np.float32)
+    assert a.raw is not None and a.raw.dtype == np.float32
+    assert np.array_equal(a.raw, ref)
+    assert np.array_equal(pad_refit(a, a.raw, 7.5),
+                          refit_boxes(a, V, faces, np.float32, 7.5))
+    b = build_device(V, faces, "llvm", leaf_size=leaf_size)
+    assert b.raw is None and np.array_equal(a.boxes, b.boxes)
+    assert np.array_equal(a.children, b.children) and np.array_equal(a.order, b.order)
