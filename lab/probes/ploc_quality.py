@@ -34,7 +34,8 @@ for name in args.scenes:
         build_ploc(V, Fa, args.backend, radius=r)
         t = time.perf_counter()
         a = build_ploc(V, Fa, args.backend, radius=r, stats=st)
-        rows.append((f"ploc r={r}" + (" (fallback)" if st["fallback"] else ""), a,
+        rows.append((f"ploc r={r}" + (" (fallback)" if st["fallback"] else "")
+                     + (f" ({st['rebuilt']} rebuilt)" if st["rebuilt"] else ""), a,
                      time.perf_counter() - t, st["iterations"]))
     if args.sah:
         t = time.perf_counter()
