@@ -76,19 +76,47 @@ def test_coincident_triangles_halve_each_iteration():
 def test_a_tree_over_the_level_bound_falls_back_to_the_radix_tree():
     # nested triangles growing geometrically: each clusters with its smaller neighbour, one
     # merge per iteration, a chain 400 deep
-    k = np.arange(400)
-    chain = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], np.float64)[None] * (1.1 ** k)[:, None,
-                                                                                       None]
-    chain[:, :, 2] = k[:, None] * 1e-3
-    V = chain.reshape(-1, 3)
+    V = nested_chain(400)
     faces = np.arange(V.shape[0]).reshape(-1, 3)
     st = {}
     a = build_ploc(V, faces, "llvm", stats=st)
-    assert st["fallback"] and st["iterations"] < 100
+    assert st["fallback"] and st["iterations"] < 120
     check_bvh(a)
     child_boxes_nest(a, V, faces)
     b = build_device(V, faces, "llvm")
     assert np.array_equal(a.children, b.children) and np.array_equal(a.order, b.order)
+
+
+def nested_chain(n, scale=1.1):
+    """``n`` nested triangles growing geometrically (each clusters with its smaller
+    neighbour: a chain ``n - 1`` deep), in the unit cube."""
+    k = np.arange(n)
+    tri = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], np.float64)[None] * (scale ** k)[:, None,
+                                                                                     None]
+    tri[:, :, 2] = k[:, None] * 1e-3
+    return tri.reshape(-1, 3) / scale ** n
+
+
+def test_deep_subtrees_are_rebuilt_within_the_level_bound():
+    # a 60-deep chain beside a soup: the clustered tree is too deep, the chain's subtree
+    # is rebuilt balanced, the rest stays clustered
+    Vs, fs = soup(1000, seed=11)
+    Vc = nested_chain(60) + 0.3
+    V = np.concatenate([Vs, Vc])
+    faces = np.concatenate([fs, len(Vs) + np.arange(len(Vc)).reshape(-1, 3)])
+    st = {}
+    a = build_ploc(V, faces, "llvm", stats=st)
+    assert st["levels"] > MAX_LEVELS and st["rebuilt"] >= 1 and not st["fallback"]
+    check_bvh(a)
+    child_boxes_nest(a, V, faces)
+    assert a.levels == depth(a) <= MAX_LEVELS
+    assert a.sah_cost == pytest.approx(sah_cost(a), rel=1e-6)
+    t = types("llvm")
+    scene = scene_from_arrays(V, faces)
+    ray, active = random_rays(t, 3000, seed=12)
+    ref = hits(BruteForce.build(scene, t), ray, active, t)
+    acc = build_accelerator("bvh4", scene, t, build="ploc")
+    assert_same_hits(hits(acc, ray, active, t), ref)
 
 
 def test_morton_chain_and_tiny_scenes():
