@@ -4,7 +4,8 @@ Dr.Jit: the same code on CUDA and LLVM.
 Steps, each a few Dr.Jit kernels over all triangles, clusters or nodes:
 
 1. triangle boxes, the scene box and 30-bit Morton codes of the box centres, sorted by
-   ``dr.argsort``, as ``device_build`` makes them (large triangles keyed last);
+   ``dr.argsort``, as ``device_build`` makes them but without its large-triangle key
+   (clustering merges a large triangle late by itself: its union boxes are large);
 2. clustering: the sorted triangles are the first clusters. Each iteration, every cluster
    finds its nearest neighbour among the ``radius`` clusters on either side of it in the
    list: the one whose union box has the smallest surface area (ties ordered by a fixed
@@ -45,7 +46,6 @@ import numpy as np
 
 from .bvh_build import C_TRAV, LEAF_SIZE, MAX_LEVELS, BVHArrays, build_bvh
 from .device_build import (
-    BIG_TRIANGLE,
     MORTON_BITS,
     _levels_needed,
     _module,
@@ -105,11 +105,13 @@ def build_ploc(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm", *
     info = stats if stats is not None else {}
 
     # ---- 1. triangle boxes, Morton codes, sorted -------------------------------------------
-    vx, vy, vz = (Float(np.ascontiguousarray(Vn[:, k])) for k in range(3))
-    fi = [UInt32(np.ascontiguousarray(Fn[:, k].astype(np.uint32))) for k in range(3)]
+    v_flat = Float(Vn.reshape(-1))               # one upload each, gathered per corner
+    f_flat = UInt32(np.ascontiguousarray(Fn, np.uint32).reshape(-1))
+    tri = dr.arange(UInt32, F)
+    fi = [dr.gather(UInt32, f_flat, 3 * tri + k) * 3 for k in range(3)]
     lo, hi = [], []
-    for axis in (vx, vy, vz):
-        p = [dr.gather(Float, axis, fi[k]) for k in range(3)]
+    for axis in range(3):
+        p = [dr.gather(Float, v_flat, fi[k] + axis) for k in range(3)]
         lo.append(dr.minimum(dr.minimum(p[0], p[1]), p[2]))
         hi.append(dr.maximum(dr.maximum(p[0], p[1]), p[2]))
     dr.eval(lo, hi)
@@ -123,9 +125,6 @@ def build_ploc(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm", *
         c = (lo[k] + hi[k]) * 0.5
         q = UInt32(dr.clip((c - s_lo[k]) * inv, 0.0, scale - 1.0))
         code |= _spread(q) << (2 - k)
-    size = dr.maximum(dr.maximum(hi[0] - lo[0], hi[1] - lo[1]), hi[2] - lo[2])
-    ext = dr.maximum(dr.maximum(s_hi[0] - s_lo[0], s_hi[1] - s_lo[1]), s_hi[2] - s_lo[2])
-    code |= dr.select(size > ext * BIG_TRIANGLE, UInt32(1 << 30), 0)
     perm = dr.argsort(code)
     slo = [dr.gather(Float, x, perm) for x in lo]        # triangle boxes in sorted order
     shi = [dr.gather(Float, x, perm) for x in hi]
