@@ -82,9 +82,11 @@ def add_scene_options(p: argparse.ArgumentParser) -> None:
                    help=f"ray/triangle routine (default {DEFAULT_ROUTINE})")
     p.add_argument("--build", choices=BUILDS,
                    help="how the BVH is built: 'sah' (host SAH: the faster tree), 'device' "
-                        "(Dr.Jit on the backend: the faster build), 'auto' (default, or the "
-                        "scene's [render] build: a cached SAH tree, else the device build "
-                        "for a few frames of a large scene)")
+                        "(Dr.Jit on the backend: the faster build; PLOC), 'ploc' "
+                        "(locally-ordered clustering), 'radix' (Morton radix tree: the "
+                        "fastest build), 'auto' (default, or the scene's [render] build: a "
+                        "cached SAH tree, else the device build for a few frames of a large "
+                        "scene)")
     p.add_argument("--no-cache", action="store_true",
                    help="neither read nor write the cache of built trees ($WHITTED_CACHE, "
                         "else the user cache folder)")

@@ -27,8 +27,9 @@ SHADING_MODES = ("classic", "physical")
 #: ``spawn_ray`` / ``spawn_ray_to``, so a comparison with a Mitsuba golden traces the same
 #: rays; ``whitted check`` renders with the rule its golden records).
 SPAWN_RULES = ("scale-free", "mitsuba")
-#: How the BVH is built (``[render] build``; ``renderer.accel.builders``).
-TREE_BUILDS = ("sah", "device", "auto")
+#: How the BVH is built (``[render] build``; ``renderer.accel.builders``): "device" is the
+#: device builder of choice (``builders.DEVICE_BUILD``), "ploc" and "radix" name one.
+TREE_BUILDS = ("sah", "device", "ploc", "radix", "auto")
 #: Shadow-terminator treatments of smooth (interpolated-normal) faces (docs/MODEL.md,
 #: "Ray offsets"): "none" (the default, as Mitsuba 3: shadow rays leave the flat triangle)
 #: and "hanika" (Hanika 2021, "Hacking the shadow terminator": a shadow ray starts from the
