@@ -97,6 +97,20 @@ def types(backend: str = "auto", precision: str = "float32") -> Types:
     )
 
 
+def start_backend(backend: str):
+    """Start initialising the CUDA backend (driver, context) on a background thread, so it
+    overlaps with work that needs no device (reading the scene): ``types`` then finds it
+    ready. Returns the thread, or None for a backend other than "cuda" (the LLVM backend is
+    checked first by ``types``, and "auto" probes CUDA itself)."""
+    if backend != "cuda":
+        return None
+    import threading
+    th = threading.Thread(target=dr.has_backend, args=(dr.JitBackend.CUDA,), daemon=True,
+                          name="start cuda")
+    th.start()
+    return th
+
+
 #: Byte alignment of the host buffers device arrays are made from (``host_array``).
 HOST_ALIGN = 64
 

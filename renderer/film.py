@@ -184,10 +184,11 @@ def srgb_encode(image) -> np.ndarray:
 
 
 def write_png(path, image, *, overwrite: bool = False) -> Path:
-    """Write ``image`` (linear RGB (H, W, 3)) as an 8-bit sRGB PNG."""
-    import imageio.v3 as iio
+    """Write ``image`` (linear RGB (H, W, 3)) as an 8-bit sRGB PNG (through Pillow itself:
+    imageio's import and plugin layer cost a render's start-up more than the write)."""
+    from PIL import Image
     img = _check_image(image, str(path))
     path = Path(path)
     with atomic_path(path, overwrite=overwrite, flag="overwrite=True") as tmp:
-        iio.imwrite(tmp, srgb_encode(img), extension=".png")
+        Image.fromarray(np.ascontiguousarray(srgb_encode(img))).save(tmp, format="PNG")
     return path

@@ -128,21 +128,24 @@ def test_device_tree_matches_brute_force(accel):
 
 @pytest.mark.parametrize("name", SCENES)
 def test_images_equal_the_sah_trees_on_every_scene_and_view(name):
+    # "device" is the PLOC tree (builders.DEVICE_BUILD), "radix" the Morton radix tree
     scene = load_scene(ROOT / "scenes" / f"{name}.toml").with_overrides(size=(24, 24))
     sah = Renderer(scene, backend="llvm", build="sah")
-    dev = Renderer(scene, backend="llvm", build="device")
-    assert dev.arrays.accel.info["tree_build"] == "device"
-    for v in range(len(scene.cameras)):
-        a, b = sah.render(v).image, dev.render(v).image
-        assert np.array_equal(a, b), (name, scene.cameras[v].name)
+    for build in ("device", "radix"):
+        dev = Renderer(scene, backend="llvm", build=build)
+        assert dev.arrays.accel.info["tree_build"] == build
+        for v in range(len(scene.cameras)):
+            a, b = sah.render(v).image, dev.render(v).image
+            assert np.array_equal(a, b), (name, build, scene.cameras[v].name)
 
 
+@pytest.mark.parametrize("build", ["ploc", "radix"])
 @pytest.mark.parametrize("case", ["closed_mesh", "far_origin"])
-def test_hard_cases_through_the_device_tree(monkeypatch, case):
+def test_hard_cases_through_the_device_tree(monkeypatch, case, build):
     built = []
 
     def device_accel(name, scene, t, **kw):
-        acc = build_accelerator(name, scene, t, **{**kw, "build": "device"})
+        acc = build_accelerator(name, scene, t, **{**kw, "build": build})
         built.append(acc.info.get("tree_build"))
         return acc
 
@@ -152,7 +155,7 @@ def test_hard_cases_through_the_device_tree(monkeypatch, case):
     red = [f"{r.case} | {r.variant} | {r.criterion} | {r.measured}" for r in rows
            if not r.passed]
     assert rows and not red, "red rows:\n" + "\n".join(red)
-    assert "device" in built
+    assert build in built
 
 
 def test_every_tree_accelerator_takes_the_device_tree():
@@ -179,3 +182,22 @@ def test_cuda_device_tree_is_valid_and_matches_brute_force():
     for name in ("bvh", "bvh4"):
         acc = build_accelerator(name, scene, t, build="device")
         assert_same_hits(hits(acc, ray, active, t), ref)
+
+
+@pytest.mark.parametrize("leaf_size", [1, 2])
+def test_device_raw_boxes_are_the_host_refit(leaf_size):
+    """``build_device(raw=True)``'s unpadded boxes are those ``bvh_build.raw_boxes`` computes
+    on the host over the same tree (reference), and padding them gives ``refit_boxes``'s
+    bytes; without ``raw`` the tree is the same and carries none."""
+    from renderer.accel.bvh_build import pad_refit, raw_boxes, refit_boxes
+
+    V, faces = soup(3000, seed=7)
+    a = build_device(V, faces, "llvm", leaf_size=leaf_size, raw=True)
+    ref = raw_boxes(a, V, faces, np.float32)
+    assert a.raw is not None and a.raw.dtype == np.float32
+    assert np.array_equal(a.raw, ref)
+    assert np.array_equal(pad_refit(a, a.raw, 7.5),
+                          refit_boxes(a, V, faces, np.float32, 7.5))
+    b = build_device(V, faces, "llvm", leaf_size=leaf_size)
+    assert b.raw is None and np.array_equal(a.boxes, b.boxes)
+    assert np.array_equal(a.children, b.children) and np.array_equal(a.order, b.order)

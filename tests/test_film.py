@@ -24,3 +24,14 @@ def test_film_roundtrip_and_no_overwrite(tmp_path):
     mid = np.array([[[0.5, 0.0031308, 1.0]]])
     write_png(tmp_path / "m.png", mid)
     np.testing.assert_array_equal(iio.imread(tmp_path / "m.png")[0, 0], [188, 10, 255])
+
+
+def test_png_decodes_to_the_srgb_encoding(tmp_path):
+    """Every pixel of the written PNG is ``srgb_encode``'s byte (reference: the encoding
+    itself, read back by imageio)."""
+    import imageio.v3 as iio
+
+    from renderer.film import srgb_encode
+    img = np.random.default_rng(5).random((33, 47, 3)).astype(np.float32) * 1.2
+    write_png(tmp_path / "r.png", img)
+    np.testing.assert_array_equal(iio.imread(tmp_path / "r.png"), srgb_encode(img))

@@ -220,3 +220,60 @@ def test_scene_load_through_the_cache_gives_the_same_scene(tmp_path):
     hits, misses = cache.hits, cache.misses
     load_scene(_scene_file(tmp_path, levels=1), cache=cache)
     assert (cache.hits, cache.misses) == (hits + 1, misses + 2)
+
+
+@pytest.mark.parametrize("build", ["sah", "device"])
+@pytest.mark.parametrize("accel", ["bvh", "bvh4"])
+def test_cached_unpadded_boxes_upload_the_refitted_boxes(tmp_path, build, accel):
+    """A tree from the cache carries its unpadded boxes (``BVHArrays.raw``), and the
+    accelerator uploads from them exactly the node records a refit of the tree uploads
+    (reference: the same tree without ``raw``, padded by ``refit_boxes``)."""
+    from dataclasses import replace
+
+    from renderer.accel import build_accelerator
+    from renderer.device import types
+    from renderer.scene import load_scene
+
+    scene = load_scene(ROOT / "scenes" / "bunny.toml")
+    cache = TreeCache(tmp_path)
+    binary_tree(scene, "llvm", build=build, cache=cache)
+    hit, info = binary_tree(scene, "llvm", build=build, cache=cache)
+    assert info.cached and hit.raw is not None and hit.raw.dtype == np.float32
+    t = types("llvm", "float32")
+    cls = build_accelerator(accel, scene, t, build="sah").__class__
+    got = cls.build(scene, t, binary=hit)
+    ref = cls.build(scene, t, binary=replace(hit, raw=None))
+    assert np.array_equal(got.nodes.numpy(), ref.nodes.numpy())
+
+
+def test_entry_whose_unpadded_boxes_leave_the_tree_is_rebuilt(tmp_path):
+    """Unpadded boxes outside their padded boxes are not a tree's: the entry is rebuilt."""
+    from renderer.accel.builders import _to_entry
+
+    scene = _scene()
+    cache = TreeCache(tmp_path)
+    a, _ = binary_tree(scene, "llvm", build="sah", cache=cache)
+    arrays, meta = _to_entry(a)
+    arrays["raw"] = arrays["raw"] + np.float32(1.0)
+    cache.put("tree", tree_key(scene, "sah"), arrays, meta)
+    with warnings.catch_warnings(record=True) as w:
+        warnings.simplefilter("always")
+        b, info = binary_tree(scene, "llvm", build="sah", cache=cache)
+    assert not info.cached
+    assert sum(issubclass(x.category, CacheWarning) for x in w) == 1
+    _same_tree(a, b)
+
+
+def test_background_writes_are_whole_entries_after_flush(tmp_path):
+    """``TreeCache(background=True)``: ``put`` returns at once, ``flush`` waits, and the
+    entry then reads back as the synchronous cache's (reference: the tree built without a
+    cache)."""
+    scene = _scene()
+    cache = TreeCache(tmp_path, background=True)
+    a, _ = binary_tree(scene, "llvm", build="device", cache=cache)
+    cache.flush()
+    assert not cache._pending
+    b, info = binary_tree(scene, "llvm", build="device", cache=TreeCache(tmp_path))
+    assert info.cached
+    _same_tree(a, b)
+    _same_tree(b, binary_tree(scene, "llvm", build="device")[0])

@@ -45,24 +45,27 @@ from renderer.device import DeviceError
 from renderer.outputs import OutputError, remove_live_temporaries
 from renderer.scene import SceneError
 
-from . import (
-    bench,
-    check,
-    compare,
-    convert,
-    data,
-    diff,
-    hard_cases,
-    reference,
-    render,
-    study,
-    view,
-)
 from .options import EXIT, EXIT_CODE_HELP, CliError
 from .progress import STOP
 
-#: Modules that add subcommands, in the order ``--help`` lists them.
-COMMANDS = (render, compare, check, diff, reference, convert, bench, study, hard_cases, view, data)
+#: The subcommands and the ``whitted`` modules that add them, in the order ``--help``
+#: lists them. A command line that names one (``whitted render ...``) imports only its
+#: module (``command_modules``): the others' imports (the bench parts, the report, the
+#: viewer's server) cost start-up time that command never uses.
+COMMANDS = {"render": "render", "compare": "compare", "check": "check",
+            "diff": "diff", "reference": "reference", "export": "reference", "convert": "convert",
+            "bench": "bench",
+            "study": "study", "hard-cases": "hard_cases", "view": "view", "data": "data"}
+
+
+def command_modules(argv: list[str] | None = None) -> list:
+    """The modules ``build_parser`` registers for ``argv``: the named command's alone when
+    its first word is a command, else (``--help``, a typo, nothing) all of them."""
+    import importlib
+    argv = sys.argv[1:] if argv is None else argv
+    first = argv[0] if argv else None
+    names = [COMMANDS[first]] if first in COMMANDS else list(dict.fromkeys(COMMANDS.values()))
+    return [importlib.import_module(f".{n}", __package__) for n in names]
 
 
 def version() -> str:
@@ -75,13 +78,25 @@ def version() -> str:
         return "0+unknown"
 
 
-def build_parser() -> argparse.ArgumentParser:
+class _Version(argparse.Action):
+    """``--version``: prints ``whitted <version>`` and exits; the version is read from the
+    installed metadata only then (importing ``importlib.metadata`` costs start-up time)."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        print(f"whitted {version()}")
+        parser.exit()
+
+
+def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
+    """The command line's parser; given ``argv``, only with the subcommand it names (when
+    it names one: ``command_modules``)."""
     parser = argparse.ArgumentParser(prog="whitted", description=__doc__.split("\n")[0],
                                      epilog=EXIT_CODE_HELP,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--version", action="version", version=f"whitted {version()}")
+    parser.add_argument("--version", action=_Version, nargs=0,
+                        help="show program's version number and exit")
     sub = parser.add_subparsers(dest="command", required=True)
-    for module in COMMANDS:
+    for module in command_modules([] if argv is None else argv):
         module.register(sub)
     return parser
 
@@ -112,6 +127,9 @@ def error_code(e: BaseException) -> tuple[int, str] | None:
 def _run(args: argparse.Namespace, box: dict, done: threading.Event) -> None:
     try:
         box["code"] = args.func(args) or 0
+        cache = getattr(args, "_cache", None)     # options.cache_for_cli's writes
+        if cache is not None:
+            cache.flush()
     except BaseException as e:  # noqa: BLE001 - handed to the main thread as it is
         box["error"] = e
     finally:
@@ -120,7 +138,8 @@ def _run(args: argparse.Namespace, box: dict, done: threading.Event) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     """Parse ``argv``, run the subcommand in a worker thread, return its exit code."""
-    args = build_parser().parse_args(argv)
+    argv = sys.argv[1:] if argv is None else list(argv)
+    args = build_parser(argv).parse_args(argv)
     STOP.clear()
     if threading.current_thread() is threading.main_thread():
         # A shell starts background jobs with SIGINT ignored; `timeout -s INT whitted ... &`

@@ -82,9 +82,11 @@ def add_scene_options(p: argparse.ArgumentParser) -> None:
                    help=f"ray/triangle routine (default {DEFAULT_ROUTINE})")
     p.add_argument("--build", choices=BUILDS,
                    help="how the BVH is built: 'sah' (host SAH: the faster tree), 'device' "
-                        "(Dr.Jit on the backend: the faster build), 'auto' (default, or the "
-                        "scene's [render] build: a cached SAH tree, else the device build "
-                        "for a few frames of a large scene)")
+                        "(Dr.Jit on the backend: the faster build; PLOC), 'ploc' "
+                        "(locally-ordered clustering), 'radix' (Morton radix tree: the "
+                        "fastest build), 'auto' (default, or the scene's [render] build: a "
+                        "cached SAH tree, else the device build for a few frames of a large "
+                        "scene)")
     p.add_argument("--no-cache", action="store_true",
                    help="neither read nor write the cache of built trees ($WHITTED_CACHE, "
                         "else the user cache folder)")
@@ -127,18 +129,28 @@ def read_options(args: argparse.Namespace) -> dict:
 def read_scene(args: argparse.Namespace, path=None, *, cache=None) -> Scene:
     """``load_scene`` of ``path`` (default ``args.scene``) with the options of
     ``add_import_options``, ``--shading`` and the tree cache ``cache``."""
-    from renderer.scene.mitsuba_xml import parse_defines
+    items = getattr(args, "defines", [])
+    if items:                        # the XML reader is imported only where -D is given
+        from renderer.scene.mitsuba_xml import parse_defines
+        defines = parse_defines(items)
+    else:
+        defines = {}
     return load_scene(args.scene if path is None else path,
                       shading=getattr(args, "shading", None),
                       camera=getattr(args, "camera", None),
-                      defines=parse_defines(getattr(args, "defines", [])),
+                      defines=defines,
                       approximate=getattr(args, "approximate", False), cache=cache)
 
 
 def cache_for_cli(args: argparse.Namespace):
-    """The tree cache the command line asks for: None with ``--no-cache``."""
+    """The tree cache the command line asks for: None with ``--no-cache``; one per command
+    (kept on ``args``), writing in the background (the command calls its ``flush``)."""
     from renderer.accel.cache import TreeCache
-    return None if getattr(args, "no_cache", False) else TreeCache()
+    if getattr(args, "no_cache", False):
+        return None
+    if getattr(args, "_cache", None) is None:
+        args._cache = TreeCache(background=True)
+    return args._cache
 
 
 #: The option (and ``Scene.with_overrides`` argument) each settings field comes from on the

@@ -33,7 +33,7 @@ from .base import (
     traversal_triangles,
     uses_pairs,
 )
-from .bvh_build import BINS, LEAF_SIZE, BVHArrays, build_bvh, refit_boxes
+from .bvh_build import BINS, LEAF_SIZE, BVHArrays, build_bvh, pad_refit, refit_boxes
 from .layout import DONE
 from .query import Closest
 from .traverse import (
@@ -110,12 +110,15 @@ def traversal_boxes(a: BVHArrays, scene, t: Types, intersection: str) -> np.ndar
     """The node boxes of ``a`` that the traversal of ``intersection`` in precision ``t``
     needs: refitted (in float64 for float64 renders) and padded for the ray origins'
     reach (``pad_extent``); the build's own float32 boxes where no origin lies away from 0
-    (``box_reach`` 0)."""
+    (``box_reach`` 0). A float32 traversal of a tree that carries its unpadded boxes
+    (``BVHArrays.raw``: a cached tree) pads those (``pad_refit``): the same boxes."""
     if not (t.is_double or box_reach(scene, intersection) > 0):
         return a.boxes
+    extent = pad_extent(scene, intersection)
+    if not t.is_double and a.raw is not None and a.order.size:
+        return pad_refit(a, a.raw, extent)
     fdt = np.float64 if t.is_double else np.float32
-    return refit_boxes(a, scene.positions(t.is_double), scene.faces, fdt,
-                       pad_extent(scene, intersection))
+    return refit_boxes(a, scene.positions(t.is_double), scene.faces, fdt, extent)
 
 
 @dataclass

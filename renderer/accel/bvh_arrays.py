@@ -28,6 +28,9 @@ class BVHArrays:
         cell its reference was cut to (``renderer.accel.spatial``); ``order`` then holds a
         face once per reference.
     optimize_seconds: the part of build_seconds spent in ``renderer.accel.optimize``.
+    raw: None, or float32 (N, 12) the child boxes before padding, exactly the bounds of
+        each child's float32 triangles (``bvh_build.raw_boxes``), kept with a cached tree
+        so the traversal pads them for its ray origins without a refit.
     """
 
     boxes: np.ndarray
@@ -40,6 +43,7 @@ class BVHArrays:
     bounds: tuple = (np.zeros(3), np.zeros(3))
     cells: tuple | None = None
     optimize_seconds: float = 0.0
+    raw: np.ndarray | None = None
 
     @property
     def node_count(self) -> int:

@@ -590,13 +590,26 @@ def refit_boxes(a: BVHArrays, vertices: np.ndarray, faces: np.ndarray, dtype, ex
     """The boxes of ``a``'s tree recomputed from ``vertices`` (float (V, 3)) in ``dtype``
     (np.float32 or np.float64) and padded by ``pad_boxes(.., extent)``: (N, 12) of
     ``dtype``. The tree (children, order) is unchanged; boxes at infinity (the empty
-    child of a single-leaf tree) stay at infinity. Vectorised per tree level."""
+    child of a single-leaf tree) stay at infinity. Vectorised per tree level.
+    ``pad_refit(a, raw_boxes(a, ...), extent)`` is the same in two steps."""
+    if a.order.size == 0:
+        return np.array(a.boxes, np.dtype(dtype).type)
+    return pad_refit(a, raw_boxes(a, vertices, faces, dtype), extent)
+
+
+def raw_boxes(a: BVHArrays, vertices: np.ndarray, faces: np.ndarray, dtype) -> np.ndarray:
+    """``refit_boxes`` before its padding: the exact bounds of each child's triangles
+    (cells) in ``dtype``, (N, 12) like ``a.boxes`` (lo xyz, hi xyz of child A, then B);
+    +-inf where a child holds nothing. They depend on the tree and the vertices only, so a
+    cached tree keeps them (``BVHArrays.raw``) and the traversal's padding for any ray
+    origins is one elementwise step (``pad_refit``)."""
     dt = np.dtype(dtype).type
     N = a.node_count
-    boxes = np.array(a.boxes, dt)
     F = a.order.size
+    lo = np.full((N, 2, 3), np.inf, dt)                            # unpadded child boxes
+    hi = np.full((N, 2, 3), -np.inf, dt)
     if F == 0:
-        return boxes
+        return np.concatenate([lo[:, 0], hi[:, 0], lo[:, 1], hi[:, 1]], axis=1)
     V = np.asarray(vertices, dt)
     Fi = np.asarray(faces, np.int64)[a.order]
     p = [V[Fi[:, k]] for k in range(3)]
@@ -607,8 +620,6 @@ def refit_boxes(a: BVHArrays, vertices: np.ndarray, faces: np.ndarray, dtype, ex
     ref = a.children.astype(np.int64)
     is_leaf = (ref & LEAF_BIT) != 0
     real = np.isfinite(a.boxes.reshape(N, 2, 6)[:, :, 0])          # (N, 2)
-    lo = np.full((N, 2, 3), np.inf, dt)                            # unpadded child boxes
-    hi = np.full((N, 2, 3), -np.inf, dt)
     # leaves: reduce over their contiguous triangle ranges
     lf = is_leaf & real
     first = (ref[lf] & FIRST_MASK)
@@ -638,9 +649,18 @@ def refit_boxes(a: BVHArrays, vertices: np.ndarray, faces: np.ndarray, dtype, ex
             par, child = nodes[m], ref[nodes[m], k]
             lo[par, k] = np.minimum(lo[child, 0], lo[child, 1])
             hi[par, k] = np.maximum(hi[child, 0], hi[child, 1])
+    return np.concatenate([lo[:, 0], hi[:, 0], lo[:, 1], hi[:, 1]], axis=1)
+
+
+def pad_refit(a: BVHArrays, raw: np.ndarray, extent: float) -> np.ndarray:
+    """``raw`` (``raw_boxes``, (N, 12)) padded by ``pad_boxes(.., extent)`` in its dtype,
+    at infinity where ``a``'s own child box is (the empty child of a single-leaf tree)."""
+    N = a.node_count
+    real = np.isfinite(a.boxes.reshape(N, 2, 6)[:, :, 0])          # (N, 2)
+    boxes = np.empty_like(raw)
     for k in range(2):
         with np.errstate(invalid="ignore"):
-            plo, phi = pad_boxes(lo[:, k], hi[:, k], extent)
+            plo, phi = pad_boxes(raw[:, 6 * k:6 * k + 3], raw[:, 6 * k + 3:6 * k + 6], extent)
         boxes[:, 6 * k:6 * k + 3] = np.where(real[:, k, None], plo, np.inf)
         boxes[:, 6 * k + 3:6 * k + 6] = np.where(real[:, k, None], phi, np.inf)
     return boxes

@@ -15,7 +15,11 @@ misses.
 - bounded: after each write the least recently used entries (file mtimes, touched on
   every hit) are removed until the folder holds at most ``max_bytes``;
 - optional: a folder that cannot be made or written leaves the cache read-only or off,
-  without an error (one warning on the first failed write).
+  without an error (one warning on the first failed write);
+- in the background on request (``background=True``: the command line): ``put`` hands
+  the write to a thread and returns, so a cold process renders while its entries are
+  written; ``flush`` waits for them (a process that ends first still leaves whole entries
+  or none, by the atomic rename).
 
 The folder is ``$WHITTED_CACHE`` when set, else the user cache folder
 (``$XDG_CACHE_HOME/whitted``, ``~/.cache/whitted``; ``~/Library/Caches/whitted`` on macOS).
@@ -27,8 +31,9 @@ import io
 import json
 import os
 import sys
+import threading
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -67,7 +72,9 @@ class TreeCache:
     hits: int = 0
     misses: int = 0
     rejected: int = 0
+    background: bool = False
     _write_warned: bool = False
+    _pending: list = field(default_factory=list, repr=False)
 
     def __post_init__(self):
         self.folder = default_folder() if self.folder is None else Path(self.folder)
@@ -110,7 +117,23 @@ class TreeCache:
     def put(self, kind: str, key: str, arrays: dict, meta: dict | None = None) -> bool:
         """Store ``arrays`` (name -> numpy array) and ``meta`` (JSON-able) under ``key``,
         atomically, then trim the folder to ``max_bytes``. Returns False (one
-        ``CacheWarning`` per cache) where the folder cannot be written."""
+        ``CacheWarning`` per cache) where the folder cannot be written. With
+        ``background``, the write runs on a thread (``flush`` waits) and True is returned
+        at once (the arrays must not change afterwards)."""
+        if self.background:
+            th = threading.Thread(target=self._write, args=(kind, key, arrays, meta),
+                                  name=f"cache {kind}")
+            th.start()
+            self._pending.append(th)
+            return True
+        return self._write(kind, key, arrays, meta)
+
+    def flush(self) -> None:
+        """Wait for the writes ``put`` handed to threads (``background``)."""
+        while self._pending:
+            self._pending.pop().join()
+
+    def _write(self, kind: str, key: str, arrays: dict, meta: dict | None) -> bool:
         payload = _encode(arrays, dict(meta or {}, kind=kind, key=key))
         blob = MAGIC + hashlib.sha256(payload).digest() + payload
         try:

@@ -19,7 +19,10 @@ The result is a ``BVHArrays`` like ``bvh_build.build_bvh``'s (inner nodes number
 by level, so every level is one contiguous run of nodes), its boxes padded on the device by
 ``pad_boxes``'s rule (the same float32 operations) and its SAH cost summed there, so the
 traversal, the wide conversion and the refit read it as they read the SAH tree, and the
-hits are the same bit for bit.
+hits are the same bit for bit. With ``raw=True`` it also carries the unpadded child boxes
+(``BVHArrays.raw``), which the traversal pads for its ray origins instead of refitting on
+the host. The interface to any other device builder is the same ``BVHArrays`` (boxes
+padded by ``pad_boxes``'s rule, children, order, levels, SAH cost, optionally ``raw``).
 """
 from __future__ import annotations
 
@@ -30,6 +33,7 @@ import time
 import drjit as dr
 import numpy as np
 
+from ..device import host_array
 from .bvh_build import C_TRAV, LEAF_SIZE, MAX_LEVELS, BVHArrays, build_bvh
 from .traverse import COUNT_SHIFT, LEAF_BIT, MAX_LEAF
 from .triangle import unit_roundoff
@@ -84,35 +88,45 @@ def _bisect(UInt32, code, bit, a, b):
 
 def build_device(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm", *,
                  leaf_size: int = LEAF_SIZE, progress=None,
-                 phases: dict | None = None) -> BVHArrays:
+                 phases: dict | None = None, raw: bool = False) -> BVHArrays:
     """Build a BVH over ``faces`` (int (F, 3)) of ``vertices`` (float (V, 3)) on ``backend``
     ("cuda" or "llvm"; see the module docstring). ``leaf_size``: most triangles per leaf
     (1..16). ``progress``: called as ``progress(levels_done)`` after each level.
     ``phases``: None, or a dict that gets the seconds of each phase (the build then waits
     for the device at each phase's end, which costs a little). A scene of at most
-    ``leaf_size`` triangles gets ``build_bvh``'s single-leaf tree."""
+    ``leaf_size`` triangles gets ``build_bvh``'s single-leaf tree. ``raw``: also copy back
+    the unpadded child boxes (``BVHArrays.raw``, what ``bvh_build.raw_boxes`` computes on
+    the host), so the traversal pads them for its ray origins without a host refit."""
     if not 1 <= leaf_size <= MAX_LEAF:
         raise ValueError(f"leaf_size: expected 1..{MAX_LEAF}, got {leaf_size}")
     m = _module(backend)
     t_start = time.perf_counter()
     Vn = np.ascontiguousarray(np.asarray(vertices, np.float32))
-    Fn = np.asarray(faces, np.int64)
+    Fn = np.asarray(faces)
     F = int(Fn.shape[0])
     if F >= 1 << COUNT_SHIFT:
         raise ValueError(f"faces: at most {1 << COUNT_SHIFT} triangles, got {F}")
     if F <= leaf_size:
-        return build_bvh(Vn, Fn, leaf_size=leaf_size, spatial=0.0, optimize=0)
+        return build_bvh(Vn, Fn.astype(np.int64), leaf_size=leaf_size, spatial=0.0,
+                         optimize=0)
+    if Fn.size and (int(Fn.min()) < 0 or int(Fn.max()) >= Vn.shape[0]):
+        raise ValueError(f"faces: indices must lie in [0, {Vn.shape[0]})")
     if MAX_LEVELS < math.ceil(math.log2(math.ceil(F / leaf_size))) + 1:
         raise ValueError(f"faces: {F} triangles need more than {MAX_LEVELS} BVH levels")
     Float, UInt32 = m.Float, m.UInt32
     t_phase = [t_start]
 
     # ---- 1. triangle boxes and the scene box -----------------------------------------------
-    vx, vy, vz = (Float(np.ascontiguousarray(Vn[:, k])) for k in range(3))
-    fi = [UInt32(np.ascontiguousarray(Fn[:, k].astype(np.uint32))) for k in range(3)]
+    # one upload of each array as it lies in memory (no per-column copies on the host);
+    # the kernel gathers corner k's axis a at 3 * face[3 f + k] + a
+    # (``host_array``: aligned, so the LLVM kernels do not depend on numpy's addresses)
+    v_flat = Float(host_array(Vn.reshape(-1)))
+    f_flat = UInt32(host_array(Fn.reshape(-1), np.uint32))
+    i3 = dr.arange(UInt32, F) * 3
+    fi = [dr.gather(UInt32, f_flat, i3 + k) * 3 for k in range(3)]
     lo, hi = [], []
-    for axis in (vx, vy, vz):
-        p = [dr.gather(Float, axis, fi[k]) for k in range(3)]
+    for a in range(3):
+        p = [dr.gather(Float, v_flat, fi[k] + a) for k in range(3)]
         lo.append(dr.minimum(dr.minimum(p[0], p[1]), p[2]))
         hi.append(dr.maximum(dr.maximum(p[0], p[1]), p[2]))
     dr.eval(lo, hi)
@@ -240,6 +254,7 @@ def build_device(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm",
     extent = dr.maximum(dr.maximum(s_hi[0] - s_lo[0], s_hi[1] - s_lo[1]), s_hi[2] - s_lo[2])
     u32 = float(32 * unit_roundoff(False))
     boxes_d = dr.zeros(Float, 12 * N)
+    raw_d = dr.zeros(Float, 12 * N) if raw else None
     refs_d = dr.zeros(UInt32, 2 * N)
     area = dr.zeros(m.Float64, 1)
     for depth in range(levels):
@@ -257,13 +272,16 @@ def build_device(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm",
             for a in range(3):
                 dr.scatter(boxes_d, padded[a][0], 12 * ids + 6 * side + a)
                 dr.scatter(boxes_d, padded[a][1], 12 * ids + 6 * side + 3 + a)
+                if raw:
+                    dr.scatter(raw_d, lb[6 * side + a], 12 * ids + 6 * side + a)
+                    dr.scatter(raw_d, lb[6 * side + 3 + a], 12 * ids + 6 * side + 3 + a)
             d = [m.Float64(padded[a][1] - padded[a][0]) for a in range(3)]
             half = d[0] * d[1] + d[1] * d[2] + d[2] * d[0]
             weight = dr.select((ref & LEAF_BIT) != 0,
                                m.Float64(((ref >> COUNT_SHIFT) & 15) + 1), 1.0)
             area += dr.sum(half * weight)
         dr.scatter(refs_d, refs, 2 * base + dr.arange(UInt32, 2 * size))
-    dr.eval(boxes_d, refs_d, area)
+    dr.eval(boxes_d, refs_d, area, raw_d)
 
     # ---- the host arrays ------------------------------------------------------------------
     boxes = np.asarray(boxes_d.numpy(), np.float32).reshape(N, 12)
@@ -276,7 +294,8 @@ def build_device(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm",
     dd = bounds[1] - bounds[0]
     root = float(dd[0] * dd[1] + dd[1] * dd[2] + dd[2] * dd[0])
     sah = (C_TRAV * root + float(area.numpy()[0])) / root if root > 0 else 0.0
-    arrays = BVHArrays(boxes, ch, order, levels, leaf_count, sah, 0.0, bounds)
+    raw_h = np.asarray(raw_d.numpy(), np.float32).reshape(N, 12) if raw else None
+    arrays = BVHArrays(boxes, ch, order, levels, leaf_count, sah, 0.0, bounds, raw=raw_h)
     arrays.build_seconds = time.perf_counter() - t_start
     if phases is not None:
         _phase(phases, "host layout and copy", t_phase)

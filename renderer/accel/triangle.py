@@ -26,7 +26,7 @@ from __future__ import annotations
 import drjit as dr
 import numpy as np
 
-from ..device import Types, array3, host_array, rcp
+from ..device import Types, host_array, rcp
 from ..device import unit_roundoff as unit_roundoff
 from .base import DeviceTriangles, gather_floats
 
@@ -251,7 +251,8 @@ def box_reach(scene, routine: str) -> float:
     slab test never rejects a ray the triangle test would accept); and the slab test's FMA
     form moves its planes by up to a unit of roundoff of ``|o|`` (``traverse.box_ray``,
     where origins beyond the reach enter every box), whichever routine the boxes serve."""
-    mags = [float(np.max(np.abs(scene.positions(True)))) if scene.face_count else 0.0]
+    V = scene.vertices64 if scene.vertices64 is not None else scene.vertices
+    mags = [float(np.max(np.abs(V))) if scene.face_count else 0.0]
     mags += [float(np.max(np.abs(c.position))) for c in scene.cameras]
     mags += [float(np.max(np.abs(li.position))) for li in scene.lights]
     return max(mags)
@@ -282,12 +283,26 @@ def pack(vertices: np.ndarray, faces: np.ndarray, layout: str = "edges") -> np.n
     ``normalize((p1 - p0) x (p2 - p0))`` (zero for a triangle without area: never hits)."""
     if layout not in ("edges", "vertices"):
         raise ValueError(f"layout: expected 'edges' or 'vertices', got {layout!r}")
+    corners = _corners(vertices, faces)
+    return _pack_rows(corners, layout, np.float64)
+
+
+def _corners(vertices: np.ndarray, faces: np.ndarray):
+    """``(p0, p1, p2, n, length)`` of the triangles: float64 corners (F, 3), the cross
+    product ``(p1 - p0) x (p2 - p0)`` (F, 3) and its length (F, 1), computed once for both
+    the packed rows and the geometric normals."""
     V = np.asarray(vertices).astype(np.float64)
     p0, p1, p2 = (V[faces[:, k]] for k in range(3))
-    packed = np.zeros((faces.shape[0], STRIDE), np.float64)
-    packed[:, 0:3] = p0
     n = np.cross(p1 - p0, p2 - p0)
-    length = np.linalg.norm(n, axis=1, keepdims=True)
+    return p0, p1, p2, n, np.linalg.norm(n, axis=1, keepdims=True)
+
+
+def _pack_rows(corners, layout: str, dtype) -> np.ndarray:
+    """``pack``'s rows from ``_corners``, written straight into ``dtype`` (each value
+    rounded once, as the float64 rows cast to ``dtype``)."""
+    p0, p1, p2, n, length = corners
+    packed = np.zeros((p0.shape[0], STRIDE), dtype)
+    packed[:, 0:3] = p0
     if layout == "edges":
         # a triangle without area in these vertices (kept for the other precision, where it
         # has some) gets zero edges: det = 0, so it never hits
@@ -315,27 +330,34 @@ def upload_triangles(scene, t: Types, order: np.ndarray | None = None,
     ``(tri_data, tris)``, the packed geometry of ``pack`` (in the layout ``routine``
     reads) as a Float and the ``DeviceTriangles``. Normals are uploaded when
     ``with_normals`` (default: when any object is smooth). The vertices are those of the
-    precision in use (``Scene.positions``)."""
+    precision in use (``Scene.positions``); corners, cross products and their lengths are
+    computed once for the packed rows and the unit geometric normals."""
     F = scene.face_count
     order = np.arange(F, dtype=np.int64) if order is None else np.asarray(order, np.int64)
     faces = scene.faces[order]
-    V = scene.positions(t.is_double)
-    packed = pack(V, faces, layout_of(routine))
-    V = V.astype(np.float64)
-    ng = np.cross(V[faces[:, 1]] - V[faces[:, 0]], V[faces[:, 2]] - V[faces[:, 0]])
-    ng /= np.maximum(np.linalg.norm(ng, axis=1, keepdims=True), 1e-300)
+    fdt = np.float64 if t.is_double else np.float32
+    corners = _corners(scene.positions(t.is_double), faces)
+    packed = _pack_rows(corners, layout_of(routine), fdt)
+    n, length = corners[3], corners[4]
+    ng = n / np.maximum(length, 1e-300)
     smooth = scene.face_smooth[order]
     if with_normals is None:
         with_normals = bool(smooth.any())
     if with_normals:
-        N = scene.normals_of(t.is_double).astype(np.float64)
-        n0, n1, n2 = (array3(t, N[faces[:, k]]) for k in range(3))
+        N = scene.normals_of(t.is_double)
+        n0, n1, n2 = (columns3(t, N[faces[:, k]]) for k in range(3))
     else:
         n0 = n1 = n2 = t.Array3f(0, 0, 0)
-    fdt = np.float64 if t.is_double else np.float32
     tri_data = t.Float(host_array(packed.reshape(-1), fdt))
     tris = DeviceTriangles(
-        ng=array3(t, ng), n0=n0, n1=n1, n2=n2,
+        ng=columns3(t, ng), n0=n0, n1=n1, n2=n2,
         material=t.UInt32(host_array(scene.face_material[order], np.uint32)),
         smooth=t.Bool(host_array(smooth, bool)), order=t.UInt32(host_array(order, np.uint32)))
     return tri_data, tris
+
+
+def columns3(t: Types, rows: np.ndarray):
+    """``t.Array3f`` of host rows (N, 3) of any float dtype, each column cast once to the
+    precision in use (as ``device.array3``, without its float64 copy)."""
+    fdt = np.float64 if t.is_double else np.float32
+    return t.Array3f(*(t.Float(host_array(rows[:, k], fdt)) for k in range(3)))

@@ -692,10 +692,8 @@ def _part_arrays(world: np.ndarray, faces: np.ndarray) -> dict:
     (those never hit in float32: ``triangle.pack`` stores them degenerate). The vertex
     normals of each precision come from its own face normals (a face without area in one
     precision does not count there)."""
-    p32 = world.astype(np.float32).astype(np.float64)
-    cross32 = np.cross(p32[faces[:, 1]] - p32[faces[:, 0]], p32[faces[:, 2]] - p32[faces[:, 0]])
-    cross = np.cross(world[faces[:, 1]] - world[faces[:, 0]],
-                     world[faces[:, 2]] - world[faces[:, 0]])
+    cross32 = _face_cross(world.astype(np.float32).astype(np.float64), faces)
+    cross = _face_cross(world, faces)
     area32, area2 = np.linalg.norm(cross32, axis=1), np.linalg.norm(cross, axis=1)
     keep = (area32 > 0) | (area2 > 0)
     faces = faces[keep]
@@ -703,12 +701,60 @@ def _part_arrays(world: np.ndarray, faces: np.ndarray) -> dict:
     if len(faces) == 0:
         return {"keep": keep, "faces": faces, "verts": world[:0], "normals": world[:0],
                 "normals64": world[:0]}
-    used, faces = np.unique(faces, return_inverse=True)   # compact to used vertices
-    faces = faces.reshape(-1, 3)
+    used, faces = _compact(faces, world.shape[0])        # compact to used vertices
     verts = world[used]
+    weld = _weld(verts)
     return {"keep": keep, "faces": faces, "verts": verts,
-            "normals": _vertex_normals(verts, faces, _unit_rows(cross32, area32)),
-            "normals64": _vertex_normals(verts, faces, _unit_rows(cross, area2))}
+            "normals": _vertex_normals(verts, faces, _unit_rows(cross32, area32), weld),
+            "normals64": _vertex_normals(verts, faces, _unit_rows(cross, area2), weld)}
+
+
+def _face_cross(points: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """``(p1 - p0) x (p2 - p0)`` of each face (F, 3) over ``points`` (V, 3), from one
+    gather of the corners."""
+    P = points[faces]                                      # (F, 3 corners, 3)
+    return np.cross(P[:, 1] - P[:, 0], P[:, 2] - P[:, 0])
+
+
+def _compact(faces: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """``np.unique(faces, return_inverse=True)`` for indices below ``n``: the used indices
+    in ascending order and the faces (F, 3) renumbered over them, by a mask (no sort)."""
+    mask = np.zeros(n, bool)
+    mask[faces.reshape(-1)] = True
+    used = np.flatnonzero(mask)
+    remap = np.cumsum(mask, dtype=np.int64) - 1
+    return used, remap[faces]
+
+
+def _mix(x: np.ndarray) -> np.ndarray:
+    """SplitMix64's finaliser of uint64 ``x`` (every input bit moves every output bit)."""
+    x = x ^ (x >> np.uint64(30))
+    x *= np.uint64(0xBF58476D1CE4E5B9)
+    x ^= x >> np.uint64(27)
+    x *= np.uint64(0x94D049BB133111EB)
+    return x ^ (x >> np.uint64(31))
+
+
+def _row_hash(bits: np.ndarray) -> np.ndarray:
+    """A uint64 hash of each row of ``bits`` (V, 3) uint64."""
+    return _mix(_mix(_mix(bits[:, 0]) ^ bits[:, 1]) ^ bits[:, 2])
+
+
+def _weld(verts: np.ndarray) -> np.ndarray:
+    """A label per row of ``verts`` (V, 3), equal for equal rows (floats compared as
+    numbers: -0.0 equals 0.0) and different otherwise: the grouping of
+    ``np.unique(verts, axis=0, return_inverse=True)``, from a hash of each row's bits (one
+    1-D sort instead of a row sort), checked row by row; a collision, or a NaN, falls back
+    to the row sort."""
+    v = np.ascontiguousarray(verts, np.float64) + 0.0      # -0.0 -> 0.0
+    h = _row_hash(v.view(np.uint64))
+    _, label = np.unique(h, return_inverse=True)
+    label = label.reshape(-1)
+    rep = np.empty(int(label.max()) + 1 if label.size else 0, np.int64)
+    rep[label] = np.arange(label.size)
+    if np.array_equal(v[rep[label]], v):
+        return label
+    return np.unique(verts, axis=0, return_inverse=True)[1].reshape(-1)
 
 
 def _assemble(r: _Reader, parts: list[_Part], a: Assembly, cache=None) -> Scene:
@@ -768,20 +814,26 @@ def _unit_rows(v: np.ndarray, length: np.ndarray) -> np.ndarray:
     return np.where(length[:, None] > 0, v / np.where(length > 0, length, 1.0)[:, None], 0.0)
 
 
-def _vertex_normals(verts: np.ndarray, faces: np.ndarray, face_n: np.ndarray) -> np.ndarray:
+def _vertex_normals(verts: np.ndarray, faces: np.ndarray, face_n: np.ndarray,
+                    weld: np.ndarray | None = None) -> np.ndarray:
     """Normalised plain average of the unit normals of the faces sharing each vertex;
-    coincident positions are welded for the average (smooth across mesh seams)."""
-    _, weld = np.unique(verts, axis=0, return_inverse=True)
-    weld = weld.reshape(-1)
-    acc = np.zeros((weld.max() + 1, 3))
-    for c in range(3):
-        np.add.at(acc, weld[faces[:, c]], face_n)
+    coincident positions are welded for the average (smooth across mesh seams; ``weld``:
+    ``_weld(verts)``, computed when None). Each vertex's sum adds its faces' normals in the
+    order corner 0 of every face, then corner 1, then corner 2 (``np.bincount`` adds in
+    input order)."""
+    weld = _weld(verts) if weld is None else weld
+    L = int(weld.max()) + 1
+    idx = np.concatenate([weld[faces[:, c]] for c in range(3)])
+    acc = np.empty((L, 3))
+    for k in range(3):
+        acc[:, k] = np.bincount(idx, weights=np.tile(face_n[:, k], 3), minlength=L)
     n = acc[weld]
     length = np.linalg.norm(n, axis=1)
     # Opposing faces can cancel: fall back to the normal of one adjacent face.
-    fallback = np.zeros_like(n)
-    fallback[faces.reshape(-1)] = np.repeat(face_n, 3, axis=0)
     bad = length < 1e-12
-    n[bad] = fallback[bad]
-    length[bad] = 1.0
+    if bad.any():
+        fallback = np.zeros_like(n)
+        fallback[faces.reshape(-1)] = np.repeat(face_n, 3, axis=0)
+        n[bad] = fallback[bad]
+        length[bad] = 1.0
     return n / length[:, None]

@@ -27,8 +27,9 @@ SHADING_MODES = ("classic", "physical")
 #: ``spawn_ray`` / ``spawn_ray_to``, so a comparison with a Mitsuba golden traces the same
 #: rays; ``whitted check`` renders with the rule its golden records).
 SPAWN_RULES = ("scale-free", "mitsuba")
-#: How the BVH is built (``[render] build``; ``renderer.accel.builders``).
-TREE_BUILDS = ("sah", "device", "auto")
+#: How the BVH is built (``[render] build``; ``renderer.accel.builders``): "device" is the
+#: device builder of choice (``builders.DEVICE_BUILD``), "ploc" and "radix" name one.
+TREE_BUILDS = ("sah", "device", "ploc", "radix", "auto")
 #: Shadow-terminator treatments of smooth (interpolated-normal) faces (docs/MODEL.md,
 #: "Ray offsets"): "none" (the default, as Mitsuba 3: shadow rays leave the flat triangle)
 #: and "hanika" (Hanika 2021, "Hacking the shadow terminator": a shadow ray starts from the
@@ -135,6 +136,14 @@ def size_limit(double: bool) -> float:
     return float(np.cbrt(float(f.tiny) / float(f.eps)))
 
 
+def used_vertices(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """The rows of ``vertices`` (V, 3) that ``faces`` (F, 3) index, each once, in vertex
+    order (their min and max are those over the faces' corners)."""
+    used = np.zeros(vertices.shape[0], bool)
+    used[faces.reshape(-1)] = True
+    return vertices if used.all() else vertices[used]
+
+
 def check_ranges(scene: "Scene", precision: str = "float32") -> None:
     """Numerical guard before upload: every vertex, camera and light position within the
     precision's coordinate limit and every light intensity within its intensity limit
@@ -173,7 +182,7 @@ def check_ranges(scene: "Scene", precision: str = "float32") -> None:
             fail(f"objects[{k}] ({obj.name!r}) vertices", "coordinate",
                  float(np.max(np.abs(v))), c_lim)
     if scene.face_count:
-        used = V[scene.faces.reshape(-1)]
+        used = used_vertices(V, scene.faces)
         extent = float(np.max(used.max(axis=0) - used.min(axis=0)))
         s_lim = size_limit(double)
         if extent < s_lim:
@@ -469,8 +478,8 @@ class Scene:
         """(lo, hi) float64 (3,) of all vertices used by faces."""
         if self.face_count == 0:
             return np.zeros(3), np.zeros(3)
-        used = self.vertices[self.faces.reshape(-1)].astype(np.float64)
-        return used.min(axis=0), used.max(axis=0)
+        used = used_vertices(self.vertices, self.faces)
+        return used.min(axis=0).astype(np.float64), used.max(axis=0).astype(np.float64)
 
     @property
     def diagonal(self) -> float:
