@@ -128,21 +128,24 @@ def test_device_tree_matches_brute_force(accel):
 
 @pytest.mark.parametrize("name", SCENES)
 def test_images_equal_the_sah_trees_on_every_scene_and_view(name):
+    # "device" is the PLOC tree (builders.DEVICE_BUILD), "radix" the Morton radix tree
     scene = load_scene(ROOT / "scenes" / f"{name}.toml").with_overrides(size=(24, 24))
     sah = Renderer(scene, backend="llvm", build="sah")
-    dev = Renderer(scene, backend="llvm", build="device")
-    assert dev.arrays.accel.info["tree_build"] == "device"
-    for v in range(len(scene.cameras)):
-        a, b = sah.render(v).image, dev.render(v).image
-        assert np.array_equal(a, b), (name, scene.cameras[v].name)
+    for build in ("device", "radix"):
+        dev = Renderer(scene, backend="llvm", build=build)
+        assert dev.arrays.accel.info["tree_build"] == build
+        for v in range(len(scene.cameras)):
+            a, b = sah.render(v).image, dev.render(v).image
+            assert np.array_equal(a, b), (name, build, scene.cameras[v].name)
 
 
+@pytest.mark.parametrize("build", ["ploc", "radix"])
 @pytest.mark.parametrize("case", ["closed_mesh", "far_origin"])
-def test_hard_cases_through_the_device_tree(monkeypatch, case):
+def test_hard_cases_through_the_device_tree(monkeypatch, case, build):
     built = []
 
     def device_accel(name, scene, t, **kw):
-        acc = build_accelerator(name, scene, t, **{**kw, "build": "device"})
+        acc = build_accelerator(name, scene, t, **{**kw, "build": build})
         built.append(acc.info.get("tree_build"))
         return acc
 
@@ -152,7 +155,7 @@ def test_hard_cases_through_the_device_tree(monkeypatch, case):
     red = [f"{r.case} | {r.variant} | {r.criterion} | {r.measured}" for r in rows
            if not r.passed]
     assert rows and not red, "red rows:\n" + "\n".join(red)
-    assert "device" in built
+    assert build in built
 
 
 def test_every_tree_accelerator_takes_the_device_tree():

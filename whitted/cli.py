@@ -3,6 +3,7 @@
     whitted render  SCENE.toml   render with the Dr.Jit tracer → EXR + PNG
     whitted compare SCENE.toml   ours vs Mitsuba's golden → verdict, HTML side-by-side report
     whitted check   SCENE...     regression gate: one verdict per view, idiff exit codes
+    whitted diff    A B          two images (EXR or PNG) judged by check's rules
     whitted reference SCENE...   (re)render Mitsuba golden images
     whitted export  SCENE.toml --mitsuba-xml OUT.xml [--portable]
     whitted convert SCENE OUT.toml   an OBJ + MTL, PLY or Mitsuba XML scene as a TOML file
@@ -13,8 +14,8 @@
     whitted view    SCENE        interactive viewer in the browser, Mitsuba side by side
 
 Each subcommand lives in its own module (``whitted/render.py``, ``compare.py``,
-``check.py``, ``reference.py``, ``convert.py``, ``bench.py``, ``study.py``, ``data.py``,
-``hard_cases.py``, ``view.py``)
+``check.py``, ``diff.py``, ``reference.py``, ``convert.py``, ``bench.py``, ``study.py``,
+``data.py``, ``hard_cases.py``, ``view.py``)
 with ``register(subparsers)``, which sets ``func``; the options they share are in
 ``whitted/options.py``. Mitsuba is imported only by the subcommands that run it, when they
 run, so ``render`` works with only the core dependencies installed.
@@ -22,8 +23,8 @@ run, so ``render`` works with only the core dependencies installed.
 Exit codes: one table for every command, ``options.EXIT``, defined from the verdict codes
 ``evaluation.gate.verdict.EXIT_CODES`` (OpenImageIO ``idiff``'s style: 0 pass, 1 warn, 2 fail or
 bad request, 3 size, 4 missing/stale golden or file error, 130 Ctrl-C);
-``options.EXIT_CODE_HELP`` is the table ``whitted --help`` shows. ``check`` and ``compare``
-exit with the largest code of their verdicts.
+``options.EXIT_CODE_HELP`` is the table ``whitted --help`` shows. ``check``, ``compare`` and
+``diff`` exit with the largest code of their verdicts.
 
 Every error is one ``error:`` line on stderr, never a traceback; warnings are one
 ``warning:`` line. The command runs in a worker thread while the main thread waits, so
@@ -52,7 +53,7 @@ from .progress import STOP
 #: module (``command_modules``): the others' imports (the bench parts, the report, the
 #: viewer's server) cost start-up time that command never uses.
 COMMANDS = {"render": "render", "compare": "compare", "check": "check",
-            "reference": "reference", "export": "reference", "convert": "convert",
+            "diff": "diff", "reference": "reference", "export": "reference", "convert": "convert",
             "bench": "bench",
             "study": "study", "hard-cases": "hard_cases", "view": "view", "data": "data"}
 

@@ -137,7 +137,12 @@ def cmd_render(args: argparse.Namespace) -> int:
         ks = render_view(renderer, v, f"{scene.name}/{cam.name}")
         res = ks["result"]
         if "exr" in f:
-            write_exr(f["exr"], res.image, overwrite=args.overwrite)
+            # the metadata's scene key comes from the golden store's code: imported only
+            # when an EXR is written, so a PNG render does not pay for the gate's imports
+            from evaluation.gate.imagemeta import ours_metadata
+            write_exr(f["exr"], res.image, overwrite=args.overwrite,
+                      metadata=ours_metadata(scene, v, backend=renderer.t.backend,
+                                             precision=renderer.t.precision))
         if "png" in f:
             write_png(f["png"], res.image, overwrite=args.overwrite)
         bands = res.stats.get("bands", 1)

@@ -3,18 +3,20 @@ image comes.
 
 Per scene (``SCENES``; quick: ``QUICK_SCENES``), in one process on the same triangles:
 
-- the device build (``renderer.accel.device_build``, the backend's Dr.Jit) after one
-  warm-up build (kernel compilation), median of ``REPEATS``: seconds, M triangles/s, from
-  the host's vertex and face arrays to the host's ``BVHArrays`` (the triangles' upload and
-  the tree's copy back included, as Mitsuba's build below includes its mesh upload); and
-  with ``raw=True`` (also copying back the unpadded boxes, what ``whitted render`` asks
-  for so the traversal pads them without a host refit);
+- the device builds, each after one warm-up build (kernel compilation), median of
+  ``REPEATS``: seconds, M triangles/s: the radix tree (``renderer.accel.device_build``,
+  the ``device_*`` columns) and PLOC (``renderer.accel.ploc``, ``ploc_*``; what
+  ``--build device`` runs), both the backend's Dr.Jit, from the host's vertex and face
+  arrays to the host's ``BVHArrays`` (the triangles' upload and the tree's copy back
+  included, as Mitsuba's build below includes its mesh upload); the radix tree also with
+  ``raw=True`` (also copying back the unpadded boxes, what ``whitted render`` asks for so
+  the traversal pads them without a host refit);
 - the host SAH build (``bvh_build.build_bvh``, one build): seconds, M triangles/s;
 - Mitsuba's own scene build (``reference.mitsuba_scene.load_triangles``: OptiX on CUDA,
   Embree on the CPU, forced by a first trace: ``_mitsuba_build``), first and second build;
-- the SAH cost of both trees, and a Whitted frame (the scene's first view at
+- the SAH cost of the three trees, and a Whitted frame (the scene's first view at
   ``Context.frame_size``², the backend's accelerator, frozen: median kernel ms) over each,
-  with whether the two images are bitwise equal;
+  with whether the images are bitwise the SAH tree's;
 - the process start-to-first-image: ``whitted render SCENE --size N×N`` (``PROCESS_SIZE``)
   with the SAH build and no cache (the tool before the device build and the cache), with
   ``--build auto`` and an empty cache (cold), then again (from the cache).
@@ -109,6 +111,7 @@ def build_row(ctx: Context, name: str) -> dict:
     from reference import mitsuba_variant
     from renderer.accel.bvh_build import build_bvh
     from renderer.accel.device_build import build_device
+    from renderer.accel.ploc import build_ploc
 
     from .frames import frozen_frame_ms
     row = {"scene": name, "load_avg_1min": os.getloadavg()[0]}
@@ -133,6 +136,18 @@ def build_row(ctx: Context, name: str) -> dict:
     phases = {}
     build_device(scene.vertices, scene.faces, ctx.backend, phases=phases)
     row["device_phases_s"] = phases          # one more build, waiting at each phase's end
+    build_ploc(scene.vertices, scene.faces, ctx.backend)            # warm-up: compilation
+    times = []
+    for _ in range(REPEATS):
+        dr.sync_thread()
+        pl = build_ploc(scene.vertices, scene.faces, ctx.backend)
+        times.append(pl.build_seconds)
+    row["ploc_s"] = statistics.median(times)
+    row["ploc_mtris_s"] = F / row["ploc_s"] / 1e6
+    row["ploc_sah_cost"], row["ploc_levels"] = pl.sah_cost, pl.levels
+    phases = {}
+    build_ploc(scene.vertices, scene.faces, ctx.backend, phases=phases)
+    row["ploc_phases_s"] = phases
     sah = build_bvh(scene.vertices, scene.faces)
     row["sah_s"] = sah.build_seconds
     row["sah_mtris_s"] = F / sah.build_seconds / 1e6
@@ -145,15 +160,18 @@ def build_row(ctx: Context, name: str) -> dict:
     row["vs_mitsuba"] = row["mitsuba_build_again_s"] / row["device_s"]
     # a Whitted frame over each tree: the builder is picked through the scene's settings
     frames = {}
-    for build in ("sah", "device"):
+    for build in ("sah", "radix", "ploc"):
         sc = scene.with_settings(build=build).with_size(ctx.frame_size)
         frames[build] = frozen_frame_ms(sc, backend=ctx.backend, accel=None,
                                         frames=ctx.frames)
     row["frame_ms_sah"] = frames["sah"]["frozen_kernel_ms"]
-    row["frame_ms_device"] = frames["device"]["frozen_kernel_ms"]
+    row["frame_ms_device"] = frames["radix"]["frozen_kernel_ms"]
+    row["frame_ms_ploc"] = frames["ploc"]["frozen_kernel_ms"]
     row["frame_ratio"] = row["frame_ms_device"] / max(row["frame_ms_sah"], 1e-9)
-    row["frames_bitwise_equal"] = bool(np.array_equal(frames["sah"]["image"],
-                                                      frames["device"]["image"]))
+    row["ploc_frame_ratio"] = row["frame_ms_ploc"] / max(row["frame_ms_sah"], 1e-9)
+    row["frames_bitwise_equal"] = all(bool(np.array_equal(frames["sah"]["image"],
+                                                          frames[b]["image"]))
+                                      for b in ("radix", "ploc"))
     size = 64 if ctx.quick else PROCESS_SIZE
     row["process_size"] = size
     with tempfile.TemporaryDirectory() as cache:
@@ -172,8 +190,10 @@ def run(ctx: Context) -> list[dict]:
         r = build_row(ctx, name)
         rows.append(r)
         ctx.save_rows(rows)
-        print(f"  build {name:12s} {r['triangles']:>8d} tris: device {r['device_s']:.3f} s "
-              f"({r['device_mtris_s']:.2f} M/s), SAH {r['sah_s']:.2f} s, Mitsuba "
+        print(f"  build {name:12s} {r['triangles']:>8d} tris: radix {r['device_s']:.3f} s "
+              f"({r['device_mtris_s']:.2f} M/s), PLOC {r['ploc_s']:.3f} s "
+              f"({r['ploc_mtris_s']:.2f} M/s, frame x{r['ploc_frame_ratio']:.2f}), "
+              f"SAH {r['sah_s']:.2f} s, Mitsuba "
               f"{r['mitsuba_build_again_s']:.3f} s; SAH cost {r['device_sah_cost']:.1f} vs "
               f"{r['sah_sah_cost']:.1f}; frame x{r['frame_ratio']:.2f}; process "
               f"{r['process_sah_nocache_s']:.1f} -> {r['process_cold_s']:.1f} cold, "
@@ -185,25 +205,39 @@ def markdown(rows: list[dict]) -> list[str]:
     cells = [[r["scene"], f"{r['triangles']:,}", f"{r['device_s']:.3f}",
               f"{r['device_mtris_s']:.2f}",
               f"{r['device_raw_s']:.3f}" if "device_raw_s" in r else "",
-              f"{r['sah_s']:.2f}", f"{r['sah_mtris_s']:.3f}",
+              _get(r, "ploc_s", ".3f"),
+              _get(r, "ploc_mtris_s", ".2f"), f"{r['sah_s']:.2f}", f"{r['sah_mtris_s']:.3f}",
               f"{r['mitsuba_build_s']:.3f} / {r['mitsuba_build_again_s']:.3f}",
               f"{r['mitsuba_mtris_s']:.2f}", f"{r['load_avg_1min']:.1f}"] for r in rows]
-    out = table("Build: device (Dr.Jit) vs host SAH vs Mitsuba's scene build, one process",
-                ["scene", "triangles", "device s", "device M/s", "device + raw boxes s",
-                 "SAH s", "SAH M/s", "Mitsuba s (1st / 2nd)", "Mitsuba M/s", "load avg"],
-                "lrrrrrrrrr", cells)
+    out = table("Build: device (Dr.Jit: radix, PLOC) vs host SAH vs Mitsuba's scene build, "
+                "one process",
+                ["scene", "triangles", "radix s", "radix M/s", "radix + raw boxes s", "PLOC s",
+                 "PLOC M/s", "SAH s", "SAH M/s", "Mitsuba s (1st / 2nd)", "Mitsuba M/s",
+                 "load avg"],
+                "lrrrrrrrrrrr", cells)
     names = list(rows[0].get("device_phases_s", {})) if rows else []
     cells = [[r["scene"]] + [f"{1e3 * r['device_phases_s'].get(n, 0.0):.1f}" for n in names]
              for r in rows if r.get("device_phases_s")]
-    out += table("Device build by phase (ms; one build that waits at each phase's end)",
+    out += table("Radix build by phase (ms; one build that waits at each phase's end)",
                  ["scene"] + names, "l" + "r" * len(names), cells)
-    cells = [[r["scene"], f"{r['device_sah_cost']:.2f}", f"{r['sah_sah_cost']:.2f}",
-              f"{r['device_levels']} / {r['sah_levels']}", f"{r['frame_ms_device']:.3f}",
+    names = list(rows[0].get("ploc_phases_s", {})) if rows else []
+    cells = [[r["scene"]] + [f"{1e3 * r['ploc_phases_s'].get(n, 0.0):.1f}" for n in names]
+             for r in rows if r.get("ploc_phases_s")]
+    if cells:
+        out += table("PLOC build by phase (ms; one build that waits at each phase's end)",
+                     ["scene"] + names, "l" + "r" * len(names), cells)
+    cells = [[r["scene"], f"{r['device_sah_cost']:.2f}", _get(r, "ploc_sah_cost", ".2f"),
+              f"{r['sah_sah_cost']:.2f}",
+              f"{r['device_levels']} / {r.get('ploc_levels', '-')} / {r['sah_levels']}",
+              f"{r['frame_ms_device']:.3f}", _get(r, "frame_ms_ploc", ".3f"),
               f"{r['frame_ms_sah']:.3f}", f"{r['frame_ratio']:.2f}",
+              _get(r, "ploc_frame_ratio", ".2f"),
               "yes" if r["frames_bitwise_equal"] else "NO"] for r in rows]
     out += table("Trees: SAH cost and a frozen Whitted frame (kernel ms) over each",
-                 ["scene", "SAH cost device", "SAH cost SAH", "levels", "frame ms device",
-                  "frame ms SAH", "device / SAH", "same image"], "lrrrrrrl", cells)
+                 ["scene", "SAH cost radix", "SAH cost PLOC", "SAH cost SAH",
+                  "levels radix / PLOC / SAH", "frame ms radix", "frame ms PLOC",
+                  "frame ms SAH", "radix / SAH", "PLOC / SAH", "same image"],
+                 "lrrrrrrrrrl", cells)
     cells = [[r["scene"], f"{r['process_size']}²", f"{r['process_sah_nocache_s']:.2f}",
               f"{r['process_cold_s']:.2f}", f"{r['process_cached_s']:.2f}"] for r in rows]
     out += table("Time to first image: one `whitted render` process, start to exit",
@@ -225,6 +259,11 @@ def markdown(rows: list[dict]) -> list[str]:
                  "included)", ["scene", "run", "wall", "outside", "imports", "load", "tree",
                                "upload", "frame"], "llrrrrrrr", cells)
     return out
+
+
+def _get(row: dict, key: str, fmt: str) -> str:
+    """``row[key]`` formatted, or "-" (rows written before the PLOC columns)."""
+    return "-" if row.get(key) is None else format(row[key], fmt)
 
 
 PART = Part(name="build", key="build", run=run, markdown=markdown)

@@ -1,8 +1,11 @@
 """Which builder makes the binary tree, and the cache in front of both.
 
 ``BUILDS``: "sah" (``bvh_build.build_bvh``: binned SAH on the host, spatial splits,
-reinsertion: the better tree), "device" (``device_build.build_device``: the Morton radix
-tree built by Dr.Jit on the render's backend: the faster build), "auto" (``resolve_build``).
+reinsertion: the better tree), "ploc" (``ploc.build_ploc``: locally-ordered clustering by
+Dr.Jit on the render's backend), "radix" (``device_build.build_device``: the Morton radix
+tree by Dr.Jit: the fastest build, the slowest tree), "device" (the device builder of
+choice, ``DEVICE_BUILD``), "auto" (``resolve_build``). "device" and the builder it stands
+for share their cache entries.
 
 ``binary_tree(scene, backend, build=..., cache=...)`` answers a ``BVHArrays`` and how it
 was got: from the ``TreeCache`` when an entry for the same triangles, builder, parameters
@@ -26,9 +29,14 @@ from ..scene.model import TREE_BUILDS
 from .bvh_build import LEAF_SIZE, BVHArrays, build_bvh, raw_boxes
 from .cache import CacheWarning, TreeCache, code_version, content_key
 from .device_build import build_device
+from .ploc import build_ploc
 from .traverse import LEAF_BIT
 
 BUILDS = TREE_BUILDS
+#: The builder "device" (and "auto"'s device choice) runs: PLOC, whose trees trace nearly as
+#: fast as the SAH tree's at a few times the radix tree's build time
+#: (``lab/notes/device-build.md``).
+DEVICE_BUILD = "ploc"
 #: ``resolve_build``: "auto" takes the device build for at most this many frames ...
 AUTO_MAX_FRAMES = 4
 #: ... of scenes of at least this many triangles (smaller ones build by SAH in < 0.1 s).
@@ -63,6 +71,14 @@ class TreeInfo:
     seconds: float
 
 
+def builder(build: str) -> str:
+    """The builder that makes ``build``'s tree: "sah", "ploc" or "radix"."""
+    check_build(build)
+    if build == "auto":
+        raise ValueError("build: 'auto' stands for a builder only through resolve_build")
+    return DEVICE_BUILD if build == "device" else build
+
+
 def triangles_key(scene) -> str:
     """The content hash of ``scene``'s triangles (float32 vertices, faces)."""
     return content_key(np.asarray(scene.vertices, np.float32), np.asarray(scene.faces))
@@ -70,11 +86,11 @@ def triangles_key(scene) -> str:
 
 def tree_key(scene, build: str, leaf_size: int = LEAF_SIZE, triangles: str | None = None
              ) -> str:
-    """The cache key of ``scene``'s tree from ``build`` ("sah" or "device");
+    """The cache key of ``scene``'s tree from ``build`` (a value of ``BUILDS`` but "auto");
     ``triangles``: ``triangles_key(scene)`` when the caller has it (it hashes every
     vertex and face)."""
-    return content_key(triangles or triangles_key(scene), build, {"leaf_size": leaf_size},
-                       code_version())
+    return content_key(triangles or triangles_key(scene), builder(build),
+                       {"leaf_size": leaf_size}, code_version())
 
 
 def binary_tree(scene, backend: str, *, build: str = "sah", cache: TreeCache | None = None,
@@ -104,9 +120,13 @@ def binary_tree(scene, backend: str, *, build: str = "sah", cache: TreeCache | N
             a = _from_entry(got, scene.face_count)
             if a is not None:
                 return a, TreeInfo(chosen, True, time.perf_counter() - t0)
-    if chosen == "device":
+    how = builder(chosen)
+    if how == "ploc":
+        a = build_ploc(scene.vertices, scene.faces, backend, leaf_size=leaf_size,
+                       progress=progress and (lambda k: progress(chosen, k)))
+    elif how == "radix":
         a = build_device(scene.vertices, scene.faces, backend, leaf_size=leaf_size,
-                         progress=progress and (lambda k: progress("device", k)), raw=True)
+                         progress=progress and (lambda k: progress(chosen, k)), raw=True)
     else:
         a = build_bvh(scene.vertices, scene.faces, leaf_size=leaf_size,
                       progress=progress and (lambda k: progress("sah", k)))

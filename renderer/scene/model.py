@@ -27,8 +27,9 @@ SHADING_MODES = ("classic", "physical")
 #: ``spawn_ray`` / ``spawn_ray_to``, so a comparison with a Mitsuba golden traces the same
 #: rays; ``whitted check`` renders with the rule its golden records).
 SPAWN_RULES = ("scale-free", "mitsuba")
-#: How the BVH is built (``[render] build``; ``renderer.accel.builders``).
-TREE_BUILDS = ("sah", "device", "auto")
+#: How the BVH is built (``[render] build``; ``renderer.accel.builders``): "device" is the
+#: device builder of choice (``builders.DEVICE_BUILD``), "ploc" and "radix" name one.
+TREE_BUILDS = ("sah", "device", "ploc", "radix", "auto")
 #: Shadow-terminator treatments of smooth (interpolated-normal) faces (docs/MODEL.md,
 #: "Ray offsets"): "none" (the default, as Mitsuba 3: shadow rays leave the flat triangle)
 #: and "hanika" (Hanika 2021, "Hacking the shadow terminator": a shadow ray starts from the
@@ -429,6 +430,10 @@ class Scene:
     # The file's [check] table (what the regression gate checks, thresholds): evaluation's
     # data, ignored by the renderer.
     check: dict = field(default_factory=dict)
+    # How the file was read beyond its bytes: ``load_scene``'s ``defines`` and
+    # ``approximate`` where given (keyword arguments, so the file can be read again the same
+    # way: ``load_scene(path, shading=..., **scene.read)``); part of a golden's key.
+    read: dict = field(default_factory=dict)
 
     def __post_init__(self):
         # A copy made with ``replace(scene, vertices=...)`` (moved, scaled) keeps the old
