@@ -136,9 +136,10 @@ def test_open_constant_glass_sheet_scales_refraction_by_eta_squared(shading, sid
     (angles below the critical one). Closed glass cancels the two factors, so this is the
     one case where the reference plugin's η² shows; dropping it (or inverting it) fails
     here. Our renderer is held to the same closed form."""
+    from util import camera, make_scene, material, quad
+
     from renderer.render import render
     from renderer.scene import Settings
-    from util import camera, make_scene, material, quad
 
     ior, k_refl, k_refr = 1.5, np.array([0.3, 0.1, 0.2]), np.array([0.6, 0.9, 0.4])
     bg = np.array([0.5, 1.0, 2.0])

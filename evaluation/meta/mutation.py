@@ -4,6 +4,7 @@ it, and count the mutants the tests catch.
     python -m evaluation.meta.mutation                 # every mutant, a table and the score
     python -m evaluation.meta.mutation NAME ...        # some mutants (names: --list)
     python -m evaluation.meta.mutation --json out.json # also write the results (atomically)
+    python -m evaluation.meta.mutation --count NAME    # every selected test: how many fail
 
 Each mutant is a source patch of one renderer module (``old`` must occur exactly once in
 the file, so a refactor that moves the code makes the mutant *invalid*, said, not silently
@@ -42,6 +43,12 @@ ROOT = Path(__file__).resolve().parents[2]
 GOLDEN_EXACT = ["tests/test_golden_regression.py", "-k", "exact_matches"]
 GOLDEN_CASES = ["tests/test_golden_regression.py", "-k",
                 "exact_matches and (mirror_background or fresnel_glass)"]
+#: The tests that require a wrong render to fail the exact rule (through the tie probe).
+MUST_FAIL_EXACT = ["tests/test_rules_must_fail.py", "tests/test_golden_regression.py", "-k",
+                   "exact_rule_fails or exact_check_fails or crack or patch_off"]
+#: The tests that require a wrong render to fail the converged rule.
+MUST_FAIL_CONVERGED = ["tests/test_rules_must_fail.py", "tests/test_golden_regression.py",
+                       "-k", "converged_rule_fails or converged_check_fails"]
 
 
 @dataclass(frozen=True)
@@ -189,6 +196,34 @@ MUTANTS = [
        "stratum's diagonal (a bias at edges; plain uniform jitter would be unbiased)",
        "tests/test_golden_regression.py", "-k",
        "converged_matches and (cornell_box-front or platonic_solids-front-classic)"),
+    # ---- the rules themselves: each must fail several tests (tests/test_mutation.py) ----
+    _m("tie_probe_excuses_all", "evaluation.gate.rules",
+       "    return image, np.any(other != image, axis=-1)",
+       "    return image, np.ones(image.shape[:2], bool)",
+       "the tie probe's mask holds every pixel: the exact rule excuses any difference",
+       *MUST_FAIL_EXACT),
+    _m("tie_window_a_tenth_of_the_scene", "evaluation.gate.rules",
+       "    d = float(slack) * scene.diagonal", "    d = 0.1 * scene.diagonal",
+       "the probe's window and slack a tenth of the scene, not 1e-5 of it: every surface "
+       "behind another one near it is a 'tie'", *MUST_FAIL_EXACT),
+    _m("exact_rule_ignores_the_mask", "evaluation.gate.rules",
+       "    excused = bad & tie\n    hard = bad & ~tie\n",
+       "    excused = bad\n    hard = bad & False\n",
+       "the exact rule excuses every pixel above max_rel, tie or not", *MUST_FAIL_EXACT),
+    _m("t_test_always_passes", "evaluation.gate.rules",
+       '"ok": bool(mask.all())}', '"ok": True}',
+       "the converged rule's verdict ignores its t-test", *MUST_FAIL_CONVERGED),
+    _m("welch_never_rejects", "evaluation.gate.metrics",
+       "    t = np.nan_to_num(np.abs(m_a - m_r) / np.sqrt(var), nan=np.inf)",
+       "    t = np.zeros(m_a.shape)",
+       "the t statistic is 0 for every value: no difference of means is significant",
+       *MUST_FAIL_CONVERGED),
+    _m("t_test_variance_times_100", "evaluation.gate.rules",
+       "frac, mask, tval = welch_test(ours.mean, ours.var, ours.n, ref_mean, ref.var, ref.n,",
+       "frac, mask, tval = welch_test(ours.mean, 100 * ours.var, ours.n, ref_mean,\n"
+       "                                  100 * ref.var, ref.n,",
+       "the converged rule's variances 100x too large (a per-sample variance for a per-mean "
+       "one, say): only gross errors fail", *MUST_FAIL_CONVERGED),
     _m("right_angles_inexact", "renderer.scene.loader",
        "    (sx, sy, sz), (cx, cy, cz) = _sin_cos_degrees(deg)\n",
        "    cx, cy, cz = np.cos(np.radians(deg))\n    sx, sy, sz = np.sin(np.radians(deg))\n",
@@ -263,8 +298,24 @@ def install(m: Mutant) -> None:
     sys.meta_path.insert(0, _Finder(m))
 
 
-def run_one(name: str, extra: list[str]) -> int:
-    """In this process: install mutant ``name`` and run its tests (pytest -x)."""
+class _FailedTests:
+    """A pytest plugin that records the node ids of the tests that fail."""
+
+    def __init__(self):
+        self.failed: list[str] = []
+
+    def pytest_runtest_logreport(self, report):
+        if report.failed and report.nodeid not in self.failed:
+            self.failed.append(report.nodeid)
+
+
+#: The line ``--run-one --count`` prints before exiting: the failed tests as JSON.
+FAILED_MARK = "mutation-failed-tests: "
+
+
+def run_one(name: str, extra: list[str], *, count: bool = False) -> int:
+    """In this process: install mutant ``name`` and run its tests (pytest -x; every one of
+    them with ``count``, which then prints ``FAILED_MARK`` and the failed tests' ids)."""
     m = BY_NAME[name]
     install(m)
     import pytest
@@ -273,15 +324,21 @@ def run_one(name: str, extra: list[str]) -> int:
     # and claims every module of a distribution that provides a pytest11 plugin (ours:
     # evaluation.gate.pytest_plugin), so with it renderer.* would be imported unpatched (measured:
     # every mutant survived)
-    return int(pytest.main(["-x", "-q", "-p", "no:cacheprovider", "--assert=plain", *m.tests,
-                            *extra]))
+    rec = _FailedTests()
+    rc = int(pytest.main([*([] if count else ["-x"]), "-q", "-p", "no:cacheprovider",
+                          "--assert=plain", *m.tests, *extra], plugins=[rec]))
+    if count:
+        print(FAILED_MARK + json.dumps(rec.failed), flush=True)
+    return rc
 
 
 # ---- the driver -----------------------------------------------------------------------------
-def run(names, *, timeout: float = 1800.0, progress=print) -> list[dict]:
+def run(names, *, timeout: float = 1800.0, progress=print, count: bool = False) -> list[dict]:
     """Every mutant of ``names`` in its own subprocess; one result dict each: name, status
     (caught / survived / invalid / timeout), seconds, the tests run, and the last lines of
-    the output."""
+    the output. With ``count`` every selected test runs (no ``-x``) and the dict also holds
+    ``failed_tests`` (node ids) and ``caught_by`` (their number): how many tests see the
+    bug, not only whether one does."""
     out = []
     for i, name in enumerate(names):
         m = BY_NAME[name]
@@ -295,16 +352,25 @@ def run(names, *, timeout: float = 1800.0, progress=print) -> list[dict]:
             continue
         try:
             p = subprocess.run([sys.executable, "-m", "evaluation.meta.mutation",
-                                "--run-one", name],
+                                "--run-one", name, *(["--count"] if count else [])],
                                cwd=ROOT, capture_output=True, text=True, timeout=timeout)
             status = {0: "survived", 1: "caught"}.get(p.returncode, "invalid")
-            tail = "\n".join((p.stdout + p.stderr).strip().splitlines()[-6:])
+            lines = (p.stdout + p.stderr).strip().splitlines()
+            failed = [json.loads(ln[len(FAILED_MARK):]) for ln in lines
+                      if ln.startswith(FAILED_MARK)]
+            lines = [ln for ln in lines if not ln.startswith(FAILED_MARK)]
+            tail = "\n".join(lines[-6:])
         except subprocess.TimeoutExpired:
-            status, tail = "timeout", f"no verdict within {timeout:.0f} s"
+            status, tail, failed = "timeout", f"no verdict within {timeout:.0f} s", []
         dt = time.time() - t0
-        out.append({"name": name, "status": status, "seconds": round(dt, 1), "why": m.why,
-                    "tests": list(m.tests), "tail": tail})
-        progress(f"[{i + 1}/{len(names)}] {name}: {status} ({dt:.0f} s)")
+        res = {"name": name, "status": status, "seconds": round(dt, 1), "why": m.why,
+               "tests": list(m.tests), "tail": tail}
+        if count:
+            res["failed_tests"] = failed[-1] if failed else []
+            res["caught_by"] = len(res["failed_tests"])
+        out.append(res)
+        by = f", failed {res['caught_by']} tests" if count else ""
+        progress(f"[{i + 1}/{len(names)}] {name}: {status}{by} ({dt:.0f} s)")
     return out
 
 
@@ -324,10 +390,12 @@ def main(argv=None) -> int:
     ap.add_argument("--list", action="store_true", help="list the mutants and exit")
     ap.add_argument("--json", help="write the results here")
     ap.add_argument("--timeout", type=float, default=1800.0, help="seconds per mutant")
+    ap.add_argument("--count", action="store_true",
+                    help="run every selected test (no -x) and report how many fail")
     ap.add_argument("--run-one", help=argparse.SUPPRESS)
     args, extra = ap.parse_known_args(argv)
     if args.run_one:
-        return run_one(args.run_one, extra)
+        return run_one(args.run_one, extra, count=args.count)
     if args.list:
         for m in MUTANTS:
             print(f"{m.name:32s} {m.module:26s} {m.why}")
@@ -338,7 +406,8 @@ def main(argv=None) -> int:
               file=sys.stderr)
         return 2
     try:
-        results = run(args.names or [m.name for m in MUTANTS], timeout=args.timeout)
+        results = run(args.names or [m.name for m in MUTANTS], timeout=args.timeout,
+                      count=args.count)
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130
