@@ -49,6 +49,7 @@ from .rules import (
     Batches,
     Threshold,
     matching,
+    nudge_probe,
     render_batches,
 )
 
@@ -117,6 +118,7 @@ _RANGES = {
     "alpha": (lambda v: 0 < v < 1, "a probability strictly between 0 and 1"),
     "batches": (lambda v: isinstance(v, int) and v >= 2,
                 "an integer >= 2 (the t-test needs a variance of ours)"),
+    "nudges": (lambda v: isinstance(v, int) and v >= 1, "an integer >= 1"),
 }
 
 
@@ -172,14 +174,20 @@ def explain(mode: str, res: dict, th: dict) -> tuple[str, dict[str, int]]:
     if mode == "exact":
         if res.get("excused_pixels"):
             excused["tie-probe pixels"] = res["excused_pixels"]
+        if res.get("ill_conditioned_pixels"):
+            excused["ill-conditioned pixels (nudge probe)"] = res["ill_conditioned_pixels"]
         if res.get("ok"):
+            ill = res.get("ill_conditioned_pixels", 0)
             return (f"mean rel {_fmt(res.get('mean_rel', 0.0))}, max rel (held) "
                     f"{_fmt(res.get('max_rel_held', res.get('max_rel', 0.0)))}, "
-                    f"tie mask {_fmt(res.get('tie_pixels', 0))} pixels"), excused
+                    f"tie mask {_fmt(res.get('tie_pixels', 0))} pixels"
+                    + (f", {ill:,} ill-conditioned pixels excused (their value moves beyond "
+                       f"max_rel under a nudge of the primary ray by "
+                       f"{val.get('nudge_ulps', 0):g} ulp)" if ill else "")), excused
         why = []
         if res.get("hard_pixels", 0):
             why.append(f"{res['hard_pixels']:,} pixels above max_rel {val.get('max_rel', 0):g}"
-                       f" where the tie probe shows no tie (worst rel "
+                       f" where neither the tie probe nor the nudge probe excuses (worst rel "
                        f"{_fmt(res.get('max_rel_held', res.get('max_rel')))}; "
                        f"{_pixels(res.get('hard', []))})")
         if "mean_rel" in val and res.get("mean_rel", 0) > val["mean_rel"]:
@@ -197,10 +205,13 @@ def explain(mode: str, res: dict, th: dict) -> tuple[str, dict[str, int]]:
 
 
 def judge(ours, golden, mode: str, th: dict, warn: dict | None = None,
-          scene=None, ties: np.ndarray | None = None) -> tuple[str, str, dict, dict]:
+          scene=None, ties: np.ndarray | None = None,
+          nudged: np.ndarray | None = None) -> tuple[str, str, dict, dict]:
     """Apply the rule of ``mode`` to ours and a ``reference.golden.Golden``: exact, our
-    image and ``ties``, its tie mask (``evaluation.gate.rules.tie_probe``; None excuses
-    nothing); converged, our ``evaluation.gate.rules.Batches`` at the golden's ``batch_spp``.
+    image, ``ties``, its tie mask (``evaluation.gate.rules.tie_probe``; None excuses
+    nothing) and ``nudged``, our nudged renders (``evaluation.gate.rules.nudge_probe``;
+    None excuses nothing); converged, our ``evaluation.gate.rules.Batches`` at the
+    golden's ``batch_spp``.
 
     Returns (status, reason, excused, result): SIZE when the shapes differ, else PASS / FAIL
     from the rule, PASS turned WARN when a ``warn`` level (name -> value of the rule's
@@ -211,7 +222,7 @@ def judge(ours, golden, mode: str, th: dict, warn: dict | None = None,
     if shape != golden.image.shape:
         return ("SIZE", f"ours is {shape[1]}x{shape[0]}, the golden "
                         f"{golden.image.shape[1]}x{golden.image.shape[0]}", {}, {})
-    res = RULES[mode](ours, golden, th, ties)
+    res = RULES[mode](ours, golden, th, ties, nudged)
     reason, excused = explain(mode, res, th)
     status = "PASS" if res["ok"] else "FAIL"
     if status == "PASS" and warn:
@@ -284,6 +295,15 @@ def _ours(renderers: dict, scene, view: int, mode: str, golden, opts: dict, th: 
     return images[0], np.any(images[1] != images[0], axis=-1)
 
 
+def _nudged(renderers: dict, scene, view: int, golden, th: dict) -> np.ndarray:
+    """The nudge probe's renders (``evaluation.gate.rules.nudge_probe``) of ``view`` by the
+    renderer ``_ours`` made for this scene, size and the plain tie-break."""
+    w, h = golden.meta["resolution"]
+    r = renderers[(id(scene), w, h, golden.meta.get("spawn"), "lowest")]
+    return nudge_probe(r, view, ulps=float(th["nudge_ulps"][0]),
+                       nudges=int(th["nudges"][0]))
+
+
 def check_scene(scene_path, stores, *, modes=None, shadings=None, views=None,
                 backend: str = "llvm", precision: str = "float32", accel: str | None = None,
                 keep_images: bool = False, progress=None, render=None) -> list[Verdict]:
@@ -341,6 +361,14 @@ def check_scene(scene_path, stores, *, modes=None, shadings=None, views=None,
                         (verdict.status, verdict.reason, verdict.excused,
                          verdict.result) = judge(ours, g, mode, ths[mode],
                                                  scene.check.get("warn"), scene, ties)
+                        if mode == "exact" and verdict.result.get("hard_pixels"):
+                            # hard pixels: the nudge probe says which are ill-conditioned
+                            # (its renders only for a case that would fail without it)
+                            nudged = _nudged(renderers, scene, v, g, ths[mode])
+                            (verdict.status, verdict.reason, verdict.excused,
+                             verdict.result) = judge(ours, g, mode, ths[mode],
+                                                     scene.check.get("warn"), scene, ties,
+                                                     nudged)
                         verdict.command = golden_store.regenerate_command(
                             scene.path, g.path.parent.parent)
                         if keep_images:
