@@ -46,6 +46,9 @@ GOLDEN_CASES = ["tests/test_golden_regression.py", "-k",
 #: The tests that require a wrong render to fail the exact rule (through the tie probe).
 MUST_FAIL_EXACT = ["tests/test_rules_must_fail.py", "tests/test_golden_regression.py", "-k",
                    "exact_rule_fails or exact_check_fails or crack or patch_off"]
+#: The nudge probe's own tests and the glass bunny's exact goldens (which it lets pass).
+NUDGE_TESTS = ["tests/test_nudge_probe.py", "tests/test_golden_regression.py", "-k",
+               "not agrees_to_depth and (glass_bunny or rule_excuses)"]
 #: The tests that require a wrong render to fail the converged rule.
 MUST_FAIL_CONVERGED = ["tests/test_rules_must_fail.py", "tests/test_golden_regression.py",
                        "-k", "converged_rule_fails or converged_check_fails"]
@@ -210,6 +213,20 @@ MUTANTS = [
        "    excused = bad & tie\n    hard = bad & ~tie\n",
        "    excused = bad\n    hard = bad & False\n",
        "the exact rule excuses every pixel above max_rel, tie or not", *MUST_FAIL_EXACT),
+    _m("nudge_probe_excuses_all", "evaluation.gate.rules",
+       "    return candidates & (spread > max_rel) & spanned", "    return candidates",
+       "the nudge probe excuses every hard pixel it is asked about", *MUST_FAIL_EXACT,
+       "tests/test_nudge_probe.py"),
+    _m("nudge_range_ignored", "evaluation.gate.rules",
+       "    return candidates & (spread > max_rel) & spanned",
+       "    return candidates & (spread > max_rel)",
+       "the nudge probe excuses a pixel that moves, wherever the golden lies",
+       *MUST_FAIL_EXACT, "tests/test_nudge_probe.py"),
+    _m("nudge_probe_never_runs", "evaluation.gate.verdict",
+       'if mode == "exact" and verdict.result.get("hard_pixels"):',
+       'if mode == "exact" and False:',
+       "whitted check never runs the nudge probe: the glass bunny's ill-conditioned pixels "
+       "fail it", *NUDGE_TESTS),
     _m("t_test_always_passes", "evaluation.gate.rules",
        '"ok": bool(mask.all())}', '"ok": True}',
        "the converged rule's verdict ignores its t-test", *MUST_FAIL_CONVERGED),
