@@ -68,7 +68,7 @@ def snapped(scene, shift):
 
 def far_from_origin_criterion(scene, shift, precision: str, *, view: int = 0,
                               bad_rel: float = 0.05, backend: str = "llvm") -> dict:
-    """The honest far-from-the-origin check (issue 25): our render in ``precision`` of the
+    """The honest far-from-the-origin check: our render in ``precision`` of the
     scene moved by ``shift`` (``snapped``) against our float64 render of the *same snapped
     vertices*, so the geometry's own snapping to float32's grid is not counted against
     float32's arithmetic. Returns ``compare``'s dict plus ``shadow_pixels`` (pixels the
