@@ -46,6 +46,10 @@ GOLDEN_CASES = ["tests/test_golden_regression.py", "-k",
 #: The tests that require a wrong render to fail the exact rule (through the tie probe).
 MUST_FAIL_EXACT = ["tests/test_rules_must_fail.py", "tests/test_golden_regression.py", "-k",
                    "exact_rule_fails or exact_check_fails or crack or patch_off"]
+#: MUST_FAIL_EXACT and the nudge probe's rule test.
+MUST_FAIL_NUDGE = ["tests/test_rules_must_fail.py", "tests/test_golden_regression.py",
+                   "tests/test_nudge_probe.py", "-k", "exact_rule_fails or exact_check_fails "
+                   "or crack or patch_off or rule_excuses"]
 #: The nudge probe's own tests and the glass bunny's exact goldens (which it lets pass).
 NUDGE_TESTS = ["tests/test_nudge_probe.py", "tests/test_golden_regression.py", "-k",
                "not agrees_to_depth and (glass_bunny or rule_excuses)"]
@@ -215,13 +219,12 @@ MUTANTS = [
        "the exact rule excuses every pixel above max_rel, tie or not", *MUST_FAIL_EXACT),
     _m("nudge_probe_excuses_all", "evaluation.gate.rules",
        "    return candidates & (spread > max_rel) & spanned", "    return candidates",
-       "the nudge probe excuses every hard pixel it is asked about", *MUST_FAIL_EXACT,
-       "tests/test_nudge_probe.py"),
+       "the nudge probe excuses every hard pixel it is asked about", *MUST_FAIL_NUDGE),
     _m("nudge_range_ignored", "evaluation.gate.rules",
        "    return candidates & (spread > max_rel) & spanned",
        "    return candidates & (spread > max_rel)",
        "the nudge probe excuses a pixel that moves, wherever the golden lies",
-       *MUST_FAIL_EXACT, "tests/test_nudge_probe.py"),
+       *MUST_FAIL_NUDGE),
     _m("nudge_probe_never_runs", "evaluation.gate.verdict",
        'if mode == "exact" and verdict.result.get("hard_pixels"):',
        'if mode == "exact" and False:',
@@ -254,10 +257,14 @@ CONTROL = _m("control_no_change", "renderer.shade", "result = sa.ambient * ka",
              "result = sa.ambient * ka", "no change (the harness's control): every "
              "selection the mutants use, which must all pass",
              "tests/test_golden_regression.py", "tests/test_analytic.py",
-             "tests/test_precision.py", "tests/hard/test_hard_rays.py", "-k",
+             "tests/test_precision.py", "tests/hard/test_hard_rays.py",
+             "tests/test_rules_must_fail.py", "tests/test_nudge_probe.py",
+             "tests/test_reference_translation.py", "-k",
              "exact_matches or pruning or far_from_the_origin or closed_mesh_from_inside or "
              "cornell_box_exact_in_float64 or "
-             "(converged_matches and (cornell_box-front or platonic_solids-front-classic))")
+             "(converged_matches and (cornell_box-front or platonic_solids-front-classic)) or "
+             "rule_fails or check_fails or crack or patch_off or rule_excuses or glass_bunny "
+             "or open_constant")
 BY_NAME = {m.name: m for m in (*MUTANTS, CONTROL)}
 
 
