@@ -16,6 +16,7 @@ from evaluation.gate.rules import (
     EXACT_THRESHOLDS,
     ROOT,
     check_exact,
+    exact_overlay,
     matching,
     nudge_probe,
 )
@@ -47,6 +48,10 @@ def test_rule_excuses_only_moving_pixels_that_span_the_golden():
     assert check_exact(ours, ref, TH, None, nudged)["ill_conditioned_pixels"] == 0
     with pytest.raises(ValueError, match="nudged"):
         check_exact(ours, ref, TH, None, nudged[:, :1])
+    # the overlay tells them apart: orange for the excused, red for the hard
+    img = exact_overlay(ours, ref, TH, None, res["ill_conditioned"])
+    assert tuple(img[0, 0]) == (255, 128, 0)
+    assert all(tuple(img[y, x]) == (255, 0, 0) for y, x in ((0, 1), (1, 0), (1, 1)))
 
 
 def test_a_nudge_of_zero_ulp_is_the_render_itself():

@@ -350,20 +350,26 @@ def _ill_conditioned(ours: np.ndarray, ref: np.ndarray, th: dict, nudged, candid
 
 
 def exact_overlay(ours: np.ndarray, ref: np.ndarray, th: dict,
-                  ties: np.ndarray | None = None) -> np.ndarray:
+                  ties: np.ndarray | None = None, ill=None) -> np.ndarray:
     """The exact rule's verdict drawn over the golden: uint8 (H, W, 3), the golden
-    (sRGB, at half brightness) with the rest of the tie mask in magenta, excused pixels in
-    yellow and hard pixels in red (for a report or a PNG beside a failing case)."""
+    (sRGB, at half brightness) with the rest of the tie mask in magenta, excused tie pixels
+    in yellow, the pixels the nudge probe excused (``ill``: ``check_exact``'s
+    ``ill_conditioned`` list, [[y, x], ...]) in orange and hard pixels in red (for a
+    report or a PNG beside a failing case)."""
     ours = np.nan_to_num(np.asarray(ours, np.float64), nan=1e30, posinf=1e30, neginf=-1e30)
     ref = np.asarray(ref, np.float64)
     rel = (np.abs(ours - ref) / np.maximum(np.abs(ref), th["eps"][0])).max(-1)
     bad = rel > th["max_rel"][0]
     tie = np.zeros(bad.shape, bool) if ties is None else np.asarray(ties, bool)
+    cond = np.zeros(bad.shape, bool)
+    for y, x in (ill or []):
+        cond[y, x] = True
     srgb = np.where(ref <= 0.0031308, 12.92 * ref, 1.055 * np.abs(ref) ** (1 / 2.4) - 0.055)
     out = np.clip(srgb * 0.5, 0.0, 1.0)
     out[tie & ~bad] = (1.0, 0.0, 1.0)
     out[bad & tie] = (1.0, 0.9, 0.0)
-    out[bad & ~tie] = (1.0, 0.0, 0.0)
+    out[bad & ~tie & cond] = (1.0, 0.5, 0.0)
+    out[bad & ~tie & ~cond] = (1.0, 0.0, 0.0)
     return np.round(out * 255).astype(np.uint8)
 
 

@@ -516,7 +516,8 @@ def report_entries(verdicts):
             info={"golden": v.golden or "—", "excused pixels": excused,
                   "re-render the golden": v.command},
             overlay=exact_overlay(v.ours, v.ref, {k: (t["value"],) for k, t in
-                                                  v.thresholds.items()}, v.ties)
+                                                  v.thresholds.items()}, v.ties,
+                                  (v.result or {}).get("ill_conditioned"))
             if v.mode == "exact" and v.status == "FAIL" else None))
     return entries
 

@@ -53,6 +53,9 @@ MUST_FAIL_NUDGE = ["tests/test_rules_must_fail.py", "tests/test_golden_regressio
 #: The nudge probe's own tests and the glass bunny's exact goldens (which it lets pass).
 NUDGE_TESTS = ["tests/test_nudge_probe.py", "tests/test_golden_regression.py", "-k",
                "not agrees_to_depth and (glass_bunny or rule_excuses)"]
+#: The sphere light's closed-form test and the soft-shadow scene's converged goldens.
+SOFT_TESTS = ["tests/test_soft_shadows.py", "tests/test_golden_regression.py", "-k",
+              "centre_point or (converged_matches and cornell_soft)"]
 #: The tests that require a wrong render to fail the converged rule.
 MUST_FAIL_CONVERGED = ["tests/test_rules_must_fail.py", "tests/test_golden_regression.py",
                        "-k", "converged_rule_fails or converged_check_fails"]
@@ -150,13 +153,13 @@ MUTANTS = [
        "Li = intensity * (2.0 * rcp(dc2 * (1.0 + cos_max)))",
        "Li = intensity * (2.0 * rcp(dc2))",
        "sphere light: cone pdf 1/(2π sin²θmax) instead of 1/(2π (1 - cosθmax))",
-       "tests/test_soft_shadows.py", "-k", "centre_point"),
+       *SOFT_TESTS),
     _m("cone_pdf_disk", "renderer.lights",
        "Li = intensity * (2.0 * rcp(dc2 * (1.0 + cos_max)))",
        "Li = intensity * rcp(dc2)",
        "sphere light: the cone weighted by the projected disk π sin²θmax (wrong by "
        "(1 + cosθmax) / 2)",
-       "tests/test_soft_shadows.py", "-k", "centre_point"),
+       *SOFT_TESTS),
     _m("point_light_through_cone", "renderer.lights",
        "return dr.select(kind == 1, b, dr.select(kind == 2, c, a))",
        "return dr.select(kind == 2, c, b)",
