@@ -141,23 +141,30 @@ class RayTile:
     block: tuple[int, int] | None = None
 
 
+def _ray_pixels(width: int, height: int, t: Types, spp: int, tile: RayTile):
+    """``(x, y, s, n)`` of each ray in ``primary_rays``'s order: its pixel column and row in
+    the whole image, its sample in that pixel, and the number of rays."""
+    n_rows = height if tile.rows is None else tile.rows
+    n = width * n_rows * spp
+    idx = dr.arange(t.UInt32, n)
+    slot = idx // spp if spp > 1 else idx       # pixel slot, and the sample in it
+    s = idx - slot * spp if spp > 1 else dr.zeros(t.UInt32, n)
+    if tile.block is None:
+        x, y = slot % width, slot // width
+    else:
+        x, y = block_pixel(slot, width, n_rows, tile.block)
+    if tile.first_row is not None:
+        y = y + tile.first_row
+    return x, y, s, n
+
+
 def ray_keys(width: int, height: int, t: Types, *, spp: int = 1, seed: int = 0,
-             first_row=None, rows: int | None = None, block: tuple[int, int] | None = None):
+             tile: RayTile | None = None):
     """UInt32 random key of each ray of ``primary_rays`` (same arguments, same order): the
     low 32 bits of ``seed + k`` xor its high 32 bits, ``k`` the ray's row-major number in
     the whole image, so a ray keeps its key in any batching, tile or block order and
     batches seeded ``n`` rays apart (``evaluation.rules.render_batches``) share no key."""
-    n_rows = height if rows is None else rows
-    n = width * n_rows * spp
-    idx = dr.arange(t.UInt32, n)
-    slot = idx // spp if spp > 1 else idx
-    s = idx - slot * spp if spp > 1 else dr.zeros(t.UInt32, n)
-    if block is None:
-        x, y = slot % width, slot // width
-    else:
-        x, y = block_pixel(slot, width, n_rows, block)
-    if first_row is not None:
-        y = y + first_row
+    x, y, s, _ = _ray_pixels(width, height, t, spp, RayTile() if tile is None else tile)
     UInt64 = dr.uint64_array_t(t.UInt32)
     v = UInt64(seed) + UInt64(y * width + x) * spp + UInt64(s)
     return t.UInt32(v & 0xFFFFFFFF) ^ t.UInt32(v >> 32)
@@ -180,19 +187,7 @@ def primary_rays(cam: CameraArrays, width: int, height: int, t: Types, *,
     without.
     """
     validate_settings(spp=spp, exact=exact)
-    tile = RayTile() if tile is None else tile
-    first_row, rows, block = tile.first_row, tile.rows, tile.block
-    n_rows = height if rows is None else rows
-    n = width * n_rows * spp
-    idx = dr.arange(t.UInt32, n)
-    slot = idx // spp if spp > 1 else idx       # pixel slot, and the sample in it
-    s = idx - slot * spp if spp > 1 else dr.zeros(t.UInt32, n)
-    if block is None:
-        x, y = slot % width, slot // width
-    else:
-        x, y = block_pixel(slot, width, n_rows, block)
-    if first_row is not None:
-        y = y + first_row
+    x, y, s, n = _ray_pixels(width, height, t, spp, RayTile() if tile is None else tile)
     if exact:
         px = t.Float(x) + 0.5
         py = t.Float(y) + 0.5

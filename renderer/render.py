@@ -55,12 +55,10 @@ def make_frame_fn(t: Types, effects: EffectSet, options: TraceOptions, *, spp: i
 
     def frame(cam: CameraArrays, arrays: SceneArrays, width: int, height: int,
               first_row=None, rows: int | None = None):
-        o, d = primary_rays(cam, width, height, t, spp=spp, exact=exact, seed=seed,
-                            tile=RayTile(first_row=first_row, rows=rows, block=block))
-        key = None
-        if effects.soft_shadows:
-            key = ray_keys(width, height, t, spp=spp, seed=seed, first_row=first_row,
-                           rows=rows, block=block)
+        tile = RayTile(first_row=first_row, rows=rows, block=block)
+        o, d = primary_rays(cam, width, height, t, spp=spp, exact=exact, seed=seed, tile=tile)
+        key = ray_keys(width, height, t, spp=spp, seed=seed, tile=tile) \
+            if effects.soft_shadows else None
         radiance = trace(arrays, o, d, t, effects, options, key)
         return develop(radiance, width, height if rows is None else rows, spp, t, block)
     return frame

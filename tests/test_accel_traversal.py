@@ -215,12 +215,12 @@ def test_render_identical_across_accelerators():
     assert np.array_equal(images["bvh"], images["brute"])
 
 
-def test_any_hit_goes_far_child_first_with_the_same_answers(monkeypatch):
-    """Any-hit node steps visit the farthest hit child first (``traverse.FAR_FIRST``):
-    every BVH answers as brute force in either order, and on random rays through a box
-    room with clutter far-first needs fewer loop iterations per ray than nearest first
-    (binary) or slot order (wide)."""
-    import renderer.accel.traverse as traverse
+def test_any_hit_far_child_first_gives_brute_force_answers():
+    """Any-hit node steps visit the farthest hit child first (``accel.wide``'s module
+    text): on random rays through a box room with clutter, where many children are hit at
+    once and every ray hits, every BVH's any-hit answer is brute force's (why far first:
+    its iteration counts against nearest first and slot order are in
+    ``lab/notes/accel-decisions.md``)."""
     from renderer.accel import BVH4, BVH8
     t = types("llvm")
     rng = np.random.default_rng(5)
@@ -240,9 +240,4 @@ def test_any_hit_goes_far_child_first_with_the_same_answers(monkeypatch):
     assert ref.all()                                  # the room closes every ray
     for cls in (BVH, BVH4, BVH8):
         acc = cls.build(sc, t)
-        iters = {}
-        for far in (False, True):
-            monkeypatch.setattr(traverse, "FAR_FIRST", far)
-            assert np.array_equal(acc.intersect_p(ray, active).numpy(), ref), (cls, far)
-            iters[far] = float(acc.counts(ray, active, True)[2].numpy().mean())
-        assert iters[True] < 0.95 * iters[False], (cls, iters)
+        assert np.array_equal(acc.intersect_p(ray, active).numpy(), ref), cls

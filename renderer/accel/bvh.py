@@ -22,7 +22,6 @@ import drjit as dr
 import numpy as np
 
 from ..device import Types, host_array
-from . import traverse
 from .base import (
     Accelerator,
     DeviceTriangles,
@@ -83,7 +82,7 @@ def node_step(bvh: "BVH", ray: TraversalRay, t_max, stack: Stack, to_pop, active
               pad: float = 0.0, any_hit: bool = False):
     """One inner node ``stack.cur`` of ``bvh`` where ``active``: test both child boxes
     (grown by ``pad``) against ``(0, t_max)``, push one hit child and go to the other: the
-    near one first for closest hit, the far one first for any hit (``traverse.FAR_FIRST``).
+    near one first for closest hit, the far one first for any hit (``wide``'s module text).
     Returns ``(stack, to_pop)``, ``to_pop`` grown by the lanes where neither child was
     hit."""
     t, cur = bvh.types, stack.cur
@@ -96,7 +95,7 @@ def node_step(bvh: "BVH", ray: TraversalRay, t_max, stack: Stack, to_pop, active
         hit_a &= active
         hit_b &= active
     both = hit_a & hit_b
-    b_first = (tn_b > tn_a) if any_hit and traverse.FAR_FIRST else (tn_b < tn_a)
+    b_first = (tn_b > tn_a) if any_hit else (tn_b < tn_a)
     near = dr.select(hit_a & ~(hit_b & b_first), ref_a, ref_b)
     far = dr.select(b_first, ref_a, ref_b)
     stack.push(far, both)

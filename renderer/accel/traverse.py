@@ -27,14 +27,6 @@ from .query import tie_probe as tie_probe
 from .query import tie_probe_p as tie_probe_p
 from .triangle import layout_of, load, unit_roundoff
 
-#: Any-hit node steps go to the farthest hit child first and push the others far to near
-#: (closest hit: nearest first). Any hit ends the query, and the far child tends to hold
-#: what a ray surely meets (the far wall of a room for a primary ray, the geometry around a
-#: light for a shadow ray); the answer is the same in any order, and far first takes fewer
-#: loop iterations (``tests/test_accel_traversal.py`` flips this to compare;
-#: ``lab/notes/accel-decisions.md``).
-FAR_FIRST = True
-
 
 @dataclass
 class TraversalRay:

@@ -30,8 +30,10 @@ triangles are moreover read as UInt64 views, two words per 64-bit gather
 
 Node steps sort the hit children by entry distance (a sorting network); closest-hit steps
 go to the nearest and push the rest far to near, any-hit steps go to the farthest and push
-the rest near to far (``traverse.FAR_FIRST``; it takes fewer loop iterations than slot
-order or nearest first: ``lab/notes/accel-decisions.md``).
+the rest near to far. Any hit ends the query, and the far child tends to hold what a ray
+surely meets (the far wall of a room for a primary ray, the geometry around a light for a
+shadow ray): the answer is the same in any order, and far first takes fewer loop iterations
+than slot order or nearest first (``lab/notes/accel-decisions.md``).
 """
 from __future__ import annotations
 
@@ -42,7 +44,6 @@ import drjit as dr
 import numpy as np
 
 from ..device import Types, host_array
-from . import traverse
 from .base import (
     Accelerator,
     DeviceTriangles,
@@ -307,9 +308,9 @@ def wide_node_step(wide: "WideBVH", ray: TraversalRay, t_max, stack: Stack, to_p
                    any_hit: bool, active=True, pad: float = 0.0):
     """One wide node ``stack.cur`` of ``wide`` where ``active``: test the ray against every
     child box (grown by ``pad``) at once (``(0, t_max)``), go to the nearest hit child and
-    push the other hit children far to near (any hit with ``traverse.FAR_FIRST``: the
-    farthest, pushing the rest near to far; without: in slot order). Returns ``(stack,
-    to_pop)``, ``to_pop`` grown by the lanes where no child was hit."""
+    push the other hit children far to near (any hit: the farthest, pushing the rest near
+    to far). Returns ``(stack, to_pop)``, ``to_pop`` grown by the lanes where no child was
+    hit."""
     t, W, cur = wide.types, wide.width, stack.cur
     boxes = child_boxes(t, W, wide.nodes, cur, active)
     child = gather_words(t, wide.refs, cur, W, W, active)
@@ -325,24 +326,15 @@ def wide_node_step(wide: "WideBVH", ray: TraversalRay, t_max, stack: Stack, to_p
             hit &= active
         ref.append(dr.select(hit, r, DONE))
         key.append(dr.select(hit, tn, dr.inf))
-    if any_hit and not traverse.FAR_FIRST:          # slot order
-        nxt = dr.full(t.UInt32, DONE, dr.width(cur))
-        for k in range(W):
-            hit = ref[k] != DONE
-            take = hit & (nxt == DONE)
-            push = hit & ~take
-            stack.push(ref[k], push)
-            nxt = dr.select(take, ref[k], nxt)
-    else:
-        if any_hit:             # farthest first: the ascending network on negated distances
-            key = [dr.select(r != DONE, -k, dr.inf) for k, r in zip(key, ref)]
-        for i, j in _network(W):
-            swap = key[j] < key[i]
-            key[i], key[j] = dr.select(swap, key[j], key[i]), dr.select(swap, key[i], key[j])
-            ref[i], ref[j] = dr.select(swap, ref[j], ref[i]), dr.select(swap, ref[i], ref[j])
-        for k in range(W - 1, 0, -1):
-            stack.push(ref[k], ref[k] != DONE)
-        nxt = ref[0]
+    if any_hit:             # farthest first: the ascending network on negated distances
+        key = [dr.select(r != DONE, -k, dr.inf) for k, r in zip(key, ref)]
+    for i, j in _network(W):
+        swap = key[j] < key[i]
+        key[i], key[j] = dr.select(swap, key[j], key[i]), dr.select(swap, key[i], key[j])
+        ref[i], ref[j] = dr.select(swap, ref[j], ref[i]), dr.select(swap, ref[i], ref[j])
+    for k in range(W - 1, 0, -1):
+        stack.push(ref[k], ref[k] != DONE)
+    nxt = ref[0]
     missed = nxt == DONE
     if active is not True:
         missed &= active
