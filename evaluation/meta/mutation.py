@@ -169,9 +169,10 @@ MUTANTS = [
        "(right in the limit, not bit for bit)",
        "tests/test_soft_shadows.py", "-k", "bitwise"),
     _m("shadow_key_ignores_tile", "renderer.camera",
-       "    if first_row is not None:\n        y = y + first_row\n    UInt64",
-       "    UInt64",
-       "the shadow samples' key forgets the tile's first row: a tiled render differs",
+       "    if tile.first_row is not None:\n        y = y + tile.first_row\n    return x, y",
+       "    return x, y",
+       "the rays' pixels (so the shadow samples' keys) forget the tile's first row: a tiled "
+       "render differs",
        "tests/test_soft_shadows.py", "-k", "batching"),
     _m("rectangle_back_side", "renderer.lights",
        "g = dr.select(two, dr.abs(cos_l), dr.maximum(cos_l, 0.0))",
