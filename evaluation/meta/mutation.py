@@ -220,9 +220,8 @@ MUTANTS = [
        "the probe's window and slack a tenth of the scene, not 1e-5 of it: every surface "
        "behind another one near it is a 'tie'", *MUST_FAIL_EXACT),
     _m("exact_rule_ignores_the_mask", "evaluation.gate.rules",
-       "    excused = bad & tie\n    hard = bad & ~tie\n",
-       "    excused = bad\n    hard = bad & False\n",
-       "the exact rule excuses every pixel above max_rel, tie or not", *MUST_FAIL_EXACT),
+       "    hard = bad & ~tie & ~ill\n", "    hard = bad & False\n",
+       "the exact rule holds no pixel above max_rel hard, tie or not", *MUST_FAIL_EXACT),
     _m("nudge_probe_excuses_all", "evaluation.gate.rules",
        "    return candidates & (spread > max_rel) & spanned", "    return candidates",
        "the nudge probe excuses every hard pixel it is asked about", *MUST_FAIL_NUDGE),
