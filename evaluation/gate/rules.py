@@ -76,11 +76,11 @@ EXACT_THRESHOLDS = {
                                "a value that moves beyond max_rel under such a nudge is not "
                                "determined by the scene to max_rel (measured on the glass "
                                "bunny: 2, 4 and 8 ulp all move every hard pixel)"),
-    "nudges": Threshold(32, "nudged renders per view (fixed pseudo-random signs): a pixel is "
-                            "excused only if the golden lies within the values they span "
-                            "(+- max_rel); measured on the glass bunny at 4 ulp: 8 nudges "
-                            "span the golden at 26 / 28 hard pixels, 32 at all 28 (classic) "
-                            "and 21 (physical)"),
+    "nudges": Threshold(32, "nudged renders per view (fixed pseudo-random signs), beside one "
+                            "without a nudge: a pixel is excused only if the golden and ours "
+                            "lie within the values they span (+- max_rel); measured on the "
+                            "glass bunny at 4 ulp: 8 nudges span the golden at 26 / 28 hard "
+                            "pixels, 32 at all 28 (classic) and 21 (physical)"),
 }
 
 #: Converged mode (k x k stratified samples, box filter): name -> Threshold.
@@ -217,11 +217,13 @@ def nudged_camera(cam_arrays_of, cam, ulps: float, signs: np.ndarray):
 def nudge_probe(renderer, view: int = 0, *,
                 ulps: float = EXACT_THRESHOLDS["nudge_ulps"].value,
                 nudges: int = int(EXACT_THRESHOLDS["nudges"].value)) -> np.ndarray:
-    """``nudges`` exact renders of ``renderer.scene.cameras[view]`` by ``renderer`` (a
-    ``renderer.render.Renderer``: the same upload and accelerator as the render judged),
-    each with its primary rays nudged (``nudged_camera``, signs from ``NUDGE_SEED``):
-    float64 (nudges, H, W, 3). ``check_exact`` reads from them how far each pixel's value
-    moves under a few ulp of its ray."""
+    """``1 + nudges`` exact renders of ``renderer.scene.cameras[view]`` by ``renderer`` (a
+    ``renderer.render.Renderer``: the same upload and accelerator as the render judged):
+    the first through the probe's own camera upload without a nudge (the image judged, bit
+    for bit, when ours comes from the same renderer), then ``nudges`` with the primary rays
+    nudged (``nudged_camera``, signs from ``NUDGE_SEED``): float64 (1 + nudges, H, W, 3).
+    ``check_exact`` reads from them how far each pixel's value moves under a few ulp of its
+    ray."""
     import drjit as dr
 
     from renderer.camera import CameraArrays
@@ -240,8 +242,9 @@ def nudge_probe(renderer, view: int = 0, *,
 
     rng = np.random.default_rng(NUDGE_SEED)
     out = []
-    for _ in range(int(nudges)):
-        ca = nudged_camera(upload, cam, ulps, rng.choice([-1.0, 1.0], (2, 3)))
+    for k in range(int(nudges) + 1):
+        signs = rng.choice([-1.0, 1.0], (2, 3)) if k else np.zeros((2, 3))
+        ca = nudged_camera(upload, cam, ulps, signs)
         out.append(np.asarray(renderer.frame(ca, cam.width, cam.height).numpy(), np.float64))
     return np.stack(out)
 
@@ -293,9 +296,9 @@ def check_exact(ours: np.ndarray, ref: np.ndarray, th: dict,
     A pixel with ``rel > max_rel`` is *excused* only where ``ties`` (bool (H, W), from
     ``tie_probe``: the geometry allows the pixel's value to depend on a tie-break) is True,
     or where ``nudged`` (float (K, H, W, 3), ``nudge_probe``: our renders with the primary
-    ray nudged by a few ulp) shows it *ill-conditioned*: its own value moves by more than
-    ``max_rel`` under the nudges (the same relative error, ours against ours) and the
-    golden lies within the values the nudges span, per channel, widened by ``max_rel``.
+    ray nudged by a few ulp) shows it *ill-conditioned*: its value moves by more than
+    ``max_rel`` (of ours) across the nudges, and the golden and ours both lie within the
+    values the nudges span, per channel, widened by ``max_rel``.
     Every other pixel is held to ``max_rel`` (a *hard* pixel fails the case). No
     image-space neighbourhood and no pixel budget: with ``ties=None`` and ``nudged=None``
     nothing is excused. Passes iff no hard pixel and the mean of ``rel`` over the pixels
@@ -335,18 +338,24 @@ def check_exact(ours: np.ndarray, ref: np.ndarray, th: dict,
 
 def _ill_conditioned(ours: np.ndarray, ref: np.ndarray, th: dict, nudged, candidates):
     """bool (H, W): the ``candidates`` that ``nudged`` shows ill-conditioned (``check_exact``):
-    our value moves by more than ``max_rel`` under the nudges, and the golden lies within
-    the nudged values' range widened by ``max_rel`` in every channel."""
+    the nudged values spread over more than ``max_rel`` of ours, and both the golden and
+    our own value lie within their range widened by ``max_rel``, in every channel (ours
+    outside it: the image judged is not what the probe's renderer renders, so the probe
+    says nothing about it)."""
     if nudged is None:
         return np.zeros(candidates.shape, bool)
     v = np.nan_to_num(np.asarray(nudged, np.float64), nan=1e30, posinf=1e30, neginf=-1e30)
     if v.shape[1:] != ours.shape:
         raise ValueError(f"nudged: shape {v.shape} differs from (K, *{ours.shape})")
     eps, max_rel = th["eps"][0], th["max_rel"][0]
-    spread = (np.abs(v - ours[None]) / np.maximum(np.abs(ours[None]), eps)).max(-1).max(0)
-    tol = max_rel * np.maximum(np.abs(ref), eps)
-    spanned = np.all((ref >= v.min(0) - tol) & (ref <= v.max(0) + tol), axis=-1)
-    return candidates & (spread > max_rel) & spanned
+    lo, hi = v.min(0), v.max(0)
+    spread = ((hi - lo) / np.maximum(np.abs(ours), eps)).max(-1)
+
+    def within(x):
+        tol = max_rel * np.maximum(np.abs(x), eps)
+        return np.all((x >= lo - tol) & (x <= hi + tol), axis=-1)
+
+    return candidates & (spread > max_rel) & within(ref) & within(ours)
 
 
 def exact_overlay(ours: np.ndarray, ref: np.ndarray, th: dict,
