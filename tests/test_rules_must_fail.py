@@ -103,6 +103,12 @@ EXACT_BUGS = [
                       .k_refr * 0.98)),
     ("glass_bunny-shifted_light", "scenes/glass_bunny.toml", 0, "classic",
      lambda s: _shift_light(s, by=(0.0, 0.05, 0.0))),
+    # one bounce fewer changes mostly the deep internal bounces the nudge probe excuses
+    # when nothing is wrong (measured: 34 / 30 hard pixels left beside 35 / 22 excused)
+    ("glass_bunny-one_bounce_fewer", "scenes/glass_bunny.toml", 0, "classic",
+     lambda s: s.with_settings(max_depth=s.settings.max_depth - 1)),
+    ("glass_bunny-one_bounce_fewer_physical", "scenes/glass_bunny.toml", 0, "physical",
+     lambda s: s.with_settings(max_depth=s.settings.max_depth - 1)),
 ]
 
 
