@@ -3,7 +3,8 @@
 **Stores.** A golden store is any folder. Inside it a golden is two files,
 ``<scene>/<view>_<shading>_<mode>.exr`` (linear RGB, float32, ZIP compressed; converged
 goldens also hold a ``var`` layer, channels ``var.R/G/B``: the per-pixel variance of one
-``batch_spp`` estimate, see ``render_converged_with_variance``) and its JSON sidecar ``.json``.
+``batch_spp`` estimate, see ``render_converged_with_variance``; its header carries the image
+metadata of ``golden_metadata``) and its JSON sidecar ``.json``.
 The folder names are only for people: a golden is *found* by its key. The bundled store
 (``reference/goldens``, ``BUNDLED_STORE``) is read-only to the command line; re-rendering a
 bundled golden is a developer action (``python -m reference.golden --bundled ...``, with the
@@ -12,17 +13,28 @@ reason in the commit).
 **Keys.** ``golden_inputs`` lists everything a golden depends on: the scene file's content
 (its parsed TOML without the ``[check]`` table, so thresholds and comments can change without
 re-rendering; the bytes of an OBJ, PLY or Mitsuba XML scene file), the bytes of every mesh
-(and MTL) file it reads, the view (index and name), shading, mode, the
+(and MTL) file it reads, how a Mitsuba XML file was read (its ``-D`` defines and
+``--approximate``, when given: ``Scene.read``), the view (index and name), shading, mode, the
 source of the reference harness, the scene loader and shapes (``HARNESS_FILES``, the bytes of
 each file), and the Mitsuba version. ``content_key`` is the sha256 of
 those inputs without the Mitsuba version; ``key`` adds the version. No path enters a key, so
 an identical copy of a bundled scene anywhere finds its bundled golden; sidecars store no
 absolute path.
 
+**Size.** A golden is rendered at the scene's own resolution (each view's), unless the
+scene's ``[check]`` table sets ``size = [w, h]`` (and, for converged goldens,
+``converged_size``) or the command gives a height (``golden_size``); the sidecar's
+``resolution`` records it, and ``check`` renders ours at that size, so pixel coordinates in
+verdicts are the golden's. ``[check]`` is not part of the key: after the size there changes,
+``check`` still uses the golden it finds, while ``render_goldens`` (``whitted reference``)
+calls that golden stale (its size) and replaces it with ``force``.
+
 **Lookup** (``find_golden``): the stores in order, the first golden whose ``content_key``
 matches wins (with Mitsuba installed, its version must match too). Otherwise, a golden of the
 same scene name, view, shading and mode is *stale* and the message says exactly which inputs
-changed and the command that re-renders it; with neither it is *missing*.
+changed (the scene fields by TOML path with their old and new values, as the sidecar's
+``scene_fields`` records them; a mesh by file name; a harness file; the Mitsuba version) and
+the command that re-renders it; with neither it is *missing*.
 
 **Writing** (``render_goldens``): only what is missing or stale is rendered; a stale file is
 replaced only with ``force``; every file is written to a temporary name in its folder and
@@ -58,9 +70,6 @@ GOLDEN_DIR = BUNDLED_STORE           # the name older callers use
 #: Converged goldens: total spp and the number of independent batches (variance estimate).
 CONVERGED_SPP = 64
 CONVERGED_BATCHES = 16
-DEFAULT_SIZE = 256
-#: Converged goldens are rendered at this height (2 CPU cores: 16 x 4 spp at 256² is slow).
-CONVERGED_SIZE = 128
 #: Sidecar format: 2 = content keys (``key``, ``content_key``, ``inputs``).
 FORMAT = 2
 #: Source files whose code decides what a golden holds (package-relative to the project root).
@@ -231,6 +240,62 @@ def scene_content_hash(path) -> str:
     return _sha(json.dumps(data, sort_keys=True, separators=(",", ":")).encode())
 
 
+#: A scene field whose value is longer than this (as JSON) is recorded by its sha256 only.
+FIELD_VALUE_CHARS = 120
+#: At most this many changed scene fields are named in a STALE message.
+FIELDS_NAMED = 4
+
+
+def _leaves(value, where: str, out: dict) -> None:
+    if isinstance(value, dict):
+        for k in sorted(value):
+            _leaves(value[k], f"{where}.{k}" if where else str(k), out)
+    elif isinstance(value, list) and value and all(isinstance(v, dict) for v in value):
+        for i, v in enumerate(value):                  # an array of tables: [[lights]]
+            _leaves(v, f"{where}[{i}]", out)
+    else:                                              # TOML dates and times: as text
+        text = json.dumps(value, sort_keys=True, default=str)
+        out[where] = json.loads(text) if len(text) <= FIELD_VALUE_CHARS else \
+            {"sha256": _sha(text.encode())}
+
+
+def scene_fields(path) -> dict | None:
+    """The scene file's fields without ``[check]``, flattened to dotted TOML paths
+    (``materials.white.kd``, ``lights[0].position``, ``render.spp``) -> value (a long value:
+    ``{"sha256": ...}``), as a golden's sidecar records them so that a STALE line can name
+    the fields that changed. None for an imported scene (OBJ, PLY, XML: bytes only)."""
+    if is_imported(path):
+        return None
+    data = tomllib.loads(Path(path).read_text(encoding="utf-8"))
+    data.pop("check", None)
+    out: dict = {}
+    _leaves(data, "", out)
+    return out
+
+
+def _show(value) -> str:
+    if isinstance(value, dict) and set(value) == {"sha256"}:
+        return "(a long value)"
+    return json.dumps(value, default=str)
+
+
+def describe_fields(old: dict, new: dict) -> list[str]:
+    """The fields that differ between two ``scene_fields``, one phrase each
+    (``materials.white.kd 0.5 -> 0.4``, ``lights[1] added``), at most ``FIELDS_NAMED``
+    and a count of the rest."""
+    out = []
+    for key in sorted(set(old) | set(new)):
+        if key not in old:
+            out.append(f"{key} added ({_show(new[key])})")
+        elif key not in new:
+            out.append(f"{key} removed (was {_show(old[key])})")
+        elif json.dumps(old[key], sort_keys=True) != json.dumps(new[key], sort_keys=True):
+            out.append(f"{key} {_show(old[key])} -> {_show(new[key])}")
+    if len(out) > FIELDS_NAMED:
+        out = out[:FIELDS_NAMED] + [f"{len(out) - FIELDS_NAMED} more scene fields"]
+    return out
+
+
 def mitsuba_version() -> str | None:
     """The installed Mitsuba's version (without importing it), or None."""
     from importlib import metadata
@@ -254,6 +319,7 @@ def golden_inputs(scene: Scene, *, view: int, shading: str, mode: str,
         "view": view, "view_name": scene.cameras[view].name,
         "shading": shading, "mode": mode,
         "code": {**harness_hashes(), **(import_hashes() if imported else {})},
+        **({"read": scene.read} if scene.read else {}),     # -D defines, --approximate
         "mitsuba_version": mitsuba or mitsuba_version(),
     }
 
@@ -269,13 +335,54 @@ def full_key(inputs: dict) -> str:
     return _sha(json.dumps(inputs, sort_keys=True).encode())
 
 
-def describe_changes(old: dict, new: dict, mesh_files=()) -> list[str]:
-    """What differs between two ``golden_inputs``, one phrase each; a changed mesh is named
-    by its file name (``mesh_files``: the new scene's mesh files, in ``meshes`` order)."""
+def scene_key(inputs: dict) -> str:
+    """sha256 of the scene's own content in ``inputs`` (``golden_inputs``: the scene file's
+    ``scene_content_hash`` and its meshes' bytes), without view, mode or code: equal for
+    every image of the same scene content, ours or a golden (image metadata)."""
+    body = {"scene": inputs.get("scene"), "meshes": list(inputs.get("meshes", []))}
+    return _sha(json.dumps(body, sort_keys=True).encode())
+
+
+def golden_metadata(meta: dict) -> dict[str, str]:
+    """The image metadata of a golden (``renderer.film.write_exr(metadata=)``'s fields) from
+    its sidecar ``meta``: who rendered it, the scene's ``scene_key``, view, resolution and
+    settings, and the backend and precision of its Mitsuba variant. A golden written
+    before its EXR carried metadata is described by its sidecar through this too."""
+    inputs = meta.get("inputs") if isinstance(meta.get("inputs"), dict) else {}
+    variant = str(meta.get("variant", ""))
+    out = {"renderer": f"mitsuba {meta.get('mitsuba_version')} ({variant or '?'})",
+           "scene": meta.get("scene_name"), "scene_key": scene_key(inputs) if inputs else None,
+           "view": meta.get("view_name"),
+           "resolution": "x".join(str(int(x)) for x in meta.get("resolution", []))
+           if isinstance(meta.get("resolution"), list) else None,
+           "shading": meta.get("shading"), "mode": meta.get("mode"), "spp": meta.get("spp"),
+           "max_depth": meta.get("max_depth"),
+           "backend": variant.split("_")[0] if variant else None,
+           "precision": "float64" if "double" in variant else "float32" if variant else None,
+           "batches": meta.get("batches") if meta.get("mode") == "converged" else None,
+           "content_key": meta.get("content_key")}
+    return {k: str(v) for k, v in out.items() if v is not None}
+
+
+def _read_text(inputs: dict) -> str:
+    read = inputs.get("read", {})
+    parts = [f"-D {k}={v}" for k, v in sorted(read.get("defines", {}).items())]
+    return " ".join(parts + (["--approximate"] if read.get("approximate") else [])) or "none"
+
+
+def describe_changes(old: dict, new: dict, mesh_files=(), old_fields=None,
+                     new_fields=None) -> list[str]:
+    """What differs between two ``golden_inputs``, one phrase each: the scene fields that
+    changed (``describe_fields``, when both ``scene_fields`` are given; else "scene file
+    content"), a mesh by its file name (``mesh_files``: the new scene's mesh files, in
+    ``meshes`` order), the view, shading or mode, a harness file by its path, the Mitsuba
+    version."""
     out = []
     names = [Path(f).name for f in mesh_files]
     if old.get("scene") != new.get("scene"):
-        out.append("scene file content")
+        fields = describe_fields(old_fields, new_fields) \
+            if isinstance(old_fields, dict) and isinstance(new_fields, dict) else []
+        out += fields or ["scene file content"]
     om, nm = old.get("meshes", []), new.get("meshes", [])
     if len(om) != len(nm):
         out.append(f"mesh count {len(om)} -> {len(nm)}")
@@ -285,11 +392,14 @@ def describe_changes(old: dict, new: dict, mesh_files=()) -> list[str]:
     for k in ("view", "view_name", "shading", "mode"):
         if old.get(k) != new.get(k):
             out.append(f"{k} {old.get(k)!r} -> {new.get(k)!r}")
+    if old.get("read", {}) != new.get("read", {}):
+        out.append(f"how the file is read (-D, --approximate) {_read_text(old)} -> "
+                   f"{_read_text(new)}")
     oc, nc = old.get("code", {}), new.get("code", {})
-    out += [f"code {f}" for f in sorted(set(oc) | set(nc)) if oc.get(f) != nc.get(f)]
+    out += [f"harness file {f}" for f in sorted(set(oc) | set(nc)) if oc.get(f) != nc.get(f)]
     ov, nv = old.get("mitsuba_version"), new.get("mitsuba_version")
     if nv is not None and ov != nv:
-        out.append(f"Mitsuba {ov} -> {nv}")
+        out.append(f"Mitsuba version {ov} -> {nv}")
     return out
 
 
@@ -364,12 +474,13 @@ def find_golden(scene: Scene, *, view: int, shading: str, mode: str, stores) -> 
                           changes=["sidecar format 1 (keyed by path)"],
                           message=f"golden {exr} has a sidecar without content keys "
                                   f"(format 1); re-key or re-render it with `{cmd}`")
-        changes = describe_changes(old, inputs, [Path(f) for f in scene.source_files][1:]) \
-            or ["its key"]
+        fields = scene_fields(scene.path) if "scene_fields" in meta else None
+        changes = describe_changes(old, inputs, [Path(f) for f in scene.source_files][1:],
+                                   meta.get("scene_fields"), fields) or ["its key"]
         cmd = regenerate_command(scene.path, store)
         return Lookup("stale", path=side.with_suffix(".exr"), changes=changes, command=cmd,
-                      message=f"golden {exr} is stale ({', '.join(changes)} changed since "
-                              f"it was rendered); re-render it with `{cmd}`")
+                      message=f"golden {exr} is stale (changed since it was rendered: "
+                              f"{'; '.join(changes)}); re-render it with `{cmd}`")
     users = [s for s in stores if not is_bundled(s)]
     cmd = (f"whitted reference --goldens {_display(users[0]) if users else 'DIR'} "
            f"{_display(Path(scene.path))}")
@@ -393,13 +504,26 @@ def load_golden(scene: Scene, *, view: int, shading: str, mode: str, root=None,
 
 
 # ---- rendering ------------------------------------------------------------------------------
-def _resize(scene: Scene, size: int | None) -> Scene:
-    """``scene`` with every view ``size`` pixels high, the width following the aspect of
-    the scene's resolution (None: unchanged)."""
-    if size is None:
-        return scene
-    cam = scene.cameras[0]
-    return scene.with_size(max(1, int(round(size * cam.width / cam.height))), int(size))
+def golden_size(scene: Scene, mode: str, size: int | None = None,
+                converged_size: int | None = None) -> tuple[int, int] | None:
+    """(width, height) of the goldens of ``scene`` in ``mode``, or None for the scene's own
+    resolution (each view's). In order: a height given here (``converged_size`` for a
+    converged golden, else ``size``; the width follows the aspect of the scene's first
+    view), else the scene's ``[check]`` ``converged_size`` (converged goldens) or ``size``,
+    else None."""
+    height = converged_size if mode == "converged" and converged_size is not None else size
+    if height is not None:
+        cam = scene.cameras[0]
+        return max(1, int(round(height * cam.width / cam.height))), int(height)
+    check = scene.check or {}
+    wh = check.get("converged_size") if mode == "converged" else None
+    wh = wh or check.get("size")
+    return (int(wh[0]), int(wh[1])) if wh else None
+
+
+def _sized(scene: Scene, size) -> Scene:
+    """``scene`` with every view ``size`` = (width, height) pixels (None: unchanged)."""
+    return scene if size is None else scene.with_size(int(size[0]), int(size[1]))
 
 
 def _progress_bar(total: int, enabled: bool):
@@ -418,19 +542,38 @@ def _progress_bar(total: int, enabled: bool):
     return step
 
 
-def plan_goldens(scene_paths, *, root, modes=MODES, shadings=SHADING_MODES):
+def plan_goldens(scene_paths, *, root, modes=MODES, shadings=SHADING_MODES,
+                 size: int | None = None, converged_size: int | None = None,
+                 read: dict | None = None):
     """For each scene x shading x mode x view: (scene_path, shading, mode, view, Lookup in
-    ``root`` alone). Raises ``SceneError`` for a bad scene file."""
+    ``root`` alone). A golden whose key matches but whose size is not the one asked for
+    (``golden_size``; the view's resolution by default) is stale, its change the size.
+    read: how the files are read (``load_scene``'s ``defines`` and ``approximate``).
+    Raises ``SceneError`` for a bad scene file."""
     plan = []
     for scene_path in scene_paths:
         for shading in shadings:
-            scene = load_scene(scene_path, shading=shading)
+            scene = load_scene(scene_path, shading=shading, **(read or {}))
             for mode in modes:
-                for v in range(len(scene.cameras)):
+                wh = golden_size(scene, mode, size, converged_size)
+                for v, cam in enumerate(scene.cameras):
                     found = find_golden(scene, view=v, shading=shading, mode=mode,
                                         stores=[root])
+                    want = list(wh) if wh else [cam.width, cam.height]
+                    have = found.golden.meta.get("resolution") if found.golden else None
+                    if found.status == "ok" and have != want:
+                        found = _resized_lookup(found, scene_path, root, have, want)
                     plan.append((scene_path, shading, mode, v, found))
     return plan
+
+
+def _resized_lookup(found: Lookup, scene_path, root, have, want) -> Lookup:
+    """The stale ``Lookup`` of an up-to-date golden of another size than ``want``."""
+    change = f"size {'x'.join(map(str, have or ['?']))} -> {want[0]}x{want[1]}"
+    cmd = regenerate_command(scene_path, root)
+    return Lookup("stale", path=found.path, changes=[change], command=cmd,
+                  message=f"golden {_display(found.path)} is stale ({change}: the size asked "
+                          f"for); re-render it with `{cmd}`")
 
 
 def _check_store(root: Path, bundled: bool) -> None:
@@ -444,21 +587,25 @@ def _check_store(root: Path, bundled: bool) -> None:
 
 
 def golden_jobs(scene_paths, *, spp: int = CONVERGED_SPP, batches: int = CONVERGED_BATCHES,
-                size: int = DEFAULT_SIZE, converged_size: int | None = CONVERGED_SIZE,
+                size: int | None = None, converged_size: int | None = None,
                 modes=MODES, shadings=SHADING_MODES, root: Path = BUNDLED_STORE,
-                bundled: bool = False, force: bool = False, plan=None) -> list[dict]:
+                bundled: bool = False, force: bool = False, plan=None,
+                read: dict | None = None) -> list[dict]:
     """The goldens of every scene x shading x mode x view that are missing or stale in the
     store ``root``, one picklable spec each (a plain dict of str / int / bool): what
     ``render_golden_job`` needs to render and write that golden in any process, the sidecar's
     content key included (the job checks it against the scene it loads).
 
     An up-to-date golden gets no job; a stale one is a ``GoldenError`` unless ``force``;
-    the bundled store is refused unless ``bundled``. plan: ``plan_goldens``'s answer when
-    the caller already has it (else it is made here)."""
+    the bundled store is refused unless ``bundled``. size / converged_size: image heights
+    (``golden_size``; None: the scene's ``[check]`` size, else its own resolution). plan:
+    ``plan_goldens``'s answer when the caller already has it (else it is made here). read:
+    how the scene files are read (``plan_goldens``; a job carries it as JSON text)."""
     root = Path(root)
     _check_store(root, bundled)
     if plan is None:
-        plan = plan_goldens(scene_paths, root=root, modes=modes, shadings=shadings)
+        plan = plan_goldens(scene_paths, root=root, modes=modes, shadings=shadings,
+                            size=size, converged_size=converged_size, read=read)
     stale = [p for p in plan if p[4].status == "stale"]
     if stale and not force:
         lines = "; ".join(p[4].message.split("; re-render")[0] for p in stale[:3])
@@ -469,13 +616,15 @@ def golden_jobs(scene_paths, *, spp: int = CONVERGED_SPP, batches: int = CONVERG
     for scene_path, shading, mode, v, found in plan:
         if found.status == "ok":
             continue
-        h = size if mode == "exact" or converged_size is None else converged_size
-        scene = _resize(load_scene(scene_path, shading=shading), h)
+        scene = load_scene(scene_path, shading=shading, **(read or {}))
+        wh = golden_size(scene, mode, size, converged_size)
+        scene = _sized(scene, wh)
         out = golden_path(scene.name, scene.cameras[v].name, shading, mode, root)
         replaces = found.path if found.status == "stale" and found.path else None
         jobs.append({
             "scene": str(scene_path), "shading": shading, "mode": mode, "view": v,
-            "height": h, "spp": spp, "batches": batches,
+            "width": wh[0] if wh else 0, "height": wh[1] if wh else 0,   # 0: the view's own
+            "spp": spp, "batches": batches, "read": json.dumps(read or {}, sort_keys=True),
             "root": str(root), "bundled": bool(bundled), "out": str(out),
             "status": found.status,
             "replaces": str(replaces) if replaces is not None and replaces != out else "",
@@ -504,7 +653,9 @@ def render_golden_job(job: dict, step=None) -> str:
     step = step or (lambda label="": None)
     scene_path, v, mode, batches = job["scene"], job["view"], job["mode"], job["batches"]
     shading = job["shading"]
-    scene = _resize(load_scene(scene_path, shading=shading), job["height"])
+    read = json.loads(job.get("read") or "{}")
+    scene = _sized(load_scene(scene_path, shading=shading, **read),
+                   (job["width"], job["height"]) if job["height"] else None)
     cam = scene.cameras[v]
     out = Path(job["out"])
     inputs = golden_inputs(scene, view=v, shading=shading, mode=mode, mitsuba=mi.__version__)
@@ -527,7 +678,8 @@ def render_golden_job(job: dict, step=None) -> str:
                    variant=variant)
     # the image first, its sidecar last: an interrupted run leaves no sidecar that vouches
     # for a missing image (both writes are atomic: renderer.outputs)
-    write_exr(out, img, layers=None if var is None else {"var": var}, overwrite=True)
+    write_exr(out, img, layers=None if var is None else {"var": var}, overwrite=True,
+              metadata=golden_metadata(meta))
     write_text(out.with_suffix(".json"), json.dumps(meta, indent=1) + "\n", overwrite=True)
     if job.get("replaces"):
         old = Path(job["replaces"])
@@ -537,11 +689,11 @@ def render_golden_job(job: dict, step=None) -> str:
 
 
 def render_goldens(scene_paths, *, force: bool = False, spp: int = CONVERGED_SPP,
-                   batches: int = CONVERGED_BATCHES, size: int = DEFAULT_SIZE,
-                   converged_size: int | None = CONVERGED_SIZE, modes=MODES,
+                   batches: int = CONVERGED_BATCHES, size: int | None = None,
+                   converged_size: int | None = None, modes=MODES,
                    shadings=SHADING_MODES, progress: bool = True,
                    root: Path = BUNDLED_STORE, bundled: bool = False,
-                   report=None, executor=None) -> list[Path]:
+                   report=None, executor=None, read: dict | None = None) -> list[Path]:
     """Render the goldens of every scene x view x shading x mode into the store ``root`` that
     are missing there or stale; an up-to-date golden is kept, a stale one is replaced only
     with ``force`` (else ``GoldenError`` before anything is rendered).
@@ -549,19 +701,22 @@ def render_goldens(scene_paths, *, force: bool = False, spp: int = CONVERGED_SPP
     spp: converged samples per pixel in total (``batches`` independent renders of
     ``spp // batches`` each, for the per-pixel variance). size: image height in pixels (width
     follows the camera's aspect); converged_size: the same for converged goldens (None:
-    ``size``). bundled: allow ``root`` to be the bundled store (a developer action).
-    report: called with one line per golden kept or written. executor: an
+    ``size``); with neither, the scene's ``[check]`` ``size`` / ``converged_size``, else its
+    own resolution (``golden_size``). bundled: allow ``root`` to be the bundled store (a
+    developer action). report: called with one line per golden kept or written. executor: an
     ``evaluation.gate.executor`` object (``.map(fn, items)`` yielding ``(index, result)``, e.g.
     Dask workers, one GPU each) to render the jobs (``golden_jobs``) on; None: here, one
-    after another. The files are the same either way. Returns the written EXR paths (in
-    job order).
+    after another. The files are the same either way. read: how the scene files are read
+    (``load_scene``'s ``defines`` and ``approximate``; part of the key). Returns the
+    written EXR paths (in job order).
     """
     root = Path(root)
     _check_store(root, bundled)
-    plan = plan_goldens(scene_paths, root=root, modes=modes, shadings=shadings)
+    plan = plan_goldens(scene_paths, root=root, modes=modes, shadings=shadings, size=size,
+                        converged_size=converged_size, read=read)
     jobs = golden_jobs(scene_paths, spp=spp, batches=batches, size=size,
                        converged_size=converged_size, modes=modes, shadings=shadings,
-                       root=root, bundled=bundled, force=force, plan=plan)
+                       root=root, bundled=bundled, force=force, plan=plan, read=read)
     for p in plan:
         if p[4].status == "ok" and report:
             report(f"up to date: {_display(p[4].path)}")
@@ -606,7 +761,7 @@ def sidecar(scene: Scene, inputs: dict, *, resolution, spp: int, batch_spp: int,
         "spp": spp, "batch_spp": batch_spp, "batches": batches,
         "resolution": list(resolution), "mitsuba_version": inputs["mitsuba_version"],
         "variant": variant, "max_depth": scene.settings.max_depth, "spawn": GOLDEN_SPAWN,
-        "inputs": inputs,
+        "inputs": inputs, "scene_fields": scene_fields(scene.path),
         "date": date or datetime.datetime.now(datetime.timezone.utc).isoformat(
             timespec="seconds"),
     }
@@ -686,11 +841,19 @@ def main(argv=None) -> int:
     p.add_argument("--verify", nargs="*", choices=MODES, default=list(MODES),
                    help="with --rekey: the modes whose goldens are re-rendered and compared "
                         "first (default both; converged re-renders are slow)")
-    p.add_argument("--size", type=int, default=DEFAULT_SIZE)
-    p.add_argument("--converged-size", type=int, default=CONVERGED_SIZE)
+    p.add_argument("--size", type=int, default=None,
+                   help="image height (default: the scene's [check] size, else its own "
+                        "resolution)")
+    p.add_argument("--converged-size", type=int, default=None,
+                   help="image height of converged goldens (default: --size, else the "
+                        "scene's [check] converged_size or size, else its resolution)")
     p.add_argument("--modes", nargs="+", default=list(MODES), choices=MODES)
     p.add_argument("--shadings", nargs="+", default=list(SHADING_MODES), choices=SHADING_MODES)
     args = p.parse_args(argv)
+    for name in ("size", "converged_size"):
+        if getattr(args, name) is not None and getattr(args, name) < 1:
+            p.error(f"--{name.replace('_', '-')}: expected a height >= 1, got "
+                    f"{getattr(args, name)}")
     try:
         if args.rekey:
             rekey(args.scenes, verify=tuple(args.verify))

@@ -32,7 +32,7 @@ def user(tmp_path_factory):
     scenes = base / "my_scenes"
     scenes.mkdir()
     scene = scenes / "quad.toml"
-    shutil.copy(QUAD, scene)
+    scene.write_text(QUAD.read_text().split("\n[check]")[0])    # a user's scene: no [check]
     store = base / "my_goldens"
     assert main(["reference", "--goldens", str(store), "--size", "24", "--quiet",
                  str(scene)]) == 0
@@ -110,7 +110,7 @@ def test_edited_material_is_stale_and_says_what_changed(user, tmp_path, capsys):
     out = capsys.readouterr().out
     stale = [line for line in out.splitlines() if line.startswith("STALE")]
     assert len(stale) == 6
-    assert "scene file content changed" in stale[0]
+    assert "changed since it was rendered: materials.diffuse.kd 0.5 -> 0.4)" in stale[0]
     assert f"whitted reference --goldens {golden._display(store)} --force" in stale[0]
     # the store's file is kept without --force, replaced with it
     private = tmp_path / "store"
@@ -270,7 +270,7 @@ def test_a_harness_change_makes_goldens_stale(user, monkeypatch):
                         lambda: {**real, "reference/plugins.py": "0" * 64})
     found = golden.find_golden(load_scene(scene), view=0, shading="classic", mode="exact",
                                stores=[store])
-    assert found.status == "stale" and found.changes == ["code reference/plugins.py"]
+    assert found.status == "stale" and found.changes == ["harness file reference/plugins.py"]
 
 
 def test_code_hash_is_the_files_bytes_whatever_the_interpreter(tmp_path):

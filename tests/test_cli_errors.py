@@ -53,6 +53,58 @@ def test_bad_override_names_the_option_as_typed(tmp_path, capsys, argv, line):
     assert "settings." not in last
 
 
+#: -D and --approximate on every command that reads a scene: the same one line, exit 2.
+XML = ROOT / "tests" / "data" / "imports" / "teapot_direct.xml"
+READ_COMMANDS = ["render", "check", "reference", "view"]
+BAD_READS = [
+    (["-D", "res"], "error: -D res: expected NAME=VALUE"),
+    (["-D", "9x=1"], "error: -D 9x=1: expected NAME=VALUE"),
+    (["-D", "res=24"], f"error: {SCENE}: -D res=...: parameters are for Mitsuba XML scenes only"),
+]
+
+
+@pytest.mark.parametrize("command", READ_COMMANDS)
+@pytest.mark.parametrize("extra,line", BAD_READS, ids=["no-value", "bad-name", "not-xml"])
+def test_bad_define_is_the_same_line_on_every_command(tmp_path, capsys, command, extra, line):
+    out = {"render": ["--out", str(tmp_path / "out")], "check": [],
+           "reference": ["--goldens", str(tmp_path / "g")], "view": ["--port", "0"]}[command]
+    assert main([command, SCENE, *extra, *out]) == 2
+    assert _one_error_line(capsys.readouterr().err) == line
+    assert not (tmp_path / "g").exists() and not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("command", READ_COMMANDS)
+def test_every_reading_command_takes_D_and_approximate(command):
+    from whitted.cli import build_parser
+    args = build_parser().parse_args([command, str(XML), "-D", "res=8", "--approximate"])
+    assert args.defines == ["res=8"] and args.approximate is True
+
+
+def test_defines_reach_the_golden_and_its_key(tmp_path, capsys):
+    """``reference -D res=16`` renders the XML's goldens at 16 x 16 (the scene's own
+    resolution, set by -D); ``check`` with the same -D finds them, without it they are
+    stale and the line says how the file was read."""
+    pytest.importorskip("mitsuba")
+    teapot = Path("/work/shared/data/meshes/utah_teapot/teapot.obj")
+    if not teapot.exists():
+        pytest.skip("the shared teapot mesh is not here")
+    store = tmp_path / "g"
+    defines = ["-D", f"teapot={teapot}", "-D", "res=16"]
+    pick = ["--modes", "exact", "--shadings", "physical"]
+    assert main(["reference", str(XML), "--goldens", str(store), "--quiet", *pick,
+                 *defines]) == 0
+    (side,) = store.rglob("*.json")
+    import json
+    meta = json.loads(side.read_text())
+    assert meta["resolution"] == [16, 16] and meta["inputs"]["read"]["defines"]["res"] == "16"
+    capsys.readouterr()
+    check = ["check", str(XML), "--goldens", str(store), *pick, "--backend", "llvm"]
+    assert main([*check, *defines]) in (0, 1)
+    assert main([*check, "-D", f"teapot={teapot}", "-D", "res=20"]) == 4
+    (line,) = [x for x in capsys.readouterr().out.splitlines() if x.startswith("STALE")]
+    assert f"-D res=16 -D teapot={teapot} -> -D res=20 -D teapot={teapot}" in line
+
+
 @pytest.mark.skipif(dr.has_backend(dr.JitBackend.CUDA), reason="this machine has CUDA")
 def test_cuda_backend_without_a_gpu_is_one_line(tmp_path, capsys):
     assert main(["render", SCENE, "--backend", "cuda", "--out", str(tmp_path)]) == 2

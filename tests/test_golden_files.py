@@ -32,8 +32,9 @@ def test_missing_and_stale_goldens_name_the_command(tmp_path):
     assert render_goldens([path], size=16, modes=("exact",), shadings=("classic",), root=root,
                           progress=False) == []         # up to date: nothing rendered
     path.write_text(path.read_text().replace("\nkd = 0.5", "\nkd = 0.4"))
-    with pytest.raises(GoldenError, match=r"stale \(scene file content changed.*"
-                                          r"whitted reference --goldens .* --force"):
+    with pytest.raises(GoldenError, match=r"stale \(changed since it was rendered: "
+                       r"materials\.diffuse\.kd 0\.5 -> 0\.4\).*"
+                       r"whitted reference --goldens .* --force"):
         load_golden(load_scene(path), view=0, shading="classic", mode="exact", root=root)
     with pytest.raises(GoldenError, match="pass --force"):
         render_goldens([path], size=16, modes=("exact",), shadings=("classic",), root=root,

@@ -18,14 +18,24 @@ import sys
 from pathlib import Path
 
 from evaluation.gate import verdict as vd
+from evaluation.gate.imagemeta import format_differences
 from reference import MODES
 from reference import golden as golden_store
 from renderer.accel import ACCELERATORS
 from renderer.device import PRECISIONS
 from renderer.outputs import check_output_dir, check_replaceable
 from renderer.scene import SHADING_MODES, SceneError, load_scene
+from renderer.scene.importers import check_defines
 
-from .options import EXIT, EXIT_CODE_HELP, CliError, add_backend_option, scene_arg
+from .options import (
+    EXIT,
+    EXIT_CODE_HELP,
+    CliError,
+    add_backend_option,
+    add_read_options,
+    read_options,
+    scene_arg,
+)
 from .progress import render_view
 
 
@@ -48,6 +58,7 @@ def register(subparsers) -> None:
     p.add_argument("--accel", choices=tuple(ACCELERATORS), help="our acceleration structure")
     p.add_argument("--precision", default=PRECISIONS[0], choices=PRECISIONS)
     add_backend_option(p)
+    add_read_options(p)
     p.set_defaults(func=cmd_check)
 
 
@@ -74,7 +85,7 @@ def _views(values):
     return {int(v) if v.isdigit() else v for v in values}
 
 
-def check_views(scenes, views) -> None:
+def check_views(scenes, views, read=None) -> None:
     """Every ``--view`` value must name a view (index or name) of at least one of the
     scenes, else a ``CliError`` naming it (exit 2), before anything renders. A scene file
     that cannot be loaded is left to its own ERROR verdict."""
@@ -83,7 +94,7 @@ def check_views(scenes, views) -> None:
     found: set = set()
     for path in scenes:
         try:
-            cams = load_scene(path).cameras
+            cams = load_scene(path, **(read or {})).cameras
         except (SceneError, OSError):
             return
         found |= set(range(len(cams))) | {c.name for c in cams}
@@ -147,21 +158,26 @@ def write_outputs(args, verdicts, title: str) -> None:
 
 def cmd_check(args: argparse.Namespace) -> int:
     out = sys.stderr if args.json == "-" else sys.stdout
+    read = read_options(args)
+    for path in args.scenes:            # a usage error (exit 2), as for render, not a verdict
+        check_defines(path, read.get("defines"))
     stores = stores_for(args)
     check_outputs(args)
-    check_views(args.scenes, args.views)
+    check_views(args.scenes, args.views, read)
     if not args.quiet:
         print("goldens: " + ", ".join(golden_store._display(s) for s in stores), file=out)
 
     def show(v):
         if not args.quiet:
             print(vd.format_line(v), file=out, flush=True)
+            if v.status != "PASS" and v.differences:
+                print(format_differences(v.differences), file=out, flush=True)
 
     verdicts = vd.check_scenes(args.scenes, stores, modes=args.modes, shadings=args.shadings,
                                views=_views(args.views), backend=args.backend,
                                precision=args.precision, accel=args.accel,
                                keep_images=args.report is not None, progress=show,
-                               render=render_view)
+                               render=render_view, read=read)
     print(vd.summary_line(verdicts), file=out)
     write_outputs(args, verdicts, title="whitted check: ours vs Mitsuba 3 goldens")
     return vd.exit_code(verdicts)

@@ -3,6 +3,7 @@
     whitted render  SCENE.toml   render with the Dr.Jit tracer → EXR + PNG
     whitted compare SCENE.toml   ours vs Mitsuba's golden → verdict, HTML side-by-side report
     whitted check   SCENE...     regression gate: one verdict per view, idiff exit codes
+    whitted diff    A B          two images (EXR or PNG) judged by check's rules
     whitted reference SCENE...   (re)render Mitsuba golden images
     whitted export  SCENE.toml --mitsuba-xml OUT.xml [--portable]
     whitted convert SCENE OUT.toml   an OBJ + MTL, PLY or Mitsuba XML scene as a TOML file
@@ -13,8 +14,8 @@
     whitted view    SCENE        interactive viewer in the browser, Mitsuba side by side
 
 Each subcommand lives in its own module (``whitted/render.py``, ``compare.py``,
-``check.py``, ``reference.py``, ``convert.py``, ``bench.py``, ``study.py``, ``data.py``,
-``hard_cases.py``, ``view.py``)
+``check.py``, ``diff.py``, ``reference.py``, ``convert.py``, ``bench.py``, ``study.py``,
+``data.py``, ``hard_cases.py``, ``view.py``)
 with ``register(subparsers)``, which sets ``func``; the options they share are in
 ``whitted/options.py``. Mitsuba is imported only by the subcommands that run it, when they
 run, so ``render`` works with only the core dependencies installed.
@@ -22,8 +23,8 @@ run, so ``render`` works with only the core dependencies installed.
 Exit codes: one table for every command, ``options.EXIT``, defined from the verdict codes
 ``evaluation.gate.verdict.EXIT_CODES`` (OpenImageIO ``idiff``'s style: 0 pass, 1 warn, 2 fail or
 bad request, 3 size, 4 missing/stale golden or file error, 130 Ctrl-C);
-``options.EXIT_CODE_HELP`` is the table ``whitted --help`` shows. ``check`` and ``compare``
-exit with the largest code of their verdicts.
+``options.EXIT_CODE_HELP`` is the table ``whitted --help`` shows. ``check``, ``compare`` and
+``diff`` exit with the largest code of their verdicts.
 
 Every error is one ``error:`` line on stderr, never a traceback; warnings are one
 ``warning:`` line. The command runs in a worker thread while the main thread waits, so
@@ -50,6 +51,7 @@ from . import (
     compare,
     convert,
     data,
+    diff,
     hard_cases,
     reference,
     render,
@@ -60,7 +62,7 @@ from .options import EXIT, EXIT_CODE_HELP, CliError
 from .progress import STOP
 
 #: Modules that add subcommands, in the order ``--help`` lists them.
-COMMANDS = (render, compare, check, reference, convert, bench, study, hard_cases, view, data)
+COMMANDS = (render, compare, check, diff, reference, convert, bench, study, hard_cases, view, data)
 
 
 def version() -> str:

@@ -31,7 +31,7 @@ EXIT = {"ok": EXIT_CODES["PASS"], "warn": EXIT_CODES["WARN"], "fail": EXIT_CODES
 
 
 #: The exit-code table of ``whitted --help`` (and ``check --help``), from ``EXIT``.
-EXIT_CODE_HELP = f"""exit codes (idiff's style; check and compare: the largest verdict's):
+EXIT_CODE_HELP = f"""exit codes (idiff's style; check, compare, diff: the largest verdict's):
   {EXIT["ok"]}    PASS: done, or every comparison passed
   {EXIT["warn"]}    WARN: passed, but a [check.warn] level of a scene file was exceeded
   {EXIT["fail"]}    FAIL: an image differs from its golden; or a bad request (usage, option
@@ -102,12 +102,26 @@ def add_import_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--camera", choices=("auto",),
                    help="'auto': one view framed on the scene's bounding box, replacing the "
                         "file's views (a mesh file without views gets it anyway)")
+    add_read_options(p)
+
+
+def add_read_options(p: argparse.ArgumentParser) -> None:
+    """``-D NAME=VALUE`` and ``--approximate`` (``read_options``)."""
     p.add_argument("-D", dest="defines", action="append", default=[], metavar="NAME=VALUE",
                    help="Mitsuba XML: set a $NAME parameter (overrides its <default>)")
     p.add_argument("--approximate", action="store_true",
                    help="Mitsuba XML: render elements outside the model's subset (path "
                         "integrator, rough or plastic BSDFs, named conductors) by their "
                         "documented approximation instead of refusing them")
+
+
+def read_options(args: argparse.Namespace) -> dict:
+    """``load_scene``'s ``defines`` and ``approximate`` from ``-D`` and ``--approximate``,
+    only those given (``Scene.read``); a bad ``-D`` is a SceneError (exit 2)."""
+    from renderer.scene.mitsuba_xml import parse_defines
+    defines = parse_defines(getattr(args, "defines", []))
+    return {**({"defines": defines} if defines else {}),
+            **({"approximate": True} if getattr(args, "approximate", False) else {})}
 
 
 def read_scene(args: argparse.Namespace, path=None, *, cache=None) -> Scene:

@@ -18,9 +18,17 @@ from reference.mitsuba_scene import (
 from reference.xml_lookat import write_lookat
 from renderer.outputs import check_output_dir
 from renderer.scene import SHADING_MODES, load_scene
+from renderer.scene.importers import check_defines
 
 from .data import scene_arg
-from .options import EXIT, CliError, overrides_for_cli, select_views
+from .options import (
+    EXIT,
+    CliError,
+    add_read_options,
+    overrides_for_cli,
+    read_options,
+    select_views,
+)
 
 
 def register(subparsers) -> None:
@@ -46,10 +54,12 @@ def register(subparsers) -> None:
     p.add_argument("--batches", type=at_least(1), default=golden.CONVERGED_BATCHES,
                    help="independent batches of the converged render (variance estimate; "
                         f"default {golden.CONVERGED_BATCHES})")
-    p.add_argument("--size", type=at_least(1), default=golden.DEFAULT_SIZE,
-                   help=f"image height in pixels (default {golden.DEFAULT_SIZE})")
-    p.add_argument("--converged-size", type=at_least(1), default=golden.CONVERGED_SIZE,
-                   help=f"image height of converged goldens (default {golden.CONVERGED_SIZE})")
+    p.add_argument("--size", type=at_least(1), default=None,
+                   help="image height in pixels, the width following the view's aspect "
+                        "(default: the scene's [check] size, else its own resolution)")
+    p.add_argument("--converged-size", type=at_least(1), default=None,
+                   help="image height of converged goldens (default: --size, else the "
+                        "scene's [check] converged_size or size, else its own resolution)")
     p.add_argument("--modes", nargs="+", choices=golden.MODES,
                    help="default: the scene's [check] modes, else exact")
     p.add_argument("--shadings", nargs="+", choices=SHADING_MODES,
@@ -59,6 +69,7 @@ def register(subparsers) -> None:
                    help="render the goldens on a Dask LocalCluster of N worker processes "
                         "(one GPU each where there are GPUs; default: in this process)")
     p.add_argument("--scheduler", help="render the goldens on an existing Dask scheduler")
+    add_read_options(p)
     p.set_defaults(func=cmd_reference)
 
     p = subparsers.add_parser(
@@ -87,6 +98,9 @@ def cmd_reference(args: argparse.Namespace) -> int:
     from evaluation.gate.executor import make_executor, visible_gpus
     from evaluation.gate.verdict import plan_for
 
+    read = read_options(args)
+    for path in args.scenes:            # before the store is made: exit 2, as for render
+        check_defines(path, read.get("defines"))
     store, source = (args.goldens, "--goldens") if args.goldens else \
         golden.configured_store()
     if store is None:
@@ -103,10 +117,11 @@ def cmd_reference(args: argparse.Namespace) -> int:
         # refused before any worker starts or anything renders
         plans = []
         for path in args.scenes:
-            modes, shadings = plan_for(load_scene(path), args.modes, args.shadings)
+            modes, shadings = plan_for(load_scene(path, **read), args.modes, args.shadings)
             plans.append((path, modes, shadings))
             golden.golden_jobs([path], size=args.size, converged_size=args.converged_size,
-                               modes=modes, shadings=shadings, root=store, force=args.force)
+                               modes=modes, shadings=shadings, root=store, force=args.force,
+                               read=read)
         # Same executor as `whitted study`: each job (scene, shading, mode, view) is a
         # picklable spec rendered by reference.golden.render_golden_job wherever it runs.
         kw = {"gpus": "auto"} if workers and not scheduler and visible_gpus() else {}
@@ -122,7 +137,7 @@ def cmd_reference(args: argparse.Namespace) -> int:
                     size=args.size, converged_size=args.converged_size, modes=modes,
                     shadings=shadings, progress=not args.quiet, root=store,
                     report=None if args.quiet else print,
-                    executor=None if ex.name == "in-process" else ex))
+                    executor=None if ex.name == "in-process" else ex, read=read))
     except golden.GoldenError as e:
         raise CliError(str(e), code=EXIT["file"]) from e
     print(f"wrote {written} golden images into {store}" + (f" (from {source})"

@@ -14,6 +14,7 @@ import sys
 import time
 from pathlib import Path
 
+from evaluation.gate.imagemeta import ours_metadata
 from renderer.film import write_exr, write_png
 from renderer.orbit import PLAYBACK_FPS, mp4_available, render_orbit, write_gif, write_mp4
 from renderer.outputs import check_output_file
@@ -135,7 +136,9 @@ def cmd_render(args: argparse.Namespace) -> int:
         ks = render_view(renderer, v, f"{scene.name}/{cam.name}")
         res = ks["result"]
         if "exr" in f:
-            write_exr(f["exr"], res.image, overwrite=args.overwrite)
+            write_exr(f["exr"], res.image, overwrite=args.overwrite,
+                      metadata=ours_metadata(scene, v, backend=renderer.t.backend,
+                                             precision=renderer.t.precision))
         if "png" in f:
             write_png(f["png"], res.image, overwrite=args.overwrite)
         bands = res.stats.get("bands", 1)

@@ -26,7 +26,14 @@ from evaluation import wxh
 from renderer.scene import load_scene
 
 from .data import scene_arg
-from .options import EXIT, CliError, add_backend_option, select_views
+from .options import (
+    EXIT,
+    CliError,
+    add_backend_option,
+    add_read_options,
+    read_options,
+    select_views,
+)
 from .progress import STOP
 
 
@@ -49,6 +56,7 @@ def register(subparsers) -> None:
     p.add_argument("--view", default="0", help="view to start from (index or name)")
     p.add_argument("--out", type=Path, help="folder for saved views and camera tables "
                                             "(default out/view/<scene>)")
+    add_read_options(p)
     p.set_defaults(func=cmd_view)
 
 
@@ -71,7 +79,7 @@ def cmd_view(args: argparse.Namespace) -> int:
 
     if not 0 <= args.port <= 65535:
         raise CliError(f"--port: expected 0..65535, got {args.port}")
-    scene = load_scene(args.scene)
+    scene = load_scene(args.scene, **read_options(args))
     start = select_views(scene, args.view)[0]
     session = ViewSession(args.scene, backend=args.backend, size=args.size,
                           moving_size=args.moving_size, scene=scene)

@@ -57,6 +57,8 @@ class ReportEntry:
         (``evaluation.gate.rules.exact_overlay``: hard pixels red, excused ties yellow,
         ill-conditioned pixels orange, the rest of the tie mask magenta), shown beside the
         images (the gate sets it for a FAIL).
+    metadata: {"ours": fields, "golden": fields} (``evaluation.gate.imagemeta``): written into
+        the headers of the entry's ``ours.exr`` and ``mitsuba.exr``.
     """
 
     name: str
@@ -71,6 +73,7 @@ class ReportEntry:
     verdict: str | None = None
     verdict_reason: str = ""
     thresholds: dict[str, tuple] = field(default_factory=dict)
+    metadata: dict[str, dict] = field(default_factory=dict)
     overlay: np.ndarray | None = None
 
 
@@ -420,8 +423,10 @@ def write_report(out_dir: str | Path, entries: list[ReportEntry], *, title: str,
             _save_png(folder / f"{fname}.png", rgb)
         if e.overlay is not None:
             _save_png(folder / "rule.png", e.overlay)
-        write_exr(folder / "ours.exr", e.ours, overwrite=True)
-        write_exr(folder / "mitsuba.exr", e.ref, overwrite=True)
+        write_exr(folder / "ours.exr", e.ours, overwrite=True,
+                  metadata=e.metadata.get("ours"))
+        write_exr(folder / "mitsuba.exr", e.ref, overwrite=True,
+                  metadata=e.metadata.get("golden"))
         _save_png(folder / "strip.png", _strip(panels))
         record = {"name": e.name, "metrics": e.metrics, "absdiff_scale": scale,
                   "ours_seconds": e.ours_seconds, "ref_seconds": e.ref_seconds,

@@ -81,10 +81,15 @@ class Verdict:
     ours: np.ndarray | None = field(default=None, repr=False)
     ref: np.ndarray | None = field(default=None, repr=False)
     ties: np.ndarray | None = field(default=None, repr=False)   # exact: the tie mask
+    #: image metadata of both sides (``evaluation.gate.imagemeta``): {"ours": ..., "golden": ...}
+    metadata: dict[str, dict] = field(default_factory=dict)
+    #: the metadata fields that differ (``imagemeta.differences``), one phrase each
+    differences: list[str] = field(default_factory=list)
+    label: str = ""                  # the name to show instead of scene/view shading mode
 
     @property
     def name(self) -> str:
-        return f"{self.scene}/{self.view_name} {self.shading} {self.mode}"
+        return self.label or f"{self.scene}/{self.view_name} {self.shading} {self.mode}"
 
     @property
     def exit_code(self) -> int:
@@ -92,7 +97,8 @@ class Verdict:
 
     def as_dict(self) -> dict:
         keys = ("scene", "scene_file", "view", "view_name", "shading", "mode", "status",
-                "reason", "excused", "result", "thresholds", "golden", "command", "seconds")
+                "reason", "excused", "result", "thresholds", "golden", "command", "seconds",
+                "metadata", "differences")
         out = {k: getattr(self, k) for k in keys}
         out["exit_code"] = self.exit_code
         out["name"] = self.name
@@ -105,13 +111,6 @@ def exit_code(verdicts) -> int:
 
 
 # ---- thresholds -----------------------------------------------------------------------------
-def _unknown(scene, where: str, name: str, valid) -> SceneError:
-    close = difflib.get_close_matches(name, list(valid), n=1, cutoff=0.5)
-    hint = f"; did you mean {close[0]!r}?" if close else ""
-    return SceneError(f"{scene.path}: {where}.{name}: unknown threshold (valid: "
-                      f"{', '.join(valid)}){hint}")
-
-
 #: The values a threshold may take: name -> (test, what it must be). Any other name: a
 #: number >= 0.
 _RANGES = {
@@ -122,27 +121,39 @@ _RANGES = {
 }
 
 
-def _check_range(scene, where: str, name: str, value) -> None:
-    test, what = _RANGES.get(name, (lambda v: v >= 0, "a number >= 0"))
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not test(value):
-        raise SceneError(f"{scene.path}: {where}: expected {what}, got {value!r}")
+def threshold_values(mode: str, values: dict, *, why: str, where) -> dict[str, Threshold]:
+    """``evaluation.gate.rules.THRESHOLDS[mode]`` with ``values`` (name -> number) in place
+    of the defaults they name, each with the reason ``why``. ``where(name)`` is how the
+    source names a threshold in an error (``check.exact.max_rel`` in a scene file,
+    ``--threshold max_rel`` on the command line). Raises ``ValueError`` (one line, starting
+    with ``where(name)``) for a name the rule does not have (with the closest valid one) or
+    a value out of its range (``_RANGES``)."""
+    out = dict(THRESHOLDS[mode])
+    for name, value in values.items():
+        if name not in out:
+            close = difflib.get_close_matches(name, list(out), n=1, cutoff=0.5)
+            hint = f"; did you mean {close[0]!r}?" if close else ""
+            raise ValueError(f"{where(name)}: unknown threshold (valid: "
+                             f"{', '.join(out)}){hint}")
+        test, what = _RANGES.get(name, (lambda v: v >= 0, "a number >= 0"))
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not test(value):
+            raise ValueError(f"{where(name)}: expected {what}, got {value!r}")
+        out[name] = Threshold(value, why)
+    return out
 
 
 def thresholds_for(scene, mode: str) -> dict[str, Threshold]:
     """The thresholds of ``mode`` for ``scene``: ``evaluation.gate.rules.THRESHOLDS[mode]`` with the
     scene file's ``[check.<mode>]`` values in place of the defaults they name. Raises
     ``SceneError`` (file and field) for a name the rule does not have or a value out of its
-    range (``_RANGES``)."""
-    out = dict(THRESHOLDS[mode])
+    range (``threshold_values``)."""
     reason = scene.check.get("reason", "")
-    for name, value in scene.check.get(mode, {}).items():
-        if name not in out:
-            raise _unknown(scene, f"check.{mode}", name, out)
-        _check_range(scene, f"check.{mode}.{name}", name, value)
-        why = f"set in {Path(scene.path).name} [check.{mode}]" + (f": {reason}" if reason
-                                                                  else "")
-        out[name] = Threshold(value, why)
-    return out
+    why = f"set in {Path(scene.path).name} [check.{mode}]" + (f": {reason}" if reason else "")
+    try:
+        return threshold_values(mode, scene.check.get(mode, {}), why=why,
+                                where=lambda name: f"check.{mode}.{name}")
+    except ValueError as e:
+        raise SceneError(f"{scene.path}: {e}") from None
 
 
 def _threshold_rows(th: dict[str, Threshold], defaults: dict[str, Threshold]) -> dict:
@@ -162,10 +173,12 @@ def _pixels(pxs, n: int = 5) -> str:
     return shown + (", ..." if len(pxs) > n else "")
 
 
-def explain(mode: str, res: dict, th: dict) -> tuple[str, dict[str, int]]:
+def explain(mode: str, res: dict, th: dict,
+            probed: bool = True) -> tuple[str, dict[str, int]]:
     """(one-line reason, pixels excused per rule) of a rule's result ``res``. A rule may
     give both itself (``res["reason"]``, and ``res["excused"]`` as a dict); otherwise they
-    are read from the numbers of ``check_exact`` / ``check_converged``."""
+    are read from the numbers of ``check_exact`` / ``check_converged``. ``probed``: whether
+    an exact comparison had a tie mask (``whitted diff`` of two image files has none)."""
     given = res.get("excused")
     excused = dict(given) if isinstance(given, dict) else {}
     if "reason" in res:
@@ -176,18 +189,22 @@ def explain(mode: str, res: dict, th: dict) -> tuple[str, dict[str, int]]:
             excused["tie-probe pixels"] = res["excused_pixels"]
         if res.get("ill_conditioned_pixels"):
             excused["ill-conditioned pixels (nudge probe)"] = res["ill_conditioned_pixels"]
+        mask = (f"tie mask {_fmt(res.get('tie_pixels', 0))} pixels" if probed
+                else "no tie probe")
         if res.get("ok"):
             ill = res.get("ill_conditioned_pixels", 0)
             return (f"mean rel {_fmt(res.get('mean_rel', 0.0))}, max rel (held) "
                     f"{_fmt(res.get('max_rel_held', res.get('max_rel', 0.0)))}, "
-                    f"tie mask {_fmt(res.get('tie_pixels', 0))} pixels"
+                    f"{mask}"
                     + (f", {ill:,} ill-conditioned pixels excused (their value moves beyond "
                        f"max_rel under a nudge of the primary ray by "
                        f"{val.get('nudge_ulps', 0):g} ulp)" if ill else "")), excused
         why = []
         if res.get("hard_pixels", 0):
+            where = (" where neither the tie probe nor the nudge probe excuses" if probed
+                     else " (no tie probe)")
             why.append(f"{res['hard_pixels']:,} pixels above max_rel {val.get('max_rel', 0):g}"
-                       f" where neither the tie probe nor the nudge probe excuses (worst rel "
+                       f"{where} (worst rel "
                        f"{_fmt(res.get('max_rel_held', res.get('max_rel')))}; "
                        f"{_pixels(res.get('hard', []))})")
         if "mean_rel" in val and res.get("mean_rel", 0) > val["mean_rel"]:
@@ -223,7 +240,7 @@ def judge(ours, golden, mode: str, th: dict, warn: dict | None = None,
         return ("SIZE", f"ours is {shape[1]}x{shape[0]}, the golden "
                         f"{golden.image.shape[1]}x{golden.image.shape[0]}", {}, {})
     res = RULES[mode](ours, golden, th, ties, nudged)
-    reason, excused = explain(mode, res, th)
+    reason, excused = explain(mode, res, th, probed=ties is not None)
     status = "PASS" if res["ok"] else "FAIL"
     if status == "PASS" and warn:
         over = []
@@ -306,13 +323,15 @@ def _nudged(renderers: dict, scene, view: int, golden, th: dict) -> np.ndarray:
 
 def check_scene(scene_path, stores, *, modes=None, shadings=None, views=None,
                 backend: str = "llvm", precision: str = "float32", accel: str | None = None,
-                keep_images: bool = False, progress=None, render=None) -> list[Verdict]:
+                keep_images: bool = False, progress=None, render=None,
+                read: dict | None = None) -> list[Verdict]:
     """Every verdict of one scene file against the golden ``stores`` (searched in order).
 
     modes / shadings / views: what to check (default ``plan_for``; views: every view).
     backend, precision, accel: how our renderer runs. keep_images: keep ours and the golden
     on each verdict (for a report). progress: called with each verdict as it is made.
-    render: how our image is rendered (``_ours``)."""
+    render: how our image is rendered (``_ours``). read: how the file is read
+    (``load_scene``'s ``defines`` and ``approximate``: ``-D``, ``--approximate``)."""
     scene_path = Path(scene_path)
     shown = str(scene_path)
     opts = {"backend": backend, "precision": precision}
@@ -327,7 +346,8 @@ def check_scene(scene_path, stores, *, modes=None, shadings=None, views=None,
         return v
 
     try:
-        base = load_scene(scene_path)
+        read = read or {}
+        base = load_scene(scene_path, **read)
         modes, shadings = plan_for(base, modes, shadings)
         ths = {m: thresholds_for(base, m) for m in modes}
     except SceneError as e:
@@ -336,7 +356,7 @@ def check_scene(scene_path, stores, *, modes=None, shadings=None, views=None,
         return [error(f"{scene_path}: cannot read: {e}")]
     out = []
     for shading in shadings:
-        scene = load_scene(scene_path, shading=shading)
+        scene = load_scene(scene_path, shading=shading, **read)
         renderers: dict = {}
         for v, cam in enumerate(scene.cameras):
             if views is not None and v not in views and cam.name not in views:
@@ -371,6 +391,7 @@ def check_scene(scene_path, stores, *, modes=None, shadings=None, views=None,
                                                      nudged)
                         verdict.command = golden_store.regenerate_command(
                             scene.path, g.path.parent.parent)
+                        _describe(verdict, matching(scene, g), v, mode, g, opts)
                         if keep_images:
                             verdict.ours = (ours.mean.astype(np.float32)
                                             if isinstance(ours, Batches) else ours)
@@ -382,6 +403,25 @@ def check_scene(scene_path, stores, *, modes=None, shadings=None, views=None,
                     progress(verdict)
                 out.append(verdict)
     return out
+
+
+def _describe(verdict: Verdict, sized, view: int, mode: str, golden, opts: dict) -> None:
+    """The metadata of ours (``sized``: the scene as rendered, at the golden's size) and of
+    the golden (its EXR header, else its sidecar) on ``verdict``, and the fields that
+    differ other than who rendered each."""
+    from renderer.device import types
+
+    from .imagemeta import differences, image_metadata, ours_metadata
+
+    spp = None
+    if mode == "converged":
+        spp = int(golden.meta.get("batch_spp", 1)) * int(golden.meta.get("batches", 1))
+    ours = ours_metadata(sized, view, backend=types(opts["backend"], opts["precision"]).backend,
+                         precision=opts["precision"], exact=mode == "exact", spp=spp)
+    theirs = image_metadata(golden.path) if golden.path and golden.path.is_file() else {}
+    verdict.metadata = {"ours": ours, "golden": theirs}
+    verdict.differences = differences(ours, theirs, names=("ours", "golden"),
+                                      ignore=("renderer",))
 
 
 def check_scenes(scene_paths, stores, **kw) -> list[Verdict]:
@@ -465,8 +505,8 @@ def is_our_junit(path) -> bool:
 
 def junit_xml(verdicts, suite: str = "whitted check") -> bytes:
     """JUnit XML: one ``testcase`` per verdict (classname ``whitted.<scene>``, name ``<view>
-    <shading> <mode>``); FAIL and SIZE are ``failure``, MISSING / STALE / ERROR ``error``,
-    WARN passes with its reason in ``system-out``."""
+    <shading> <mode>``, or the verdict's ``label``); FAIL and SIZE are ``failure``, MISSING /
+    STALE / ERROR ``error``, WARN passes with its reason in ``system-out``."""
     verdicts = list(verdicts)
     fails = sum(v.status in ("FAIL", "SIZE") for v in verdicts)
     errors = sum(v.status in ("MISSING", "STALE", "ERROR") for v in verdicts)
@@ -478,7 +518,8 @@ def junit_xml(verdicts, suite: str = "whitted check") -> bytes:
                        time=f"{total:.3f}")
     for v in verdicts:
         tc = ET.SubElement(ts, "testcase", classname=f"whitted.{v.scene}",
-                           name=f"{v.view_name} {v.shading} {v.mode}", time=f"{v.seconds:.3f}",
+                           name=v.label or f"{v.view_name} {v.shading} {v.mode}",
+                           time=f"{v.seconds:.3f}",
                            file=v.scene_file)
         detail = json.dumps({"result": v.result, "excused": v.excused,
                              "thresholds": v.thresholds, "golden": v.golden,
@@ -514,7 +555,9 @@ def report_entries(verdicts):
             verdict=v.status, verdict_reason=v.reason,
             thresholds={k: (t["value"], t["why"]) for k, t in v.thresholds.items()},
             info={"golden": v.golden or "—", "excused pixels": excused,
-                  "re-render the golden": v.command},
+                  "re-render the golden": v.command,
+                  **({"metadata differs": "; ".join(v.differences)} if v.differences else {})},
+            metadata=v.metadata,
             overlay=exact_overlay(v.ours, v.ref, {k: (t["value"],) for k, t in
                                                   v.thresholds.items()}, v.ties,
                                   (v.result or {}).get("ill_conditioned"))
@@ -524,5 +567,6 @@ def report_entries(verdicts):
 
 __all__ = ["DEFAULT_MODES", "DEFAULT_SHADINGS", "EXIT_CODES", "MODES", "Verdict",
            "check_scene", "check_scenes", "exit_code", "explain", "format_line", "judge",
-           "junit_xml", "report_entries", "summary_line", "thresholds_for", "to_json",
+           "junit_xml", "report_entries", "summary_line", "threshold_values",
+           "thresholds_for", "to_json",
            "write_json", "write_junit"]

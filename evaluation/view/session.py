@@ -237,7 +237,8 @@ class ViewSession:
         """The scene as the settings ask for it: shading (the file re-read), the mode's
         depth, spp (exact when 1) and the spawn rule."""
         if st.shading not in self._scenes:
-            self._scenes[st.shading] = load_scene(self.scene_path, shading=st.shading)
+            self._scenes[st.shading] = load_scene(self.scene_path, shading=st.shading,
+                                                  **self.base.read)
         scene = self._scenes[st.shading]
         depth = RENDER_MODES[st.mode][1]
         scene = scene.with_overrides(spp=st.spp, max_depth=depth)

@@ -38,11 +38,18 @@ from .parts import (
 )
 
 __all__ = ["AUTO_FOV", "AUTO_SIZE", "SCENE_FORMATS", "DEFAULT_MATERIAL", "ObjOptions",
-           "assemble", "auto_camera", "default_light", "load_scene", "obj_parts",
+           "assemble", "auto_camera", "check_defines", "default_light", "load_scene", "obj_parts",
            "load_obj_scene", "load_ply_scene", "ply_part", "world_normals"]
 
 #: Scene-file suffixes ``load_scene`` reads.
 SCENE_FORMATS = (".toml", ".obj", ".ply", ".xml")
+def check_defines(path, defines) -> None:
+    """``-D`` parameters are for a Mitsuba XML scene only: SceneError for any other file."""
+    if defines and Path(path).suffix.lower() != ".xml":
+        raise SceneError(f"{path}: -D {next(iter(defines))}=...: parameters are for Mitsuba "
+                         "XML scenes only")
+
+
 def load_scene(path, *, shading: str | None = None, camera: str | None = None,
                defines: dict[str, str] | None = None, approximate: bool = False,
                cache=None) -> Scene:
@@ -61,9 +68,7 @@ def load_scene(path, *, shading: str | None = None, camera: str | None = None,
     suffix = path.suffix.lower()
     if camera not in (None, "auto"):
         raise SceneError(f"camera: expected 'auto', got {camera!r}", field="camera")
-    if defines and suffix != ".xml":
-        raise SceneError(f"{path}: -D {next(iter(defines))}=...: parameters are for Mitsuba "
-                         "XML scenes only")
+    check_defines(path, defines)
     if suffix == ".toml":
         scene = load_toml(path, shading=shading, cache=cache)
     elif suffix == ".obj":
@@ -76,6 +81,9 @@ def load_scene(path, *, shading: str | None = None, camera: str | None = None,
     else:
         raise SceneError(f"{path}: unsupported scene format {path.suffix!r}, expected one of "
                          f"{', '.join(SCENE_FORMATS)}")
+    if suffix == ".xml" and (defines or approximate):     # recorded where they matter
+        scene = replace(scene, read={**({"defines": dict(defines)} if defines else {}),
+                                     **({"approximate": True} if approximate else {})})
     if camera == "auto":
         scene = replace(scene, cameras=[auto_camera(scene)])
     return scene

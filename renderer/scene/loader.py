@@ -23,6 +23,7 @@ import numpy as np
 from ..cache_key import code_version, content_key
 from . import meshio, shapes
 from .model import (
+    ARRAY_LIMIT,
     COMBINATIONS,
     FALLOFFS,
     SHADING_MODES,
@@ -55,7 +56,8 @@ _MATERIAL_KEYS = ("ka", "kd", "ks", "n", "k_refl", "k_refr", "ior", "combination
 _OBJECT_KEYS = ("name", "material", "mesh", "shape", "translate", "rotate", "scale",
                 "matrix", "smooth", "flip_normals", "subdivide")
 _PHYSICAL_KEYS = ("light_scale", "ambient", "background")
-_CHECK_KEYS = ("modes", "shadings", "exact", "converged", "warn", "reason")
+_CHECK_KEYS = ("modes", "shadings", "size", "converged_size", "exact", "converged", "warn",
+               "reason")
 #: Comparison modes a ``[check]`` table may name (``reference.MODES``; the renderer cannot
 #: import it).
 _CHECK_MODES = ("exact", "converged")
@@ -400,9 +402,10 @@ def _read_materials(r: _Reader, data: dict) -> list[Material]:
 
 # ---- [check] ---------------------------------------------------------------------------------
 def _read_check(r: _Reader, data: dict) -> dict:
-    """The ``[check]`` table as plain data: ``modes`` and ``shadings`` (lists of names), the
-    threshold overrides ``exact`` / ``converged`` and the ``warn`` levels (tables of name ->
-    number; ``evaluation.rules`` checks the names), and ``reason`` (why they differ from the
+    """The ``[check]`` table as plain data: ``modes`` and ``shadings`` (lists of names),
+    ``size`` and ``converged_size`` (the goldens' ``(width, height)``), the threshold
+    overrides ``exact`` / ``converged`` and the ``warn`` levels (tables of name -> number;
+    ``evaluation.rules`` checks the names), and ``reason`` (why they differ from the
     defaults). Absent keys are absent from the result."""
     ct = r.table(data.get("check", {}), "check")
     r.keys(ct, _CHECK_KEYS, "check")
@@ -415,6 +418,17 @@ def _read_check(r: _Reader, data: dict) -> dict:
                                               f"{', '.join(map(repr, choices))}, got "
                                               f"{_describe(values)}")
             out[key] = [r.string(v, f"check.{key}[{i}]", choices) for i, v in enumerate(values)]
+    for key in ("size", "converged_size"):
+        if key in ct:
+            size = ct[key]
+            if not isinstance(size, list) or len(size) != 2:
+                raise r.error(f"check.{key}", f"expected [width, height], got {_describe(size)}")
+            w = r.integer(size[0], f"check.{key}[0]", lo=1)
+            h = r.integer(size[1], f"check.{key}[1]", lo=1)
+            if 3 * w * h > ARRAY_LIMIT:
+                raise r.error(f"check.{key}", f"{w} x {h} pixels need {3 * w * h} film "
+                                              "entries; Dr.Jit arrays hold at most 2^32 - 1")
+            out[key] = (w, h)
     for key in ("exact", "converged", "warn"):
         if key in ct:
             table = r.table(ct[key], f"check.{key}")

@@ -421,6 +421,10 @@ class Scene:
     # The file's [check] table (what the regression gate checks, thresholds): evaluation's
     # data, ignored by the renderer.
     check: dict = field(default_factory=dict)
+    # How the file was read beyond its bytes: ``load_scene``'s ``defines`` and
+    # ``approximate`` where given (keyword arguments, so the file can be read again the same
+    # way: ``load_scene(path, shading=..., **scene.read)``); part of a golden's key.
+    read: dict = field(default_factory=dict)
 
     def __post_init__(self):
         # A copy made with ``replace(scene, vertices=...)`` (moved, scaled) keeps the old
