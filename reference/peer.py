@@ -14,6 +14,8 @@ write for speed: the same model (docs/MODEL.md) over the same translated ``mi.Sc
   with the weights of docs/MODEL.md (the ``constant`` combination overrides them);
 - the tree unrolled by Python recursion at trace time, every branch under a mask (no
   ``dr.eval``, no ``dr.any``, no host sync), so a frame is ONE kernel;
+- the shadow samples of a light with extent as one symbolic ``dr.while_loop`` (a PCG32
+  in its state, stratified as ours), so the kernel does not grow with their number;
 - ``dr.freeze`` around the frame function, so a repeated frame skips tracing and compiling.
 
 Ray offsets are those of docs/MODEL.md (absolute ``ray_offset`` along ``±N_g``), written out
@@ -30,6 +32,8 @@ Entry points: ``Peer(mi_scene)`` (tables from a scene loaded in exact mode by
 ``render_peer(scene, ...)`` (float32 (H, W, 3)).
 """
 from __future__ import annotations
+
+import math
 
 import numpy as np
 
@@ -219,44 +223,65 @@ class Peer:
         return result
 
     def _area_terms(self, scene, si, hit, bsdf, ctx, offset):
-        """Lights with extent (docs/MODEL.md): ``shadow_samples`` samples of each by its own
-        ``sample_direction`` (independent PCG32 numbers, not stratified), each with a shadow
-        ray, weight ``1 / shadow_samples``; physical ``L_e / pdf``, classic the
-        point-light intensity (as ``reference.plugins``)."""
+        """Lights with extent (docs/MODEL.md): ``shadow_samples = k²`` samples of each by its
+        own ``sample_direction``, stratified as ours (sample ``s = j k + i`` at
+        ``((i + ξ1)/k, (j + ξ2)/k)``, ``ξ`` from the ray's PCG32), each with a shadow ray and
+        weight ``1 / k²``; physical ``L_e / pdf``, classic the point-light intensity (as
+        ``reference.plugins``). The samples are one symbolic loop per light (the PCG32 in
+        its state), so the kernel's size does not grow with ``k²``."""
         mi = _mi()
-        import drjit as dr
         total = mi.Color3f(0.0)
-        inv_n = 1.0 / self.shadow_samples
         integ = self.scene.integrator()
         for shape, key in self.area_lights:
-            em = shape.emitter()
-            sphere = shape.shape_type() == mi.ShapeType.Sphere
-            box = shape.bbox()
-            radius = float(box.extents()[0]) * 0.5
-            proj = np.pi * radius * radius if sphere else float(shape.surface_area()[0])
-            no_falloff = key.removesuffix("_back") in integ.falloff_none
-            outside = (dr.squared_norm(si.p - mi.Point3f(box.center())) > radius * radius
-                       if sphere else mi.Bool(True))
-            for _ in range(self.shadow_samples):
-                u = mi.Point2f(self._rng.next_float32(), self._rng.next_float32())
-                ds, spec = em.sample_direction(si, u, hit)
-                ok = hit & outside & (ds.pdf > 0) & (_hmax(spec) > 0)
-                if self.physical:
-                    Li = spec
-                else:
-                    Li = spec * ds.pdf * proj
-                    if not sphere:
-                        Li = Li * dr.maximum(-dr.dot(ds.d, ds.n), 0.0)
-                    if not no_falloff:
-                        Li = Li / dr.square(ds.dist)
-                o = offset(ds.d)
-                to_light = ds.p - o
-                dist = dr.norm(to_light)
-                shadow = mi.Ray3f(o, to_light / dist)
-                shadow.maxt = dist - self.eps
-                lit = ok & ~scene.ray_test(shadow, ok)
-                f = bsdf.eval(ctx, si, si.to_local(ds.d), lit)
-                total += dr.select(lit, f * Li * inv_n, 0.0)
+            total = self._area_light(scene, si, hit, bsdf, ctx, offset, shape,
+                                     key.removesuffix("_back") in integ.falloff_none, total)
+        return total
+
+    def _area_light(self, scene, si, hit, bsdf, ctx, offset, shape, no_falloff, total):
+        """``total`` plus one light's ``shadow_samples`` terms (a ``dr.while_loop``)."""
+        mi = _mi()
+        import drjit as dr
+        n = self.shadow_samples
+        k = math.isqrt(n)
+        inv_n, inv_k = 1.0 / n, 1.0 / k
+        em = shape.emitter()
+        sphere = shape.shape_type() == mi.ShapeType.Sphere
+        box = shape.bbox()
+        radius = float(box.extents()[0]) * 0.5
+        proj = np.pi * radius * radius if sphere else float(shape.surface_area()[0])
+        outside = (dr.squared_norm(si.p - mi.Point3f(box.center())) > radius * radius
+                   if sphere else mi.Bool(True))
+        physical, eps = self.physical, self.eps
+
+        def body(s, total, rng):
+            row = s // k
+            u = mi.Point2f((mi.Float(s - row * k) + rng.next_float32()) * inv_k,
+                           (mi.Float(row) + rng.next_float32()) * inv_k)
+            ds, spec = em.sample_direction(si, u, hit)
+            ok = hit & outside & (ds.pdf > 0) & (_hmax(spec) > 0)
+            if physical:
+                Li = spec
+            else:
+                Li = spec * ds.pdf * proj
+                if not sphere:
+                    Li = Li * dr.maximum(-dr.dot(ds.d, ds.n), 0.0)
+                if not no_falloff:
+                    Li = Li / dr.square(ds.dist)
+            o = offset(ds.d)
+            to_light = ds.p - o
+            dist = dr.norm(to_light)
+            shadow = mi.Ray3f(o, to_light / dist)
+            shadow.maxt = dist - eps
+            lit = ok & ~scene.ray_test(shadow, ok)
+            f = bsdf.eval(ctx, si, si.to_local(ds.d), lit)
+            total = total + dr.select(lit, f * Li * inv_n, 0.0)
+            return s + 1, total, rng
+
+        s0 = dr.zeros(mi.UInt32, dr.width(hit))
+        total = dr.zeros(mi.Color3f, dr.width(hit)) + total
+        _, total, self._rng = dr.while_loop(
+            (s0, total, self._rng), lambda s, total, rng: s < n, body,
+            labels=("s", "total", "rng"), label="peer shadow samples")
         return total
 
     # ---- frames ------------------------------------------------------------------------------

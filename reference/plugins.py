@@ -213,7 +213,7 @@ def _define_plugins() -> dict[str, type]:
                 if isinstance(v, mi.Shape):
                     if v.emitter() is None:
                         raise ValueError(f"whitted: nested shape {key!r} has no emitter")
-                    self.area_lights.append((v, key))
+                    self.area_lights.append((v, v.id() or key))
             self._tables = None
 
         # ---- host-side tables -------------------------------------------------------------

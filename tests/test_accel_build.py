@@ -139,3 +139,22 @@ def test_precision_constants_follow_the_precision():
         assert lo.dtype == dt
         assert np.array_equal(lo, np.array([1 - 6 * scale, -2 - 6 * scale, -4 * scale], dt))
         assert np.array_equal(hi, np.array([2 + 6 * scale, -1 + 6 * scale, 4 * scale], dt))
+
+
+def test_reinsertion_memory_is_a_few_values_per_node():
+    """The optimisation's tree is typed arrays (8 bytes a value), not Python objects: its
+    peak allocation (tracemalloc, output included) stays under 300 bytes per node, where a
+    tree of lists and box tuples takes about 570 (for the bunny subdivided four times,
+    17.8 M triangles, about 10 GB)."""
+    import tracemalloc
+    V, faces = soup(20000, seed=3)
+    a = build_bvh(V, faces, optimize=0)
+    nodes = 2 * a.node_count + 1                 # inner nodes and leaves
+    tracemalloc.start()
+    try:
+        out = reinsert(a, rounds=1)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    check_bvh(out)
+    assert peak / nodes < 300, peak / nodes

@@ -246,7 +246,7 @@ def test_xml_fov_axes_and_matrix_sensor_agree_with_lookat(tmp_path):
       "    <bsdf type=\"twosided\" id=\"loop2\"><ref id=\"loop\"/></bsdf>"),
      "a cycle of references"),
     (("<emitter type=\"point\">", "<emitter type=\"area\">"),
-     "area lights are not supported yet"),
+     "an area emitter belongs inside a <shape>"),
     (("<integrator type=\"direct\"/>", "<integrator type=\"path\"/>"),
      "refused (with --approximate"),
     (("<rgb name=\"reflectance\" value=\"0.8\"/>",

@@ -72,6 +72,52 @@ def test_frozen_peer_equals_traced():
     assert _jit_kernels(lambda: run(pos)) == 1
 
 
+def _soft(samples: int, size: int = 16):
+    return (load_scene(ROOT / "scenes" / "cornell_soft.toml")
+            .with_overrides(shadow_samples=samples, max_depth=1, size=(size, size)))
+
+
+def _ops(fn) -> int:
+    _, hist, _ = kernel_launches(fn)
+    return sum(int(h.get("operation_count", 0)) for h in hist
+               if h.get("type") == dr.KernelType.JIT)
+
+
+def test_soft_peer_kernel_does_not_grow_with_shadow_samples():
+    """The shadow samples of a sphere light are one symbolic loop: 64 samples compile to the kernel
+    of 4 (an unrolled Python loop grows it 16-fold and takes minutes on CUDA)."""
+    ops = []
+    for n in (4, 64):
+        peer = load_peer(_soft(n, 8), backend=BACKEND)
+        pos = peer.positions()
+        def frame(peer=peer, pos=pos):
+            return peer.frame(pos)
+        assert _jit_kernels(frame) == 1
+        ops.append(_ops(frame))
+    assert ops[1] == ops[0], ops
+
+
+def test_soft_peer_samples_are_stratified_as_ours():
+    """Like for like: at 16 shadow samples the peer's noise (rms against its own 1024-sample
+    image) is ours (rms against our 1024-sample image), not the ~2x of independent samples,
+    and the converged images agree."""
+    def ours(n):
+        sc = _soft(n)
+        r = Renderer(sc, backend=BACKEND)
+        return r.frame(r.camera(0), 16, 16).numpy()
+
+    def peer(n):
+        return load_peer(_soft(n), backend=BACKEND).frame().numpy()
+
+    o_ref, p_ref = ours(1024), peer(1024)
+    rms_o = np.sqrt(np.mean((ours(16) - o_ref) ** 2))
+    rms_p = np.sqrt(np.mean((peer(16) - p_ref) ** 2))
+    assert 0.75 < rms_p / rms_o < 1.33, (rms_p, rms_o)
+    close = np.abs(p_ref - o_ref).max(-1) < 0.01      # all but the box's creases
+    assert close.mean() > 0.9
+    assert abs(p_ref[close].mean() / o_ref[close].mean() - 1) < 2e-3
+
+
 def test_whitted_frame_peer_row():
     r = whitted_frame_peer(load_scene(ROOT / "scenes" / "platonic_solids.toml"),
                            backend=BACKEND, depth=1, size=16, frames=2)

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import heapq
 import time
+from array import array
 from dataclasses import replace
 
 import numpy as np
@@ -57,8 +58,11 @@ def _union_area(a, b) -> float:
 
 class _Tree:
     """The BVH as nodes with parent links: inner nodes ``0..N-1`` (0 the root), leaves
-    after them (``ref``: the packed leaf reference); ``box`` tuples (lo xyz, hi xyz) and
-    their ``area`` (``_area``); ``height``: inner levels of the subtree (0 for a leaf)."""
+    after them (``ref``: the packed leaf reference); boxes as six float64 columns ``c``
+    (lo xyz, hi xyz) and their ``area`` (``_area``); ``height``: inner levels of the
+    subtree (0 for a leaf). Every field is a typed ``array.array`` (8 bytes a value, read as
+    a Python number by the scalar search), not a list of Python objects, so a tree of tens
+    of millions of nodes stays a few bytes per value."""
 
     def __init__(self, a: BVHArrays):
         N = a.node_count
@@ -69,22 +73,47 @@ class _Tree:
         M = N + int(leaf.sum())
         parent = np.full(M, -1, np.int64)
         parent[ids.reshape(-1)] = np.repeat(np.arange(N), 2)
-        box = np.empty((M, 6), np.float64)
-        box[ids.reshape(-1)] = a.boxes.astype(np.float64).reshape(-1, 6)
-        lo, hi = a.bounds
-        box[0] = np.concatenate([np.asarray(lo, np.float64), np.asarray(hi, np.float64)])
+        root = np.concatenate([np.asarray(a.bounds[0], np.float64),
+                               np.asarray(a.bounds[1], np.float64)])
+        flat, child_boxes = ids.reshape(-1), a.boxes.reshape(-1, 6)
+        self.c = []
+        for k in range(6):                  # one float64 column at a time
+            col = np.empty(M, np.float64)
+            col[flat] = child_boxes[:, k]
+            col[0] = root[k]
+            self.c.append(_col("d", col))
+            del col
         ref = np.zeros(M, np.int64)
         ref[ids[leaf]] = ch[leaf]
         self.N = N
-        self.left, self.right = ids[:, 0].tolist(), ids[:, 1].tolist()
-        self.parent, self.ref = parent.tolist(), ref.tolist()
-        self.box = [tuple(r) for r in box.tolist()]
-        self.area = [_area(b) for b in self.box]
+        self.left, self.right = _col("q", ids[:, 0]), _col("q", ids[:, 1])
+        self.parent, self.ref = _col("q", parent), _col("q", ref)
+        c = [np.frombuffer(x, np.float64) for x in self.c]
+        dx, dy, dz = c[3] - c[0], c[4] - c[1], c[5] - c[2]
+        self.area = _col("d", dx * dy + dy * dz + dz * dx)
+        del c, dx, dy, dz
         height = np.zeros(M, np.int64)
         for nodes in reversed(_levels(ids, leaf)):
             height[nodes] = 1 + np.maximum(height[ids[nodes, 0]], height[ids[nodes, 1]])
-        self.height = height.tolist()
+        self.height = _col("q", height)
         self.max_levels = MAX_LEVELS
+
+    def _box(self, i) -> tuple:
+        return tuple(c[i] for c in self.c)
+
+    def _refit(self, i) -> None:
+        """Box and area of inner node ``i`` from its children's (``_union``, ``_area``)."""
+        a, b = self.left[i], self.right[i]
+        c0, c1, c2, c3, c4, c5 = self.c
+        x0 = c0[b] if c0[b] < c0[a] else c0[a]
+        y0 = c1[b] if c1[b] < c1[a] else c1[a]
+        z0 = c2[b] if c2[b] < c2[a] else c2[a]
+        x1 = c3[b] if c3[b] > c3[a] else c3[a]
+        y1 = c4[b] if c4[b] > c4[a] else c4[a]
+        z1 = c5[b] if c5[b] > c5[a] else c5[a]
+        c0[i], c1[i], c2[i], c3[i], c4[i], c5[i] = x0, y0, z0, x1, y1, z1
+        dx, dy, dz = x1 - x0, y1 - y0, z1 - z0
+        self.area[i] = dx * dy + dy * dz + dz * dx
 
     def _preorder(self) -> list:
         out, st = [], [0]
@@ -98,10 +127,8 @@ class _Tree:
     def _up(self, i) -> None:
         """Refit the boxes and heights from inner node ``i`` up to the root."""
         while i != -1:
-            lf, rt = self.left[i], self.right[i]
-            self.box[i] = b = _union(self.box[lf], self.box[rt])
-            self.area[i] = _area(b)
-            self.height[i] = 1 + max(self.height[lf], self.height[rt])
+            self._refit(i)
+            self.height[i] = 1 + max(self.height[self.left[i]], self.height[self.right[i]])
             i = self.parent[i]
 
     def _replace_child(self, q, old, new) -> None:
@@ -119,36 +146,43 @@ class _Tree:
             return 0.0
         g = self.parent[p]
         s = self.right[p] if self.left[p] == n else self.left[p]
-        bn, hn = self.box[n], self.height[n]
-        an = self.area[n]
-        saved = self.area[p]
+        b0, b1, b2, b3, b4, b5 = self._box(n)
+        hn = self.height[n]
+        area, height, left, right = self.area, self.height, self.left, self.right
+        an = area[n]
+        saved = area[p]
         self._replace_child(g, p, s)       # cut n and p out; s takes p's place
         i = g
         while i != -1:
-            nb = _union(self.box[self.left[i]], self.box[self.right[i]])
-            na = _area(nb)
-            saved += self.area[i] - na
-            self.box[i], self.area[i] = nb, na
-            self.height[i] = 1 + max(self.height[self.left[i]], self.height[self.right[i]])
+            old = area[i]
+            self._refit(i)
+            saved += old - area[i]
+            height[i] = 1 + max(height[left[i]], height[right[i]])
             i = self.parent[i]
+        c0, c1, c2, c3, c4, c5 = self.c
+        N, max_levels = self.N, self.max_levels
         best, best_x = np.inf, s
         heap = [(0.0, 1, 0)]               # (growth of the ancestors, level of the slot, x)
         while heap:
             grown, lv, x = heapq.heappop(heap)
             if grown + an >= best:
                 break
-            ux = _union_area(self.box[x], bn)
-            if grown + ux < best and lv + self.height[x] <= self.max_levels and x != 0:
+            # _union_area(box[x], box[n])
+            dx = (b3 if b3 > c3[x] else c3[x]) - (b0 if b0 < c0[x] else c0[x])
+            dy = (b4 if b4 > c4[x] else c4[x]) - (b1 if b1 < c1[x] else c1[x])
+            dz = (b5 if b5 > c5[x] else c5[x]) - (b2 if b2 < c2[x] else c2[x])
+            ux = dx * dy + dy * dz + dz * dx
+            if grown + ux < best and lv + height[x] <= max_levels and x != 0:
                 best, best_x = grown + ux, x
-            if x < self.N and lv + 1 + hn <= self.max_levels:
-                below = grown + ux - self.area[x]
+            if x < N and lv + 1 + hn <= max_levels:
+                below = grown + ux - area[x]
                 if below + an < best:
-                    heapq.heappush(heap, (below, lv + 1, self.left[x]))
-                    heapq.heappush(heap, (below, lv + 1, self.right[x]))
+                    heapq.heappush(heap, (below, lv + 1, left[x]))
+                    heapq.heappush(heap, (below, lv + 1, right[x]))
         x = best_x if saved - best > 0 else s
         q = self.parent[x]
         self._replace_child(q, x, p)       # p becomes the parent of x and n
-        self.left[p], self.right[p] = x, n
+        left[p], right[p] = x, n
         self.parent[x] = self.parent[n] = p
         self._up(p)
         return saved - best if x != s else 0.0
@@ -159,13 +193,14 @@ class _Tree:
     def worst(self, fraction: float) -> list:
         """The inner nodes and leaves (not the root, not its children) that cost most for
         their size: area^2 / mean child area for inner nodes, area for leaves."""
-        ar = np.array(self.area)
+        ar = np.frombuffer(self.area, np.float64)
         N = self.N
-        kids = 0.5 * (ar[np.array(self.left)] + ar[np.array(self.right)])
+        kids = 0.5 * (ar[np.frombuffer(self.left, np.int64)]
+                      + ar[np.frombuffer(self.right, np.int64)])
         score = ar.copy()
         with np.errstate(divide="ignore", invalid="ignore"):
             score[:N] = ar[:N] * ar[:N] / kids
-        parent = np.array(self.parent)
+        parent = np.frombuffer(self.parent, np.int64)
         ok = (parent > 0) & np.isfinite(score)
         cand = np.flatnonzero(ok)
         k = max(1, int(cand.size * fraction))
@@ -179,14 +214,24 @@ class _Tree:
         pre = np.array(self._preorder(), np.int64)
         index = np.zeros(len(self.parent), np.int64)
         index[pre] = np.arange(self.N)
-        kids = np.stack([np.array(self.left)[pre], np.array(self.right)[pre]], 1)  # (N, 2)
-        box = np.array(self.box)
-        boxes = box[kids].reshape(self.N, 12).astype(np.float32)
-        ref = np.array(self.ref, np.int64)
+        kids = np.stack([np.frombuffer(self.left, np.int64)[pre],
+                         np.frombuffer(self.right, np.int64)[pre]], 1)  # (N, 2)
+        boxes = np.empty((self.N, 12), np.float32)
+        for k in range(2):
+            for j, c in enumerate(self.c):
+                boxes[:, 6 * k + j] = np.frombuffer(c, np.float64)[kids[:, k]]
+        ref = np.frombuffer(self.ref, np.int64)
         children = np.where(kids >= self.N, ref[kids], index[kids]).astype(np.uint32)
         out = replace(a, boxes=boxes, children=children, levels=self.height[0])
         out.sah_cost = sah_cost(out)
         return out
+
+
+def _col(code: str, x: np.ndarray) -> array:
+    """A typed ``array.array`` (``"q"`` int64, ``"d"`` float64) holding ``x``."""
+    out = array(code)
+    out.frombytes(np.ascontiguousarray(x, np.int64 if code == "q" else np.float64).tobytes())
+    return out
 
 
 def _levels(ids: np.ndarray, leaf: np.ndarray) -> list:

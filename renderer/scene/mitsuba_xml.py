@@ -12,6 +12,13 @@ is an error) and builds a ``Scene`` in physical shading:
   converged sampling are the renderer's settings (a non-box filter gets a warning);
 - ``emitter`` ``point`` (``position`` or ``to_world``, ``intensity``): a point light,
   inverse-square, W/sr; other emitter types are refused (``EMITTERS``);
+- ``emitter`` ``area`` (``radiance``) on a ``sphere`` (``center``, ``radius``, a uniformly
+  scaling ``to_world``) or ``rectangle`` (``to_world``, ``flip_normals``) shape: a sphere or
+  rectangle light (docs/MODEL.md, "Lights with extent": intensity ``L_e π r²`` or
+  ``L_e A``); two rectangles back to back with the same radiance are one two-sided light.
+  Nested in the ``whitted`` integrator (what ``whitted export`` writes) the shape is the
+  light exactly; at the top level (Mitsuba's usual place) it is read as the light with a
+  warning, since our lights are not geometry (no ray sees them or is blocked by them);
 - ``bsdf``: ``diffuse``, ``twosided``, ``conductor`` (``material = "none"``), ``dielectric``
   (Fresnel glass) and the project's ``whitted_phong`` / ``whitted_material`` (what ``whitted
   export`` writes); rough BSDFs and named conductors are refused, or with ``approximate``
@@ -19,9 +26,11 @@ is an error) and builds a ``Scene`` in physical shading:
 - ``shape``: ``obj``, ``ply``, ``rectangle``, ``cube`` (meshes, exact), ``sphere`` and
   ``disk`` (tessellated: an approximation, one warning), with ``to_world``,
   ``face_normals``, ``flip_normals`` and a ``bsdf`` child or ``ref``;
-- ``integrator``: ``direct`` (the Whitted tree without specular children: max_depth 0),
-  ``whitted`` (the project's), ``path`` refused (``approximate``: a Whitted tree of depth
-  max_depth - 2, which lacks the indirect diffuse light).
+- ``integrator``: ``direct`` (the Whitted tree without specular children: max_depth 0;
+  ``emitter_samples`` a perfect square is ``shadow_samples``), ``whitted`` (the
+  project's, with ``shadow_samples`` and its nested light shapes), ``path`` refused
+  (``approximate``: a Whitted tree of depth max_depth - 2, which lacks the indirect
+  diffuse light).
 
 Anything else is one ``SceneError`` line naming the file, line and element and what is done
 instead. Nothing here imports Mitsuba.
@@ -37,7 +46,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import loader, meshio, shapes
+from . import loader, meshio, model, shapes
 from . import parts as mesh_parts
 from .model import Assembly, Camera, Material, PointLight, Scene, SceneError, Settings
 
@@ -536,6 +545,8 @@ BSDFS = ("diffuse", "twosided", "conductor", "dielectric", "whitted_phong",
 SHAPES = ("obj", "ply", "rectangle", "cube", "sphere", "disk")
 #: Emitter types read; the others are refused with one line (``_emitter``).
 EMITTERS = ("point",)
+#: Shapes an area emitter makes a light of (docs/MODEL.md, "Lights with extent").
+LIGHT_SHAPES = ("sphere", "rectangle")
 #: Integrator types read.
 INTEGRATORS = ("direct", "whitted", "path")
 #: Segments of a tessellated disk, geodesic frequency of a tessellated sphere.
@@ -558,6 +569,7 @@ class _Build:
     ambient: np.ndarray = field(default_factory=lambda: np.zeros(3))
     background: np.ndarray = field(default_factory=lambda: np.zeros(3))
     falloff_none: set = field(default_factory=set)
+    shadow_samples: int = 1
 
 
 def load_xml(path, *, shading: str | None = None, defines: dict | None = None,
@@ -605,12 +617,12 @@ def load_xml(path, *, shading: str | None = None, defines: dict | None = None,
         raise SceneError(f"{path}: shading override: expected 'classic' or 'physical', got "
                          f"{mode!r}")
     lights = [replace(lt, falloff="none") if lt.name in b.falloff_none else lt
-              for lt in b.lights]
+              for lt in _lights_in_order(_two_sided(b.lights))]
     if mode == "physical" and b.falloff_none:
         raise SceneError(f"{path}: physical shading needs inverse-square lights; the "
                          f"integrator's falloff_none names {sorted(b.falloff_none)}")
     settings = Settings(max_depth=b.max_depth, min_weight=b.min_weight, shading=mode,
-                        background=b.background)
+                        background=b.background, shadow_samples=b.shadow_samples)
     scene = mesh_parts.assemble(path, b.parts, b.normals,
                                 Assembly(cameras=b.cameras, settings=settings, lights=lights,
                                          materials=b.materials, ambient=b.ambient,
@@ -627,7 +639,14 @@ def _integrator(ctx: _Ctx, node: Node | None, b: _Build, root: Node) -> None:
     kind = node.attrs.get("type")
     r = _Reader(ctx, node)
     if kind == "direct":
-        r.integer("emitter_samples")
+        n = r.integer("emitter_samples", 1)
+        k = math.isqrt(max(n, 1))
+        if n >= 1 and k * k == n:
+            b.shadow_samples = n
+        else:
+            ctx.warn(r.node_of("emitter_samples"), f"emitter_samples {n}: shadow samples are "
+                     f"k x k strata: {k * k} used")
+            b.shadow_samples = k * k
         r.integer("bsdf_samples")
         r.boolean("hide_emitters")
         b.max_depth = 0
@@ -639,7 +658,14 @@ def _integrator(ctx: _Ctx, node: Node | None, b: _Build, root: Node) -> None:
         b.ambient = r.color("ambient", 0.0)
         names = r.string("falloff_none", "")
         b.falloff_none = {n for n in names.split(",") if n}
+        b.shadow_samples = _shadow_samples(ctx, r)
         r.done |= {"spawn", "ray_offset"}
+        for obj in r.p.objects:
+            if obj.tag != "shape":
+                raise ctx.error(obj, f"<{obj.tag}> inside <integrator type=\"whitted\">: "
+                                     "only light shapes (a shape with an area emitter) go "
+                                     "there")
+            _area_light(ctx, obj, b, nested=True)
     elif kind == "path":
         depth = r.integer("max_depth", -1)
         whitted = 5 if depth < 0 else max(depth - 2, 0)
@@ -735,7 +761,7 @@ def _sensor(ctx: _Ctx, node: Node, i: int) -> Camera:
 def _emitter(ctx: _Ctx, node: Node, b: _Build) -> None:
     kind = node.attrs.get("type")
     if kind not in EMITTERS:
-        what = {"area": "area lights are not supported yet",
+        what = {"area": "an area emitter belongs inside a <shape> (sphere or rectangle)",
                 "constant": "an environment light has no Whitted equivalent",
                 "envmap": "an environment map has no Whitted equivalent"}.get(
                     kind, "outside the model's point lights")
@@ -755,12 +781,118 @@ def _emitter(ctx: _Ctx, node: Node, b: _Build) -> None:
                                name=name))
 
 
+def _shadow_samples(ctx: _Ctx, r: _Reader) -> int:
+    n = r.integer("shadow_samples", 1)
+    try:
+        model.validate_settings(shadow_samples=n, where="integrator")
+    except SceneError as e:
+        raise ctx.error(r.node_of("shadow_samples"), str(e)) from None
+    return n
+
+
+def _area_light(ctx: _Ctx, node: Node, b: _Build, *, nested: bool) -> None:
+    """A ``sphere`` or ``rectangle`` shape carrying an ``area`` emitter as our light of that
+    shape (module docstring); its BSDF, if any, is not read (lights are not geometry)."""
+    kind = node.attrs.get("type")
+    if kind not in LIGHT_SHAPES:
+        raise ctx.error(node, f"<shape type=\"{kind}\"> as a light: lights with extent are "
+                              f"{' and '.join(LIGHT_SHAPES)} shapes: refused")
+    r = _Reader(ctx, node)
+    emitters = [o for o in r.p.objects if o.tag == "emitter"]
+    for o in r.p.objects:
+        if o.tag not in ("emitter", "bsdf", "ref"):
+            raise ctx.error(o, f"<{o.tag}> inside a light's shape is not supported: refused")
+    if len(emitters) != 1:
+        raise ctx.error(node, f"<shape type=\"{kind}\"> as a light needs one <emitter "
+                              f"type=\"area\">, got {len(emitters)}")
+    em = emitters[0]
+    if em.attrs.get("type") != "area":
+        raise ctx.error(em, f"<emitter type=\"{em.attrs.get('type')}\"> on a shape: only "
+                            "an area emitter makes a light of it: refused")
+    er = _Reader(ctx, em)
+    radiance = er.color("radiance", 1.0)
+    er.rest()
+    tr = r.transform("to_world")
+    m = np.eye(4) if tr is None else tr[0]
+    flip = bool(r.boolean("flip_normals", False))
+    name = node.attrs.get("id") or f"light{len(b.lights)}"
+    if kind == "sphere":
+        centre = r.point("center")
+        radius = r.float("radius", 1.0, lo=0.0, lo_open=True)
+        a = m[:3, :3] * radius
+        scale = np.linalg.norm(a, axis=0)
+        if not np.allclose(a.T @ a, scale[0] ** 2 * np.eye(3), rtol=0,
+                           atol=1e-9 * scale.max() ** 2):
+            raise ctx.error(node, "to_world: a sphere light scales uniformly (an ellipsoid "
+                                  "is outside the model): refused")
+        if flip:
+            raise ctx.error(r.node_of("flip_normals"), "flip_normals: a sphere light "
+                            "emitting inwards lights nothing outside it: refused")
+        c = m[:3, :3] @ (np.zeros(3) if centre is None else centre) + m[:3, 3]
+        radius = float(scale[0])
+        light = PointLight(position=c, intensity=radiance * (math.pi * radius * radius),
+                           shape="sphere", radius=radius, name=name)
+    else:
+        eu, ev = 2.0 * m[:3, 0], 2.0 * m[:3, 1]
+        normal = np.linalg.inv(m[:3, :3]).T @ np.array([0.0, 0.0, 1.0])
+        if flip:
+            normal = -normal
+        if np.dot(normal, np.cross(eu, ev)) < 0:       # the side Mitsuba's normal faces
+            eu, ev = ev, eu
+        area = float(np.linalg.norm(np.cross(eu, ev)))
+        light = PointLight(position=m[:3, 3].copy(), intensity=radiance * area,
+                           shape="rectangle", edge_u=eu, edge_v=ev, name=name)
+    r.rest()
+    if name in {lt.name for lt in b.lights}:
+        raise ctx.error(node, f"duplicate light id {name!r}")
+    b.lights.append(light)
+
+
+def _two_sided(lights: list) -> list:
+    """Two rectangle lights back to back (same centre and radiance, edges swapped: what
+    ``whitted export`` writes for a two-sided light, ``<id>`` and ``<id>_back``) as one
+    two-sided light named after the first of them without ``_back``."""
+    out, used = [], set()
+    for i, a in enumerate(lights):
+        if i in used:
+            continue
+        if a.shape == "rectangle" and not a.two_sided:
+            for j in range(i + 1, len(lights)):
+                c = lights[j]
+                if j not in used and c.shape == "rectangle" and not c.two_sided and \
+                        np.array_equal(a.position, c.position) and \
+                        np.array_equal(a.edge_u, c.edge_v) and \
+                        np.array_equal(a.edge_v, c.edge_u) and \
+                        np.array_equal(a.intensity, c.intensity):
+                    used.add(j)
+                    front = a if not a.name.endswith("_back") else c
+                    a = replace(front, name=front.name.removesuffix("_back"),
+                                two_sided=True)
+                    if front is c:          # keep the front's orientation
+                        a = replace(a, edge_u=c.edge_u, edge_v=c.edge_v)
+                    break
+        out.append(a)
+    return out
+
+
+def _lights_in_order(lights: list) -> list:
+    """Lights named ``light<i>`` (every one: ``whitted export``'s ids) in the order of
+    ``i``, the scene's own order; otherwise in the file's order."""
+    idx = [re.fullmatch(r"light(\d+)", lt.name) for lt in lights]
+    if all(idx):
+        return [lt for _, lt in sorted(zip((int(m.group(1)) for m in idx), lights),
+                                       key=lambda p: p[0])]
+    return lights
+
+
 def _material_index(ctx: _Ctx, b: _Build, shape: Node, r: _Reader) -> int:
     refs = [o for o in r.p.objects if o.tag in ("bsdf", "ref")]
     for o in r.p.objects:
         if o.tag == "emitter":
-            raise ctx.error(o, f"<emitter type=\"{o.attrs.get('type')}\"> on a shape: area "
-                               "lights are not supported yet: refused")
+            raise ctx.error(o, f"<emitter type=\"{o.attrs.get('type')}\"> on a "
+                               f"<shape type=\"{shape.attrs.get('type')}\">: lights with "
+                               f"extent are {' and '.join(LIGHT_SHAPES)} shapes with an "
+                               "area emitter: refused")
         if o.tag not in ("bsdf", "ref"):
             raise ctx.error(o, f"<{o.tag}> inside a shape is not supported: refused")
     if len(refs) > 1:
@@ -787,6 +919,12 @@ def _shape(ctx: _Ctx, node: Node, b: _Build) -> None:
     if kind not in SHAPES:
         raise ctx.error(node, f"<shape type=\"{kind}\"> is outside the model's subset "
                               f"(supported: {', '.join(SHAPES)}): refused")
+    if kind in LIGHT_SHAPES and any(c.tag == "emitter" for c in node.children):
+        ctx.warn(node, f"<shape type=\"{kind}\"> with an emitter read as a {kind} light: "
+                       "lights are not geometry here (no ray sees the shape or is blocked "
+                       "by it), unlike Mitsuba's emitting shape")
+        _area_light(ctx, node, b, nested=False)
+        return
     r = _Reader(ctx, node)
     material = _material_index(ctx, b, node, r)
     tr = r.transform("to_world")

@@ -6,7 +6,8 @@ OBJ + MTL, PLY or Mitsuba XML scene.
 written here): the TOML names each mesh relative to its folder. Vertices are written in
 float64 (the exact world-space positions: no transform in the file), normals as the float32
 values the renderer uses, with ``normals = "file"`` for smooth objects whose normals are not
-the averaged ones, so reading the TOML back gives the same arrays and the same image.
+the averaged ones, and lights with their shape (sphere radius, rectangle edges), so reading
+the TOML back gives the same arrays and the same image.
 """
 from __future__ import annotations
 
@@ -83,7 +84,8 @@ def scene_files(scene: Scene, toml_path, *, source: str = "") -> dict[Path, byte
              f"max_depth = {st.max_depth}", f"spp = {st.spp}",
              f"exact = {str(st.exact).lower()}", f"shading = {_str(st.shading)}",
              f"background = {_vec(st.background)}", f"min_weight = {_num(st.min_weight)}",
-             f"seed = {st.seed}", f"spawn = {_str(st.spawn)}"]
+             f"seed = {st.seed}", f"spawn = {_str(st.spawn)}",
+             f"shadow_samples = {st.shadow_samples}"]
     if st.ray_epsilon is not None:
         lines.append(f"ray_epsilon = {_num(st.ray_epsilon)}")
     for cam in scene.cameras:
@@ -92,8 +94,16 @@ def scene_files(scene: Scene, toml_path, *, source: str = "") -> dict[Path, byte
                   f"fov_y = {_num(cam.fov_y)}", f"resolution = [{cam.width}, {cam.height}]"]
     for light in scene.lights:
         lines += ["", "[[lights]]", f"name = {_str(light.name)}",
-                  f"position = {_vec(light.position)}", f"intensity = {_vec(light.intensity)}",
-                  f"falloff = {_str(light.falloff)}"]
+                  f"type = {_str(light.shape)}"]
+        if light.shape == "rectangle":
+            lines += [f"center = {_vec(light.position)}", f"edge_u = {_vec(light.edge_u)}",
+                      f"edge_v = {_vec(light.edge_v)}",
+                      f"two_sided = {str(light.two_sided).lower()}"]
+        else:
+            lines.append(f"position = {_vec(light.position)}")
+        if light.shape == "sphere":
+            lines.append(f"radius = {_num(light.radius)}")
+        lines += [f"intensity = {_vec(light.intensity)}", f"falloff = {_str(light.falloff)}"]
     names = _unique([m.name for m in scene.materials])
     for name, m in zip(names, scene.materials):
         lines += ["", f"[materials.{_str(name)}]", f"ka = {_vec(m.ka)}", f"kd = {_vec(m.kd)}",
