@@ -172,9 +172,9 @@ def test_cuda_ploc_tree_is_valid_and_matches_brute_force():
 
 @pytest.mark.parametrize("case", ["soup", "rebuilt", "fallback"])
 def test_ploc_raw_boxes_are_the_host_refit(case):
-    """``build_ploc(raw=True)``'s unpadded boxes are ``bvh_build.raw_boxes`` over the same
-    tree (reference: the host computation), in the clustered tree, with rebuilt deep
-    subtrees and in the radix fallback; the tree itself is the one built without ``raw``."""
+    """``build_ploc``'s unpadded boxes are ``bvh_build.raw_boxes`` over the same tree
+    (reference: the host computation), in the clustered tree, with rebuilt deep subtrees
+    and in the radix fallback."""
     from renderer.accel.bvh_build import raw_boxes
 
     if case == "soup":
@@ -188,10 +188,7 @@ def test_ploc_raw_boxes_are_the_host_refit(case):
         V = nested_chain(400)
         faces = np.arange(len(V)).reshape(-1, 3)
     st = {}
-    a = build_ploc(V, faces, "llvm", raw=True, stats=st)
+    a = build_ploc(V, faces, "llvm", stats=st)
     assert st["fallback"] == (case == "fallback")
     assert (st["rebuilt"] >= 1) == (case == "rebuilt")
     assert a.raw is not None and np.array_equal(a.raw, raw_boxes(a, V, faces, np.float32))
-    b = build_ploc(V, faces, "llvm")
-    assert b.raw is None and np.array_equal(a.boxes, b.boxes)
-    assert np.array_equal(a.children, b.children) and np.array_equal(a.order, b.order)

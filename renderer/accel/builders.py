@@ -123,7 +123,7 @@ def binary_tree(scene, backend: str, *, build: str = "sah", cache: TreeCache | N
     how = builder(chosen)
     if how == "ploc":
         a = build_ploc(scene.vertices, scene.faces, backend, leaf_size=leaf_size,
-                       progress=progress and (lambda k: progress(chosen, k)), raw=True)
+                       progress=progress and (lambda k: progress(chosen, k)))
     elif how == "radix":
         a = build_device(scene.vertices, scene.faces, backend, leaf_size=leaf_size,
                          progress=progress and (lambda k: progress(chosen, k)), raw=True)

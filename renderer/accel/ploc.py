@@ -74,8 +74,7 @@ def _half_area(lo, hi):
 
 def build_ploc(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm", *,
                leaf_size: int = LEAF_SIZE, radius: int = RADIUS, progress=None,
-               phases: dict | None = None, stats: dict | None = None,
-               raw: bool = False) -> BVHArrays:
+               phases: dict | None = None, stats: dict | None = None) -> BVHArrays:
     """Build a BVH over ``faces`` (int (F, 3)) of ``vertices`` (float (V, 3)) on ``backend``
     ("cuda" or "llvm"; see the module docstring). ``leaf_size``: most triangles per leaf
     (1..16); ``radius``: the nearest-neighbour search radius (1..64). ``progress``: called
@@ -86,7 +85,7 @@ def build_ploc(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm", *
     ``iterations``, ``levels`` (the clustered tree's, before any rebuild), ``rebuilt``
     (subtrees rebuilt balanced) and ``fallback`` (True when the radix tree was returned).
     A scene of at most ``leaf_size`` triangles gets ``build_bvh``'s single-leaf tree.
-    ``raw``: also copy back the unpadded child boxes (``BVHArrays.raw``, what
+    The tree carries its unpadded child boxes too (``BVHArrays.raw``, what
     ``bvh_build.raw_boxes`` computes on the host), so the traversal pads them for its ray
     origins without a host refit."""
     if not 1 <= leaf_size <= MAX_LEAF:
@@ -223,7 +222,7 @@ def build_ploc(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm", *
         _phase(phases, "clustering", t_phase)
     if fallback:
         info["levels"], info["rebuilt"], info["fallback"] = None, 0, True
-        return build_device(Vn, Fn, backend, leaf_size=leaf_size, raw=raw)
+        return build_device(Vn, Fn, backend, leaf_size=leaf_size, raw=True)
 
     # ---- 3. triangle order, top down ---------------------------------------------------------
     n_first = dr.zeros(UInt32, n_in)          # first position of each node's triangles
@@ -280,7 +279,7 @@ def build_ploc(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm", *
         rb_depth = dr.gather(UInt32, n_depth, rb_src)
         extra = int(dr.sum(rb_count)[0])
     boxes_d = dr.zeros(Float, 12 * (N + extra))
-    raw_d = dr.zeros(Float, 12 * (N + extra)) if raw else None
+    raw_d = dr.zeros(Float, 12 * (N + extra))
     pad = float(32 * unit_roundoff(False)), extent, raw_d
     refs_d = dr.zeros(UInt32, 2 * (N + extra))
     n = dr.arange(UInt32, N)
@@ -315,8 +314,7 @@ def build_ploc(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm", *
                                       boxes_d, refs_d, N, leaf_size, pad)
         total += rb_area
         boxes_d = dr.gather(Float, boxes_d, dr.arange(UInt32, 12 * N))
-        if raw:
-            raw_d = dr.gather(Float, raw_d, dr.arange(UInt32, 12 * N))
+        raw_d = dr.gather(Float, raw_d, dr.arange(UInt32, 12 * N))
         refs_d = dr.gather(UInt32, refs_d, dr.arange(UInt32, 2 * N))
         levels = max(levels, int(dr.max(dr.gather(UInt32, n_depth, src))[0]) + 1)
     info["fallback"] = False
@@ -332,7 +330,7 @@ def build_ploc(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm", *
     dd = bounds[1] - bounds[0]
     root = float(dd[0] * dd[1] + dd[1] * dd[2] + dd[2] * dd[0])
     sah = (C_TRAV * root + float(total.numpy()[0])) / root if root > 0 else 0.0
-    raw_h = np.asarray(raw_d.numpy(), np.float32).reshape(N, 12) if raw else None
+    raw_h = np.asarray(raw_d.numpy(), np.float32).reshape(N, 12)
     arrays = BVHArrays(boxes, ch, order, levels, leaf_count, sah, 0.0, bounds, raw=raw_h)
     arrays.build_seconds = time.perf_counter() - t_start
     if phases is not None:
