@@ -205,7 +205,7 @@ BAD_IMPORTS = [
      "a cycle of references (a -> b -> a)"),
     ("g.xml", "<scene version=\"3.0.0\">\n<integrator type=\"direct\"/>\n"
               "<emitter type=\"area\"/>\n<shape type=\"cube\"/>\n</scene>\n",
-     "g.xml:3: <emitter type=\"area\">: area lights are not supported yet"),
+     "g.xml:3: <emitter type=\"area\">: an area emitter belongs inside a <shape>"),
 ]
 
 
