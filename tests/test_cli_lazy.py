@@ -7,7 +7,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 OTHERS = ("whitted.bench", "whitted.view", "whitted.compare", "whitted.study",
-          "evaluation.bench", "evaluation.gate.report", "renderer.scene.mitsuba_xml")
+          "evaluation.bench", "evaluation.gate.report")
 
 
 def test_render_imports_no_other_command():

@@ -168,3 +168,27 @@ def test_cuda_ploc_tree_is_valid_and_matches_brute_force():
     for name in ("bvh", "bvh4"):
         acc = build_accelerator(name, scene, t, build="ploc")
         assert_same_hits(hits(acc, ray, active, t), ref)
+
+
+@pytest.mark.parametrize("case", ["soup", "rebuilt", "fallback"])
+def test_ploc_raw_boxes_are_the_host_refit(case):
+    """``build_ploc``'s unpadded boxes are ``bvh_build.raw_boxes`` over the same tree
+    (reference: the host computation), in the clustered tree, with rebuilt deep subtrees
+    and in the radix fallback."""
+    from renderer.accel.bvh_build import raw_boxes
+
+    if case == "soup":
+        V, faces = soup(2000, seed=13)
+    elif case == "rebuilt":
+        Vs, fs = soup(1000, seed=11)
+        Vc = nested_chain(60) + 0.3
+        V = np.concatenate([Vs, Vc])
+        faces = np.concatenate([fs, len(Vs) + np.arange(len(Vc)).reshape(-1, 3)])
+    else:
+        V = nested_chain(400)
+        faces = np.arange(len(V)).reshape(-1, 3)
+    st = {}
+    a = build_ploc(V, faces, "llvm", stats=st)
+    assert st["fallback"] == (case == "fallback")
+    assert (st["rebuilt"] >= 1) == (case == "rebuilt")
+    assert a.raw is not None and np.array_equal(a.raw, raw_boxes(a, V, faces, np.float32))

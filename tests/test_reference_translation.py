@@ -137,3 +137,38 @@ def test_exported_light_with_extent_renders_like_the_dict(tmp_path):
     from_dict = render_mitsuba(scene)
     assert from_dict.mean() > 0.05
     np.testing.assert_allclose(from_xml, from_dict, rtol=1e-5, atol=1e-6)
+
+
+@pytest.mark.parametrize("side", ["front", "back"])
+@pytest.mark.parametrize("shading", ["classic", "physical"])
+def test_open_constant_glass_sheet_scales_refraction_by_eta_squared(shading, side):
+    """An open sheet of constant-weight glass (one quad, no second surface, nothing else
+    but a coloured background B): every ray through it refracts once and escapes, so a
+    pixel on the sheet is exactly ``B (k_refl + k_refr s)`` with s = 1 in classic shading
+    and s = (η_i / η_t)² in physical (docs/MODEL.md: radiance compressed by η² across
+    the interface): 1 / ior² entering through the front, ior² leaving through the back
+    (angles below the critical one). Closed glass cancels the two factors, so this is the
+    one case where the reference plugin's η² shows; dropping it (or inverting it) fails
+    here. Our renderer is held to the same closed form."""
+    from util import camera, make_scene, material, quad
+
+    from renderer.render import render
+    from renderer.scene import Settings
+
+    ior, k_refl, k_refr = 1.5, np.array([0.3, 0.1, 0.2]), np.array([0.6, 0.9, 0.4])
+    bg = np.array([0.5, 1.0, 2.0])
+    sheet = quad([-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0])     # normal +z
+    z = 3.0 if side == "front" else -3.0
+    sc = make_scene([(*sheet, 0)],
+                    materials=[material("glass", k_refl=k_refl, k_refr=k_refr, ior=ior)],
+                    camera=camera([0, 0, z], [0, 0, 0], fov_y=30, width=12, height=12),
+                    settings=Settings(max_depth=3, shading=shading, background=bg))
+    s = 1.0 if shading == "classic" else (ior ** -2 if side == "front" else ior ** 2)
+    expect = bg * (k_refl + k_refr * s)
+    # the camera at distance 3 with fov 30 sees [-0.80, 0.80]^2 of the plane: all sheet
+    for who, img in (("mitsuba", render_mitsuba(sc, view=0, mode="exact")),
+                     ("ours", render(sc, backend="llvm").image)):
+        np.testing.assert_allclose(img.reshape(-1, 3), np.broadcast_to(expect, (144, 3)),
+                                   rtol=2e-6, err_msg=who)
+    if shading == "physical":
+        assert np.abs(expect - bg * (k_refl + k_refr)).min() > 0.05, "η² must show"

@@ -58,8 +58,10 @@ def rows_for(backend: str, size: int, samples, depth: int, frames: int, warmup: 
     return rows
 
 
-def markdown(rows: list[dict], device: str) -> str:
-    out = [f"Soft shadows, {SCENE}, exact mode, frozen frames, {device}", "",
+def markdown(rows: list[dict], device: str, command: str | None = None) -> str:
+    """The table; ``command``: the command line that made it, as its first line."""
+    out = [f"<!-- command: {command} -->"] if command else []
+    out += [f"Soft shadows, {SCENE}, exact mode, frozen frames, {device}", "",
            "| shadow samples | size | depth | ours ms | peer ms | peer / ours | ours mean | "
            "peer mean |",
            "|---|---|---|---|---|---|---|---|"]
@@ -87,10 +89,13 @@ def main(argv=None) -> int:
     from . import device_info
     device = device_info(a.backend)["device"]
 
+    command = " ".join([p.prog] + [str(x) for x in (sys.argv[1:] if argv is None else argv)])
+
     def save(rows):
-        data = {"scene": SCENE, "backend": a.backend, "device": device, "rows": rows}
+        data = {"scene": SCENE, "backend": a.backend, "device": device, "command": command,
+                "rows": rows}
         write_text(a.out / "soft.json", json.dumps(data, indent=1) + "\n", overwrite=True)
-        write_text(a.out / "soft.md", markdown(rows, device), overwrite=True)
+        write_text(a.out / "soft.md", markdown(rows, device, command), overwrite=True)
     rows = rows_for(a.backend, a.size, a.samples, a.depth, a.frames, a.warmup, save)
     print(markdown(rows, device))
     return 0

@@ -54,8 +54,9 @@ class ReportEntry:
         or None when the entry was not judged; verdict_reason: its one-line reason.
     thresholds: the rule's thresholds used, name -> (value, why).
     overlay: uint8 (H, W, 3) or None: the exact rule's verdict drawn over the golden
-        (``evaluation.gate.rules.exact_overlay``: hard pixels red, excused yellow, the rest of
-        the tie mask magenta), shown beside the images (the gate sets it for a FAIL).
+        (``evaluation.gate.rules.exact_overlay``: hard pixels red, excused ties yellow,
+        ill-conditioned pixels orange, the rest of the tie mask magenta), shown beside the
+        images (the gate sets it for a FAIL).
     metadata: {"ours": fields, "golden": fields} (``evaluation.gate.imagemeta``): written into
         the headers of the entry's ``ours.exr`` and ``mitsuba.exr``.
     """

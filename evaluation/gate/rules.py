@@ -6,10 +6,12 @@ its mode, ``RULES``), its thresholds with a one-line reason each, and a derived 
 comparisons themselves, so the tests that prove a broken renderer fails use the very same rule.
 
 Exact: every pixel within ``max_rel`` except those the tie probe (``tie_probe``: a render
-with the other tie-break, traced by the renderer) shows to depend on a geometric tie; each
-excused pixel is listed. Converged: our own variance from our own batches
-(``render_batches``), a Welch t-test per value with a Šidák correction, every value must
-pass.
+with the other tie-break, traced by the renderer) shows to depend on a geometric tie, and
+those the nudge probe (``nudge_probe``: our renders with the primary ray moved by a few
+float32 ulp) shows to be ill-conditioned: our own value moves beyond ``max_rel`` under the
+nudges and the golden lies within the values they span; each excused pixel is listed.
+Converged: our own variance from our own batches (``render_batches``), a Welch t-test
+per value with a Šidák correction, every value must pass.
 """
 from __future__ import annotations
 
@@ -68,6 +70,17 @@ EXACT_THRESHOLDS = {
                                  "reflected tie (platonic_solids 'high') unexcused, 1e-5 "
                                  "excuses every differing pixel; the tie masks then hold "
                                  "<= 251 pixels (0.4 %) of a 256^2 view"),
+    "nudge_ulps": Threshold(4, "the nudge probe moves the primary ray's origin by this many "
+                               "float32 ulp of its largest coordinate and its direction by "
+                               "as many half-ulp of 1: the golden's own rays are float32, so "
+                               "a value that moves beyond max_rel under such a nudge is not "
+                               "determined by the scene to max_rel (measured on the glass "
+                               "bunny: 2, 4 and 8 ulp all move every hard pixel)"),
+    "nudges": Threshold(32, "nudged renders per view (fixed pseudo-random signs), beside one "
+                            "without a nudge: a pixel is excused only if the golden and ours "
+                            "lie within the values they span (+- max_rel); measured on the "
+                            "glass bunny at 4 ulp: 8 nudges span the golden at 26 / 28 hard "
+                            "pixels, 32 at all 28 (classic) and 21 (physical)"),
 }
 
 #: Converged mode (k x k stratified samples, box filter): name -> Threshold.
@@ -116,12 +129,14 @@ class Case:
     def threshold(self, key: str) -> float:
         return self.thresholds[key].value
 
-    def check(self, ours, golden, ties: np.ndarray | None = None) -> dict:
+    def check(self, ours, golden, ties: np.ndarray | None = None,
+              nudged: np.ndarray | None = None) -> dict:
         """``self.rule`` applied to our result and the golden (``reference.golden.Golden``)
         with this case's thresholds; the result's ``ok`` is the verdict. Exact: ``ours`` is
-        our image and ``ties`` the tie mask of ``tie_probe`` (None: no pixel is excused);
-        converged: ``ours`` is ``Batches`` from ``render_batches``."""
-        return self.rule(ours, golden, self.thresholds, ties)
+        our image, ``ties`` the tie mask of ``tie_probe`` and ``nudged`` the renders of
+        ``nudge_probe`` (None: no pixel is excused by that probe); converged: ``ours`` is
+        ``Batches`` from ``render_batches``."""
+        return self.rule(ours, golden, self.thresholds, ties, nudged)
 
 
 def cases(scenes=GOLDEN_SCENES + CONVERGED_ONLY_SCENES, modes=MODES) -> list[Case]:
@@ -177,6 +192,63 @@ def tie_probe(scene, view: int = 0, *, slack: float = EXACT_THRESHOLDS["tie_slac
     return image, np.any(other != image, axis=-1)
 
 
+#: Seed of the nudge probe's signs (fixed: the probe is deterministic).
+NUDGE_SEED = 20250101
+
+
+def nudged_camera(cam_arrays_of, cam, ulps: float, signs: np.ndarray):
+    """``cam``'s device frame (``renderer.camera.CameraArrays``) with the origin moved by
+    ``ulps`` float32 ulp of its largest coordinate along ``signs[0]`` (+-1 per axis) and
+    the forward vector by ``ulps`` half-ulp of 1 along ``signs[1]``: every primary ray of
+    the frame starts and points a few float32 roundings away. ``cam_arrays_of(frame)``
+    uploads a host frame dict (``renderer.camera.camera_frame``'s keys)."""
+    from renderer.camera import camera_frame
+
+    fr = dict(camera_frame(cam))
+    p = np.asarray(fr["position"], np.float32).astype(np.float64)
+    u_p = float(np.spacing(np.float32(max(np.abs(p).max(), 1e-30))))
+    u_d = float(np.spacing(np.float32(1.0))) / 2
+    fr["position"] = p + ulps * u_p * np.asarray(signs[0], np.float64)
+    fr["forward"] = np.asarray(fr["forward"], np.float64) + ulps * u_d * np.asarray(
+        signs[1], np.float64)
+    return cam_arrays_of(fr)
+
+
+def nudge_probe(renderer, view: int = 0, *,
+                ulps: float = EXACT_THRESHOLDS["nudge_ulps"].value,
+                nudges: int = int(EXACT_THRESHOLDS["nudges"].value)) -> np.ndarray:
+    """``1 + nudges`` exact renders of ``renderer.scene.cameras[view]`` by ``renderer`` (a
+    ``renderer.render.Renderer``: the same upload and accelerator as the render judged):
+    the first through the probe's own camera upload without a nudge (the image judged, bit
+    for bit, when ours comes from the same renderer), then ``nudges`` with the primary rays
+    nudged (``nudged_camera``, signs from ``NUDGE_SEED``): float64 (1 + nudges, H, W, 3).
+    ``check_exact`` reads from them how far each pixel's value moves under a few ulp of its
+    ray."""
+    import drjit as dr
+
+    from renderer.camera import CameraArrays
+
+    t = renderer.t
+    cam = renderer.scene.cameras[view]
+
+    def upload(fr):
+        def a3(v):
+            return t.Array3f(*(float(x) for x in v))
+        ca = CameraArrays(position=a3(fr["position"]), right=a3(fr["right"]),
+                          up=a3(fr["up"]), forward=a3(fr["forward"]),
+                          tan_x=t.Float(fr["tan_x"]), tan_y=t.Float(fr["tan_y"]))
+        dr.make_opaque(ca)
+        return ca
+
+    rng = np.random.default_rng(NUDGE_SEED)
+    out = []
+    for k in range(int(nudges) + 1):
+        signs = rng.choice([-1.0, 1.0], (2, 3)) if k else np.zeros((2, 3))
+        ca = nudged_camera(upload, cam, ulps, signs)
+        out.append(np.asarray(renderer.frame(ca, cam.width, cam.height).numpy(), np.float64))
+    return np.stack(out)
+
+
 class Batches(NamedTuple):
     """Our converged estimate from ``n`` independent renders: per-pixel mean and the sample
     variance (ddof 1) of one render, float64 (H, W, 3)."""
@@ -219,16 +291,22 @@ def render_batches(scene, view: int, *, batches: int, spp: int, seed: int = OUR_
 
 # ---- the comparisons ----------------------------------------------------------------------
 def check_exact(ours: np.ndarray, ref: np.ndarray, th: dict,
-                ties: np.ndarray | None = None) -> dict:
+                ties: np.ndarray | None = None, nudged: np.ndarray | None = None) -> dict:
     """Exact-mode rule. Per-pixel relative error ``rel = max_c |a - r| / max(|r|, eps)``.
     A pixel with ``rel > max_rel`` is *excused* only where ``ties`` (bool (H, W), from
-    ``tie_probe``: the geometry allows the pixel's value to depend on a tie-break) is True;
-    every other pixel is held to ``max_rel`` (a *hard* pixel fails the case). No image-space
-    neighbourhood and no pixel budget: with ``ties=None`` nothing is excused. Passes iff no
-    hard pixel and the mean of ``rel`` over the pixels not excused is <= ``mean_rel``.
+    ``tie_probe``: the geometry allows the pixel's value to depend on a tie-break) is True,
+    or where ``nudged`` (float (K, H, W, 3), ``nudge_probe``: our renders with the primary
+    ray nudged by a few ulp) shows it *ill-conditioned*: its value moves by more than
+    ``max_rel`` (of ours) across the nudges, and the golden and ours both lie within the
+    values the nudges span, per channel, widened by ``max_rel``.
+    Every other pixel is held to ``max_rel`` (a *hard* pixel fails the case). No
+    image-space neighbourhood and no pixel budget: with ``ties=None`` and ``nudged=None``
+    nothing is excused. Passes iff no hard pixel and the mean of ``rel`` over the pixels
+    not excused is <= ``mean_rel``.
 
-    Returns the numbers, ``ok``, the excused pixels as ``[[y, x], ...]`` (``excused``),
-    the hard ones (``hard``, at most 50 listed) and ``tie_pixels`` (the mask's size)."""
+    Returns the numbers, ``ok``, the excused pixels as ``[[y, x], ...]`` (``excused``: the
+    tie pixels; ``ill_conditioned``: the nudge probe's), the hard ones (``hard``, at most 50
+    listed) and ``tie_pixels`` (the mask's size)."""
     def g(key: str) -> float:
         return th[key][0]
 
@@ -242,33 +320,65 @@ def check_exact(ours: np.ndarray, ref: np.ndarray, th: dict,
     if tie.shape != bad.shape:
         raise ValueError(f"ties: shape {tie.shape} differs from the image's {bad.shape}")
     excused = bad & tie
-    hard = bad & ~tie
-    held = ~excused
+    ill = _ill_conditioned(ours, ref, th, nudged, bad & ~tie)
+    hard = bad & ~tie & ~ill
+    held = ~(excused | ill)
     mean_rel = float(rel[held].mean()) if held.any() else 0.0
     res = {"mean_rel": mean_rel, "max_rel_held": float(rel[held].max(initial=0.0)),
            "max_rel": float(rel.max()), "excused_pixels": int(excused.sum()),
+           "ill_conditioned_pixels": int(ill.sum()),
            "hard_pixels": int(hard.sum()), "tie_pixels": int(tie.sum()),
            "pixels": int(rel.size),
-           "excused": np.argwhere(excused).tolist(), "hard": np.argwhere(hard)[:50].tolist()}
+           "excused": np.argwhere(excused).tolist(),
+           "ill_conditioned": np.argwhere(ill).tolist(),
+           "hard": np.argwhere(hard)[:50].tolist()}
     res["ok"] = bool(mean_rel <= g("mean_rel") and res["hard_pixels"] == 0)
     return res
 
 
+def _ill_conditioned(ours: np.ndarray, ref: np.ndarray, th: dict, nudged, candidates):
+    """bool (H, W): the ``candidates`` that ``nudged`` shows ill-conditioned (``check_exact``):
+    the nudged values spread over more than ``max_rel`` of ours, and both the golden and
+    our own value lie within their range widened by ``max_rel``, in every channel (ours
+    outside it: the image judged is not what the probe's renderer renders, so the probe
+    says nothing about it)."""
+    if nudged is None:
+        return np.zeros(candidates.shape, bool)
+    v = np.nan_to_num(np.asarray(nudged, np.float64), nan=1e30, posinf=1e30, neginf=-1e30)
+    if v.shape[1:] != ours.shape:
+        raise ValueError(f"nudged: shape {v.shape} differs from (K, *{ours.shape})")
+    eps, max_rel = th["eps"][0], th["max_rel"][0]
+    lo, hi = v.min(0), v.max(0)
+    spread = ((hi - lo) / np.maximum(np.abs(ours), eps)).max(-1)
+
+    def within(x):
+        tol = max_rel * np.maximum(np.abs(x), eps)
+        return np.all((x >= lo - tol) & (x <= hi + tol), axis=-1)
+
+    return candidates & (spread > max_rel) & within(ref) & within(ours)
+
+
 def exact_overlay(ours: np.ndarray, ref: np.ndarray, th: dict,
-                  ties: np.ndarray | None = None) -> np.ndarray:
+                  ties: np.ndarray | None = None, ill=None) -> np.ndarray:
     """The exact rule's verdict drawn over the golden: uint8 (H, W, 3), the golden
-    (sRGB, at half brightness) with the rest of the tie mask in magenta, excused pixels in
-    yellow and hard pixels in red (for a report or a PNG beside a failing case)."""
+    (sRGB, at half brightness) with the rest of the tie mask in magenta, excused tie pixels
+    in yellow, the pixels the nudge probe excused (``ill``: ``check_exact``'s
+    ``ill_conditioned`` list, [[y, x], ...]) in orange and hard pixels in red (for a
+    report or a PNG beside a failing case)."""
     ours = np.nan_to_num(np.asarray(ours, np.float64), nan=1e30, posinf=1e30, neginf=-1e30)
     ref = np.asarray(ref, np.float64)
     rel = (np.abs(ours - ref) / np.maximum(np.abs(ref), th["eps"][0])).max(-1)
     bad = rel > th["max_rel"][0]
     tie = np.zeros(bad.shape, bool) if ties is None else np.asarray(ties, bool)
+    cond = np.zeros(bad.shape, bool)
+    for y, x in (ill or []):
+        cond[y, x] = True
     srgb = np.where(ref <= 0.0031308, 12.92 * ref, 1.055 * np.abs(ref) ** (1 / 2.4) - 0.055)
     out = np.clip(srgb * 0.5, 0.0, 1.0)
     out[tie & ~bad] = (1.0, 0.0, 1.0)
     out[bad & tie] = (1.0, 0.9, 0.0)
-    out[bad & ~tie] = (1.0, 0.0, 0.0)
+    out[bad & ~tie & cond] = (1.0, 0.5, 0.0)
+    out[bad & ~tie & ~cond] = (1.0, 0.0, 0.0)
     return np.round(out * 255).astype(np.uint8)
 
 
@@ -296,14 +406,14 @@ def golden_batches(golden) -> Batches:
     return Batches(golden.image, golden.var, int(golden.meta["batches"]))
 
 
-def _exact_rule(ours: np.ndarray, golden, th: dict, ties=None) -> dict:
-    return check_exact(ours, golden.image, th, ties)
+def _exact_rule(ours: np.ndarray, golden, th: dict, ties=None, nudged=None) -> dict:
+    return check_exact(ours, golden.image, th, ties, nudged)
 
 
-def _converged_rule(ours: Batches, golden, th: dict, ties=None) -> dict:
+def _converged_rule(ours: Batches, golden, th: dict, ties=None, nudged=None) -> dict:
     """``ours``: our ``Batches`` at the golden's ``batch_spp`` (``render_batches``)."""
     return check_converged(ours, golden_batches(golden), th)
 
 
-#: The rule of each comparison mode: ``rule(ours, golden, thresholds, ties) -> dict``.
+#: The rule of each comparison mode: ``rule(ours, golden, thresholds, ties, nudged) -> dict``.
 RULES = {"exact": _exact_rule, "converged": _converged_rule}

@@ -49,6 +49,7 @@ from .rules import (
     Batches,
     Threshold,
     matching,
+    nudge_probe,
     render_batches,
 )
 
@@ -116,6 +117,7 @@ _RANGES = {
     "alpha": (lambda v: 0 < v < 1, "a probability strictly between 0 and 1"),
     "batches": (lambda v: isinstance(v, int) and v >= 2,
                 "an integer >= 2 (the t-test needs a variance of ours)"),
+    "nudges": (lambda v: isinstance(v, int) and v >= 1, "an integer >= 1"),
 }
 
 
@@ -185,15 +187,22 @@ def explain(mode: str, res: dict, th: dict,
     if mode == "exact":
         if res.get("excused_pixels"):
             excused["tie-probe pixels"] = res["excused_pixels"]
+        if res.get("ill_conditioned_pixels"):
+            excused["ill-conditioned pixels (nudge probe)"] = res["ill_conditioned_pixels"]
         mask = (f"tie mask {_fmt(res.get('tie_pixels', 0))} pixels" if probed
                 else "no tie probe")
         if res.get("ok"):
+            ill = res.get("ill_conditioned_pixels", 0)
             return (f"mean rel {_fmt(res.get('mean_rel', 0.0))}, max rel (held) "
                     f"{_fmt(res.get('max_rel_held', res.get('max_rel', 0.0)))}, "
-                    f"{mask}"), excused
+                    f"{mask}"
+                    + (f", {ill:,} ill-conditioned pixels excused (their value moves beyond "
+                       f"max_rel under a nudge of the primary ray by "
+                       f"{val.get('nudge_ulps', 0):g} ulp)" if ill else "")), excused
         why = []
         if res.get("hard_pixels", 0):
-            where = " where the tie probe shows no tie" if probed else " (no tie probe)"
+            where = (" where neither the tie probe nor the nudge probe excuses" if probed
+                     else " (no tie probe)")
             why.append(f"{res['hard_pixels']:,} pixels above max_rel {val.get('max_rel', 0):g}"
                        f"{where} (worst rel "
                        f"{_fmt(res.get('max_rel_held', res.get('max_rel')))}; "
@@ -213,10 +222,13 @@ def explain(mode: str, res: dict, th: dict,
 
 
 def judge(ours, golden, mode: str, th: dict, warn: dict | None = None,
-          scene=None, ties: np.ndarray | None = None) -> tuple[str, str, dict, dict]:
+          scene=None, ties: np.ndarray | None = None,
+          nudged: np.ndarray | None = None) -> tuple[str, str, dict, dict]:
     """Apply the rule of ``mode`` to ours and a ``reference.golden.Golden``: exact, our
-    image and ``ties``, its tie mask (``evaluation.gate.rules.tie_probe``; None excuses
-    nothing); converged, our ``evaluation.gate.rules.Batches`` at the golden's ``batch_spp``.
+    image, ``ties``, its tie mask (``evaluation.gate.rules.tie_probe``; None excuses
+    nothing) and ``nudged``, our nudged renders (``evaluation.gate.rules.nudge_probe``;
+    None excuses nothing); converged, our ``evaluation.gate.rules.Batches`` at the
+    golden's ``batch_spp``.
 
     Returns (status, reason, excused, result): SIZE when the shapes differ, else PASS / FAIL
     from the rule, PASS turned WARN when a ``warn`` level (name -> value of the rule's
@@ -227,7 +239,7 @@ def judge(ours, golden, mode: str, th: dict, warn: dict | None = None,
     if shape != golden.image.shape:
         return ("SIZE", f"ours is {shape[1]}x{shape[0]}, the golden "
                         f"{golden.image.shape[1]}x{golden.image.shape[0]}", {}, {})
-    res = RULES[mode](ours, golden, th, ties)
+    res = RULES[mode](ours, golden, th, ties, nudged)
     reason, excused = explain(mode, res, th, probed=ties is not None)
     status = "PASS" if res["ok"] else "FAIL"
     if status == "PASS" and warn:
@@ -300,6 +312,15 @@ def _ours(renderers: dict, scene, view: int, mode: str, golden, opts: dict, th: 
     return images[0], np.any(images[1] != images[0], axis=-1)
 
 
+def _nudged(renderers: dict, scene, view: int, golden, th: dict) -> np.ndarray:
+    """The nudge probe's renders (``evaluation.gate.rules.nudge_probe``) of ``view`` by the
+    renderer ``_ours`` made for this scene, size and the plain tie-break."""
+    w, h = golden.meta["resolution"]
+    r = renderers[(id(scene), w, h, golden.meta.get("spawn"), "lowest")]
+    return nudge_probe(r, view, ulps=float(th["nudge_ulps"][0]),
+                       nudges=int(th["nudges"][0]))
+
+
 def check_scene(scene_path, stores, *, modes=None, shadings=None, views=None,
                 backend: str = "llvm", precision: str = "float32", accel: str | None = None,
                 keep_images: bool = False, progress=None, render=None,
@@ -360,6 +381,14 @@ def check_scene(scene_path, stores, *, modes=None, shadings=None, views=None,
                         (verdict.status, verdict.reason, verdict.excused,
                          verdict.result) = judge(ours, g, mode, ths[mode],
                                                  scene.check.get("warn"), scene, ties)
+                        if mode == "exact" and verdict.result.get("hard_pixels"):
+                            # hard pixels: the nudge probe says which are ill-conditioned
+                            # (its renders only for a case that would fail without it)
+                            nudged = _nudged(renderers, scene, v, g, ths[mode])
+                            (verdict.status, verdict.reason, verdict.excused,
+                             verdict.result) = judge(ours, g, mode, ths[mode],
+                                                     scene.check.get("warn"), scene, ties,
+                                                     nudged)
                         verdict.command = golden_store.regenerate_command(
                             scene.path, g.path.parent.parent)
                         _describe(verdict, matching(scene, g), v, mode, g, opts)
@@ -530,7 +559,8 @@ def report_entries(verdicts):
                   **({"metadata differs": "; ".join(v.differences)} if v.differences else {})},
             metadata=v.metadata,
             overlay=exact_overlay(v.ours, v.ref, {k: (t["value"],) for k, t in
-                                                  v.thresholds.items()}, v.ties)
+                                                  v.thresholds.items()}, v.ties,
+                                  (v.result or {}).get("ill_conditioned"))
             if v.mode == "exact" and v.status == "FAIL" else None))
     return entries
 

@@ -19,6 +19,7 @@ from renderer.scene import Scene, Settings, shapes
 from renderer.shade import SurfacePoint
 
 from .cases import OVERRIDE_EPSILON, PARITY_TIES_BY_DESIGN, Config, Row, load_cases, variants
+from .far import case_far_snapped
 from .rays import (
     ball_points,
     closest_hit,
@@ -800,7 +801,7 @@ CASES = {"closed_mesh": case_closed_mesh, "reintersect": case_reintersect,
          "index_matched": case_index_matched, "phong": case_phong,
          "degenerate": case_degenerate, "robust_scenes": case_robust_scenes,
          "precision": case_precision, "mitsuba_parity": case_mitsuba_parity,
-         "far_origin": case_far_origin}
+         "far_origin": case_far_origin, "far_snapped": case_far_snapped}
 
 
 def run_suite(cfg: Config, names=None, table: dict | None = None) -> list[Row]:

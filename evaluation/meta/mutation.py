@@ -4,6 +4,7 @@ it, and count the mutants the tests catch.
     python -m evaluation.meta.mutation                 # every mutant, a table and the score
     python -m evaluation.meta.mutation NAME ...        # some mutants (names: --list)
     python -m evaluation.meta.mutation --json out.json # also write the results (atomically)
+    python -m evaluation.meta.mutation --count NAME    # every selected test: how many fail
 
 Each mutant is a source patch of one renderer module (``old`` must occur exactly once in
 the file, so a refactor that moves the code makes the mutant *invalid*, said, not silently
@@ -42,6 +43,22 @@ ROOT = Path(__file__).resolve().parents[2]
 GOLDEN_EXACT = ["tests/test_golden_regression.py", "-k", "exact_matches"]
 GOLDEN_CASES = ["tests/test_golden_regression.py", "-k",
                 "exact_matches and (mirror_background or fresnel_glass)"]
+#: The tests that require a wrong render to fail the exact rule (through the tie probe).
+MUST_FAIL_EXACT = ["tests/test_rules_must_fail.py", "tests/test_golden_regression.py", "-k",
+                   "exact_rule_fails or exact_check_fails or crack or patch_off"]
+#: MUST_FAIL_EXACT and the nudge probe's rule test.
+MUST_FAIL_NUDGE = ["tests/test_rules_must_fail.py", "tests/test_golden_regression.py",
+                   "tests/test_nudge_probe.py", "-k", "exact_rule_fails or exact_check_fails "
+                   "or crack or patch_off or rule_excuses"]
+#: The nudge probe's own tests and the glass bunny's exact goldens (which it lets pass).
+NUDGE_TESTS = ["tests/test_nudge_probe.py", "tests/test_golden_regression.py", "-k",
+               "not agrees_to_depth and (glass_bunny or rule_excuses)"]
+#: The sphere light's closed-form test and the soft-shadow scene's converged goldens.
+SOFT_TESTS = ["tests/test_soft_shadows.py", "tests/test_golden_regression.py", "-k",
+              "centre_point or (converged_matches and cornell_soft)"]
+#: The tests that require a wrong render to fail the converged rule.
+MUST_FAIL_CONVERGED = ["tests/test_rules_must_fail.py", "tests/test_golden_regression.py",
+                       "-k", "converged_rule_fails or converged_check_fails"]
 
 
 @dataclass(frozen=True)
@@ -114,7 +131,19 @@ MUTANTS = [
        "Fresnel: reflected share 1 - F", *GOLDEN_CASES),
     _m("eta_squared_missing", "renderer.shade",
        "w_refr = w_refr * (eta * eta)", "w_refr = w_refr * 1.0",
-       "physical mode without the eta^2 radiance compression"),
+       "physical mode without the eta^2 radiance compression",
+       "tests/test_golden_regression.py", "tests/test_reference_translation.py", "-k",
+       "exact_matches or open_constant"),
+    _m("reference_eta_squared_missing", "reference.plugins",
+       'scale = dr.square(eta_ti) if self.shading == "physical" else 1.0', "scale = 1.0",
+       "the reference plugin's constant-weight glass without the eta^2 factor (closed "
+       "glass cancels it: only the open sheet sees it)",
+       "tests/test_reference_translation.py", "-k", "open_constant"),
+    _m("reference_eta_squared_inverted", "reference.plugins",
+       'scale = dr.square(eta_ti) if self.shading == "physical" else 1.0',
+       'scale = dr.square(1.0 / eta_ti) if self.shading == "physical" else 1.0',
+       "the reference plugin's eta^2 factor upside down (eta_it^2 for eta_ti^2)",
+       "tests/test_reference_translation.py", "-k", "open_constant"),
     _m("tir_loses_energy", "renderer.shade",
        "w_refl = dr.select(tir, k_refl + k_refr, k_refl)",
        "w_refl = dr.select(tir, k_refl, k_refl)",
@@ -126,13 +155,13 @@ MUTANTS = [
        "Li = intensity * (2.0 * rcp(dc2 * (1.0 + cos_max)))",
        "Li = intensity * (2.0 * rcp(dc2))",
        "sphere light: cone pdf 1/(2π sin²θmax) instead of 1/(2π (1 - cosθmax))",
-       "tests/test_soft_shadows.py", "-k", "centre_point"),
+       *SOFT_TESTS),
     _m("cone_pdf_disk", "renderer.lights",
        "Li = intensity * (2.0 * rcp(dc2 * (1.0 + cos_max)))",
        "Li = intensity * rcp(dc2)",
        "sphere light: the cone weighted by the projected disk π sin²θmax (wrong by "
        "(1 + cosθmax) / 2)",
-       "tests/test_soft_shadows.py", "-k", "centre_point"),
+       *SOFT_TESTS),
     _m("point_light_through_cone", "renderer.lights",
        "return dr.select(kind == 1, b, dr.select(kind == 2, c, a))",
        "return dr.select(kind == 2, c, b)",
@@ -140,9 +169,10 @@ MUTANTS = [
        "(right in the limit, not bit for bit)",
        "tests/test_soft_shadows.py", "-k", "bitwise"),
     _m("shadow_key_ignores_tile", "renderer.camera",
-       "    if first_row is not None:\n        y = y + first_row\n    UInt64",
-       "    UInt64",
-       "the shadow samples' key forgets the tile's first row: a tiled render differs",
+       "    if tile.first_row is not None:\n        y = y + tile.first_row\n    return x, y",
+       "    return x, y",
+       "the rays' pixels (so the shadow samples' keys) forget the tile's first row: a tiled "
+       "render differs",
        "tests/test_soft_shadows.py", "-k", "batching"),
     _m("rectangle_back_side", "renderer.lights",
        "g = dr.select(two, dr.abs(cos_l), dr.maximum(cos_l, 0.0))",
@@ -179,6 +209,54 @@ MUTANTS = [
        "stratum's diagonal (a bias at edges; plain uniform jitter would be unbiased)",
        "tests/test_golden_regression.py", "-k",
        "converged_matches and (cornell_box-front or platonic_solids-front-classic)"),
+    # ---- the rules themselves: each must fail several tests (tests/test_mutation.py) ----
+    _m("tie_probe_excuses_all", "evaluation.gate.rules",
+       "    return image, np.any(other != image, axis=-1)",
+       "    return image, np.ones(image.shape[:2], bool)",
+       "the tie probe's mask holds every pixel: the exact rule excuses any difference",
+       *MUST_FAIL_EXACT),
+    _m("tie_window_a_tenth_of_the_scene", "evaluation.gate.rules",
+       "    d = float(slack) * scene.diagonal", "    d = 0.1 * scene.diagonal",
+       "the probe's window and slack a tenth of the scene, not 1e-5 of it: every surface "
+       "behind another one near it is a 'tie'", *MUST_FAIL_EXACT),
+    _m("exact_rule_ignores_the_mask", "evaluation.gate.rules",
+       "    hard = bad & ~tie & ~ill\n", "    hard = bad & False\n",
+       "the exact rule holds no pixel above max_rel hard, tie or not", *MUST_FAIL_EXACT),
+    _m("nudge_probe_excuses_all", "evaluation.gate.rules",
+       "    return candidates & (spread > max_rel) & within(ref) & within(ours)",
+       "    return candidates",
+       "the nudge probe excuses every hard pixel it is asked about", *MUST_FAIL_NUDGE),
+    _m("nudge_range_ignored", "evaluation.gate.rules",
+       "    return candidates & (spread > max_rel) & within(ref) & within(ours)",
+       "    return candidates & (spread > max_rel)",
+       "the nudge probe excuses a pixel that moves, wherever the golden and ours lie",
+       *MUST_FAIL_NUDGE),
+    _m("nudge_ours_not_spanned", "evaluation.gate.rules",
+       "    return candidates & (spread > max_rel) & within(ref) & within(ours)",
+       "    return candidates & (spread > max_rel) & within(ref)",
+       "the nudge probe does not ask that ours lie among the nudged values: an image the "
+       "probe's renderer does not render (a bug outside the frame function) is excused "
+       "wherever the probe's values move", *MUST_FAIL_NUDGE[:-2], "tests/test_check.py",
+       "-k", MUST_FAIL_NUDGE[-1] + " or exits_0_on_the_real"),
+    _m("nudge_probe_never_runs", "evaluation.gate.verdict",
+       'if mode == "exact" and verdict.result.get("hard_pixels"):',
+       'if mode == "exact" and False:',
+       "whitted check never runs the nudge probe: the glass bunny's ill-conditioned pixels "
+       "fail it", *NUDGE_TESTS),
+    _m("t_test_always_passes", "evaluation.gate.rules",
+       '"ok": bool(mask.all())}', '"ok": True}',
+       "the converged rule's verdict ignores its t-test", *MUST_FAIL_CONVERGED),
+    _m("welch_never_rejects", "evaluation.gate.metrics",
+       "    t = np.nan_to_num(np.abs(m_a - m_r) / np.sqrt(var), nan=np.inf)",
+       "    t = np.zeros(m_a.shape)",
+       "the t statistic is 0 for every value: no difference of means is significant",
+       *MUST_FAIL_CONVERGED),
+    _m("t_test_variance_times_100", "evaluation.gate.rules",
+       "frac, mask, tval = welch_test(ours.mean, ours.var, ours.n, ref_mean, ref.var, ref.n,",
+       "frac, mask, tval = welch_test(ours.mean, 100 * ours.var, ours.n, ref_mean,\n"
+       "                                  100 * ref.var, ref.n,",
+       "the converged rule's variances 100x too large (a per-sample variance for a per-mean "
+       "one, say): only gross errors fail", *MUST_FAIL_CONVERGED),
     _m("right_angles_inexact", "renderer.scene.loader",
        "    (sx, sy, sz), (cx, cy, cz) = _sin_cos_degrees(deg)\n",
        "    cx, cy, cz = np.cos(np.radians(deg))\n    sx, sy, sz = np.sin(np.radians(deg))\n",
@@ -192,10 +270,14 @@ CONTROL = _m("control_no_change", "renderer.shade", "result = sa.ambient * ka",
              "result = sa.ambient * ka", "no change (the harness's control): every "
              "selection the mutants use, which must all pass",
              "tests/test_golden_regression.py", "tests/test_analytic.py",
-             "tests/test_precision.py", "tests/hard/test_hard_rays.py", "-k",
+             "tests/test_precision.py", "tests/hard/test_hard_rays.py",
+             "tests/test_rules_must_fail.py", "tests/test_nudge_probe.py",
+             "tests/test_reference_translation.py", "-k",
              "exact_matches or pruning or far_from_the_origin or closed_mesh_from_inside or "
              "cornell_box_exact_in_float64 or "
-             "(converged_matches and (cornell_box-front or platonic_solids-front-classic))")
+             "(converged_matches and (cornell_box-front or platonic_solids-front-classic)) or "
+             "rule_fails or check_fails or crack or patch_off or rule_excuses or glass_bunny "
+             "or open_constant")
 BY_NAME = {m.name: m for m in (*MUTANTS, CONTROL)}
 
 
@@ -253,8 +335,24 @@ def install(m: Mutant) -> None:
     sys.meta_path.insert(0, _Finder(m))
 
 
-def run_one(name: str, extra: list[str]) -> int:
-    """In this process: install mutant ``name`` and run its tests (pytest -x)."""
+class _FailedTests:
+    """A pytest plugin that records the node ids of the tests that fail."""
+
+    def __init__(self):
+        self.failed: list[str] = []
+
+    def pytest_runtest_logreport(self, report):
+        if report.failed and report.nodeid not in self.failed:
+            self.failed.append(report.nodeid)
+
+
+#: The line ``--run-one --count`` prints before exiting: the failed tests as JSON.
+FAILED_MARK = "mutation-failed-tests: "
+
+
+def run_one(name: str, extra: list[str], *, count: bool = False) -> int:
+    """In this process: install mutant ``name`` and run its tests (pytest -x; every one of
+    them with ``count``, which then prints ``FAILED_MARK`` and the failed tests' ids)."""
     m = BY_NAME[name]
     install(m)
     import pytest
@@ -263,15 +361,21 @@ def run_one(name: str, extra: list[str]) -> int:
     # and claims every module of a distribution that provides a pytest11 plugin (ours:
     # evaluation.gate.pytest_plugin), so with it renderer.* would be imported unpatched (measured:
     # every mutant survived)
-    return int(pytest.main(["-x", "-q", "-p", "no:cacheprovider", "--assert=plain", *m.tests,
-                            *extra]))
+    rec = _FailedTests()
+    rc = int(pytest.main([*([] if count else ["-x"]), "-q", "-p", "no:cacheprovider",
+                          "--assert=plain", *m.tests, *extra], plugins=[rec]))
+    if count:
+        print(FAILED_MARK + json.dumps(rec.failed), flush=True)
+    return rc
 
 
 # ---- the driver -----------------------------------------------------------------------------
-def run(names, *, timeout: float = 1800.0, progress=print) -> list[dict]:
+def run(names, *, timeout: float = 1800.0, progress=print, count: bool = False) -> list[dict]:
     """Every mutant of ``names`` in its own subprocess; one result dict each: name, status
     (caught / survived / invalid / timeout), seconds, the tests run, and the last lines of
-    the output."""
+    the output. With ``count`` every selected test runs (no ``-x``) and the dict also holds
+    ``failed_tests`` (node ids) and ``caught_by`` (their number): how many tests see the
+    bug, not only whether one does."""
     out = []
     for i, name in enumerate(names):
         m = BY_NAME[name]
@@ -285,16 +389,25 @@ def run(names, *, timeout: float = 1800.0, progress=print) -> list[dict]:
             continue
         try:
             p = subprocess.run([sys.executable, "-m", "evaluation.meta.mutation",
-                                "--run-one", name],
+                                "--run-one", name, *(["--count"] if count else [])],
                                cwd=ROOT, capture_output=True, text=True, timeout=timeout)
             status = {0: "survived", 1: "caught"}.get(p.returncode, "invalid")
-            tail = "\n".join((p.stdout + p.stderr).strip().splitlines()[-6:])
+            lines = (p.stdout + p.stderr).strip().splitlines()
+            failed = [json.loads(ln[len(FAILED_MARK):]) for ln in lines
+                      if ln.startswith(FAILED_MARK)]
+            lines = [ln for ln in lines if not ln.startswith(FAILED_MARK)]
+            tail = "\n".join(lines[-6:])
         except subprocess.TimeoutExpired:
-            status, tail = "timeout", f"no verdict within {timeout:.0f} s"
+            status, tail, failed = "timeout", f"no verdict within {timeout:.0f} s", []
         dt = time.time() - t0
-        out.append({"name": name, "status": status, "seconds": round(dt, 1), "why": m.why,
-                    "tests": list(m.tests), "tail": tail})
-        progress(f"[{i + 1}/{len(names)}] {name}: {status} ({dt:.0f} s)")
+        res = {"name": name, "status": status, "seconds": round(dt, 1), "why": m.why,
+               "tests": list(m.tests), "tail": tail}
+        if count:
+            res["failed_tests"] = failed[-1] if failed else []
+            res["caught_by"] = len(res["failed_tests"])
+        out.append(res)
+        by = f", failed {res['caught_by']} tests" if count else ""
+        progress(f"[{i + 1}/{len(names)}] {name}: {status}{by} ({dt:.0f} s)")
     return out
 
 
@@ -314,10 +427,12 @@ def main(argv=None) -> int:
     ap.add_argument("--list", action="store_true", help="list the mutants and exit")
     ap.add_argument("--json", help="write the results here")
     ap.add_argument("--timeout", type=float, default=1800.0, help="seconds per mutant")
+    ap.add_argument("--count", action="store_true",
+                    help="run every selected test (no -x) and report how many fail")
     ap.add_argument("--run-one", help=argparse.SUPPRESS)
     args, extra = ap.parse_known_args(argv)
     if args.run_one:
-        return run_one(args.run_one, extra)
+        return run_one(args.run_one, extra, count=args.count)
     if args.list:
         for m in MUTANTS:
             print(f"{m.name:32s} {m.module:26s} {m.why}")
@@ -328,7 +443,8 @@ def main(argv=None) -> int:
               file=sys.stderr)
         return 2
     try:
-        results = run(args.names or [m.name for m in MUTANTS], timeout=args.timeout)
+        results = run(args.names or [m.name for m in MUTANTS], timeout=args.timeout,
+                      count=args.count)
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130

@@ -84,7 +84,10 @@ def build_ploc(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm", *
     for the device at each phase's end). ``stats``: None, or a dict that gets
     ``iterations``, ``levels`` (the clustered tree's, before any rebuild), ``rebuilt``
     (subtrees rebuilt balanced) and ``fallback`` (True when the radix tree was returned).
-    A scene of at most ``leaf_size`` triangles gets ``build_bvh``'s single-leaf tree."""
+    A scene of at most ``leaf_size`` triangles gets ``build_bvh``'s single-leaf tree.
+    The tree carries its unpadded child boxes too (``BVHArrays.raw``, what
+    ``bvh_build.raw_boxes`` computes on the host), so the traversal pads them for its ray
+    origins without a host refit."""
     if not 1 <= leaf_size <= MAX_LEAF:
         raise ValueError(f"leaf_size: expected 1..{MAX_LEAF}, got {leaf_size}")
     if not 1 <= radius <= 64:
@@ -219,7 +222,7 @@ def build_ploc(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm", *
         _phase(phases, "clustering", t_phase)
     if fallback:
         info["levels"], info["rebuilt"], info["fallback"] = None, 0, True
-        return build_device(Vn, Fn, backend, leaf_size=leaf_size)
+        return build_device(Vn, Fn, backend, leaf_size=leaf_size, raw=True)
 
     # ---- 3. triangle order, top down ---------------------------------------------------------
     n_first = dr.zeros(UInt32, n_in)          # first position of each node's triangles
@@ -264,7 +267,7 @@ def build_ploc(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm", *
     src = last - dr.compress(dr.gather(m.Bool, kept, last - dr.arange(UInt32, n_in)))
     N = dr.width(src)
     extent = dr.maximum(dr.maximum(s_hi[0] - s_lo[0], s_hi[1] - s_lo[1]), s_hi[2] - s_lo[2])
-    pad = float(32 * unit_roundoff(False)), extent
+    # (``pad``: the padding rule's factor and extent, and where the unpadded boxes go)
     rb_rows, rb_first, rb_count, rb_depth = None, None, None, None
     extra = 0
     if roots is not None:
@@ -276,6 +279,8 @@ def build_ploc(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm", *
         rb_depth = dr.gather(UInt32, n_depth, rb_src)
         extra = int(dr.sum(rb_count)[0])
     boxes_d = dr.zeros(Float, 12 * (N + extra))
+    raw_d = dr.zeros(Float, 12 * (N + extra))
+    pad = float(32 * unit_roundoff(False)), extent, raw_d
     refs_d = dr.zeros(UInt32, 2 * (N + extra))
     n = dr.arange(UInt32, N)
     area = dr.zeros(m.Float64, N)
@@ -299,7 +304,7 @@ def build_ploc(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm", *
     if roots is not None:                 # their rows are rewritten by the rebuild
         area = dr.select(is_root, 0.0, area)
     total = dr.sum(area)
-    dr.eval(boxes_d, refs_d, total, order_d)
+    dr.eval(boxes_d, refs_d, total, order_d, raw_d)
     if roots is not None:
         p_box = [dr.zeros(Float, F) for _ in range(6)]   # triangle boxes in the final order
         for a in range(6):
@@ -309,6 +314,7 @@ def build_ploc(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm", *
                                       boxes_d, refs_d, N, leaf_size, pad)
         total += rb_area
         boxes_d = dr.gather(Float, boxes_d, dr.arange(UInt32, 12 * N))
+        raw_d = dr.gather(Float, raw_d, dr.arange(UInt32, 12 * N))
         refs_d = dr.gather(UInt32, refs_d, dr.arange(UInt32, 2 * N))
         levels = max(levels, int(dr.max(dr.gather(UInt32, n_depth, src))[0]) + 1)
     info["fallback"] = False
@@ -324,7 +330,8 @@ def build_ploc(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm", *
     dd = bounds[1] - bounds[0]
     root = float(dd[0] * dd[1] + dd[1] * dd[2] + dd[2] * dd[0])
     sah = (C_TRAV * root + float(total.numpy()[0])) / root if root > 0 else 0.0
-    arrays = BVHArrays(boxes, ch, order, levels, leaf_count, sah, 0.0, bounds)
+    raw_h = np.asarray(raw_d.numpy(), np.float32).reshape(N, 12)
+    arrays = BVHArrays(boxes, ch, order, levels, leaf_count, sah, 0.0, bounds, raw=raw_h)
     arrays.build_seconds = time.perf_counter() - t_start
     if phases is not None:
         _phase(phases, "inner nodes and host copy", t_phase)
@@ -333,15 +340,19 @@ def build_ploc(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm", *
 
 def _write_box(m, boxes_d, at, lo, hi, pad):
     """Scatter the box ``(lo, hi)`` (3 Floats each) padded by ``pad_boxes``'s rule (``pad``:
-    32 units of roundoff, the scene extent) to ``boxes_d[at .. at + 5]``; answers its half
-    surface area (Float64)."""
-    u32, extent = pad
+    32 units of roundoff, the scene extent, and None or the Float that gets the unpadded
+    box at the same place) to ``boxes_d[at .. at + 5]``; answers its half surface area
+    (Float64)."""
+    u32, extent, raw_d = pad
     d = []
     for a in range(3):                    # pad_boxes: 32 roundoff x (magnitude + extent)
         e = (dr.maximum(abs(lo[a]), abs(hi[a])) + extent) * u32
         lo_a, hi_a = lo[a] - e, hi[a] + e
         dr.scatter(boxes_d, lo_a, at + a)
         dr.scatter(boxes_d, hi_a, at + 3 + a)
+        if raw_d is not None:
+            dr.scatter(raw_d, lo[a], at + a)
+            dr.scatter(raw_d, hi[a], at + 3 + a)
         d.append(m.Float64(hi_a - lo_a))
     return d[0] * d[1] + d[1] * d[2] + d[2] * d[0]
 
@@ -432,7 +443,7 @@ def _rebuild(m, rb, p_box, boxes_d, refs_d, n_next, leaf_size, pad):
                                list(state[4:7]), pad)
         area += dr.sum(half_area * dr.select(leaf, m.Float64(c_count), 1.0))
         ref = dr.select(leaf, LEAF_BIT | ((c_count - 1) << COUNT_SHIFT) | c_first, 0)
-        dr.eval(ref, c_first, c_count, leaf, boxes_d, area)
+        dr.eval(ref, c_first, c_count, leaf, boxes_d, area, pad[2])
         pend = dr.compress(~leaf)
         w = dr.width(pend)
         if w:

@@ -1,48 +1,50 @@
-"""Far from the origin (issue 25): our render of the Cornell box moved by (s, s, s) against
-our float64 render of the *same* vertices snapped to float32's grid there
-(``offsets_util.far_from_origin_criterion``), so the geometry's own snapping is not counted
-against float32's arithmetic: no bad pixel (off by > 5 % and not an edge), and every shadow
-the snapped geometry casts survives.
+"""Far from the origin (issue 25), case 16 of the hard-case suite (``far_snapped``,
+``evaluation.hard.far``): our render of the Cornell box moved by (s, s, s) against our
+float64 render of the *same* vertices snapped to float32's grid there, so the geometry's own
+snapping is not counted against float32's arithmetic: no bad pixel (off by > 5 % and not an
+edge), and every shadow the snapped geometry casts survives; float64 bit for bit.
 
-Measured at 64² (LLVM): float32 holds at 1e3, 1e4, 1e5 (0 bad, 0 lost shadow pixels; relMSE
-9e-3, 6e-3, 9e-2 from the 3, 26, 152 edge pixels the 3x3 allowance explains); at 1e6 it
-fails (287 bad, 18 of 239 shadow pixels lost: the camera's rays themselves round to
-1/16 there) and at 1e7 the room (2 across, ulp 1) is gone. float64 is bit-identical to
-its reference at every offset, 1e3 ... 1e7. So a float32 render is held to 1e5, and the
-failure at 1e6 is the proof that the criterion can fail.
+The table states float32's limit (``float32_limit = 1e5``, with the measured numbers): at
+1e6 and 1e7 float32 fails the criterion, and those rows hold only while it does, so the
+failure at 1e6 is also the proof that the criterion can fail.
 """
 from __future__ import annotations
 
-import warnings
-
 import pytest
-from offsets_util import far_from_origin_criterion
+from util_hard import CI, assert_green, rows_of
 
-from renderer.scene import load_scene
-
-SIZE = 48
+from evaluation.hard.cases import Config
 
 
-def _criterion(shift: float, precision: str) -> dict:
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")          # zero-area triangles of the snapped box
-        sc = load_scene("scenes/cornell_box.toml").with_size(SIZE, SIZE)
-        res = far_from_origin_criterion(sc, (shift, shift, shift), precision)
-    print(f"{precision} at {shift:g}: {res}")
-    return res
+@pytest.fixture(scope="module")
+def float32_rows():
+    return {r.info["shift"]: r for r in rows_of("far_snapped", CI)}
 
 
-@pytest.mark.parametrize("shift,precision", [(1e3, "float32"), (1e5, "float32"),
-                                             (1e3, "float64"), (1e7, "float64")])
-def test_far_from_origin_matches_the_snapped_geometry(shift, precision):
-    res = _criterion(shift, precision)
-    assert res["shadow_pixels"] > 0 or shift >= 1e7, "no shadow to keep proves nothing"
-    assert res["bad"] == 0 and res["lost_shadow"] == 0, res
-    if precision == "float64":
-        assert res["max_abs"] == 0.0, res
+def test_float32_holds_to_its_limit_and_fails_beyond(float32_rows):
+    rows = float32_rows
+    assert sorted(rows) == [1e3, 1e4, 1e5, 1e6, 1e7]
+    assert_green(rows.values())
+    for s in (1e3, 1e4, 1e5):
+        info = rows[s].info
+        assert not info["expected_limit"] and info["shadow_pixels"] > 0, info
+        assert info["bad"] == 0 and info["lost_shadow"] == 0, info
+    # the check can fail: float32 rays from 1e6 away (ulp 1/16 against a room 2 across)
+    info = rows[1e6].info
+    assert info["expected_limit"] and info["bad"] > 0 and info["lost_shadow"] > 0, info
+    assert "expected limit" in rows[1e6].criterion
 
 
-def test_float32_fails_the_criterion_at_1e6():
-    """The check can fail: float32 rays from 1e6 away (ulp 1/16 against a room 2 across)."""
-    res = _criterion(1e6, "float32")
-    assert res["bad"] > 0 and res["lost_shadow"] > 0, res
+def test_float64_is_bitwise_its_reference_at_every_shift():
+    rows = rows_of("far_snapped", Config(backend="llvm", precisions=("float64",)),
+                   shifts=[1e3, 1e7])
+    assert_green(rows)
+    assert [r.info["max_abs"] for r in rows] == [0.0, 0.0]
+    assert rows[0].info["shadow_pixels"] > 0
+
+
+def test_a_float32_that_held_beyond_its_limit_turns_the_row_red():
+    """A table whose limit is stale (float32 declared to fail at 1e5, where it holds) gives
+    a red row: the limit is measured, not assumed."""
+    rows = rows_of("far_snapped", CI, shifts=[1e5], float32_limit=1e4)
+    assert len(rows) == 1 and not rows[0].passed, rows[0]
