@@ -86,6 +86,43 @@ def _bisect(UInt32, code, bit, a, b):
     return dr.select(has, a, mid), dr.select(has, mid, b)
 
 
+def triangle_boxes(m, Vn: np.ndarray, Fn: np.ndarray):
+    """The float32 box ``(lo, hi)`` (3 ``m.Float`` each) of every face ``Fn`` (int (F, 3))
+    of ``Vn`` (float32 (V, 3), contiguous), evaluated: one upload of each array as it lies
+    in memory (no per-column copies on the host; ``host_array``: aligned, so the LLVM
+    kernels do not depend on numpy's addresses), the kernel gathering corner k's axis a at
+    ``3 * face[3 f + k] + a``."""
+    Float, UInt32 = m.Float, m.UInt32
+    v_flat = Float(host_array(Vn.reshape(-1)))
+    f_flat = UInt32(host_array(Fn.reshape(-1), np.uint32))
+    i3 = dr.arange(UInt32, int(Fn.shape[0])) * 3
+    fi = [dr.gather(UInt32, f_flat, i3 + k) * 3 for k in range(3)]
+    lo, hi = [], []
+    for a in range(3):
+        p = [dr.gather(Float, v_flat, fi[k] + a) for k in range(3)]
+        lo.append(dr.minimum(dr.minimum(p[0], p[1]), p[2]))
+        hi.append(dr.maximum(dr.maximum(p[0], p[1]), p[2]))
+    dr.eval(lo, hi)
+    return lo, hi
+
+
+def morton_codes(UInt32, lo, hi):
+    """``(code, s_lo, s_hi)``: the ``3 * MORTON_BITS``-bit Morton code of each box centre
+    (``lo``, ``hi``: 3 arrays each), normalised per axis in the boxes' scene box
+    ``(s_lo, s_hi)`` (3 floats each, evaluated on the device)."""
+    s_lo = [dr.min(x) for x in lo]
+    s_hi = [dr.max(x) for x in hi]
+    scale = float(1 << MORTON_BITS)
+    code = dr.zeros(UInt32, dr.width(lo[0]))
+    for k in range(3):
+        ext = s_hi[k] - s_lo[k]
+        inv = dr.select(ext > 0, scale / dr.maximum(ext, 1e-30), 0.0)
+        c = (lo[k] + hi[k]) * 0.5
+        q = UInt32(dr.clip((c - s_lo[k]) * inv, 0.0, scale - 1.0))
+        code |= _spread(q) << (2 - k)
+    return code, s_lo, s_hi
+
+
 def build_device(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm", *,
                  leaf_size: int = LEAF_SIZE, progress=None,
                  phases: dict | None = None, raw: bool = False) -> BVHArrays:
@@ -120,30 +157,12 @@ def build_device(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm",
     # one upload of each array as it lies in memory (no per-column copies on the host);
     # the kernel gathers corner k's axis a at 3 * face[3 f + k] + a
     # (``host_array``: aligned, so the LLVM kernels do not depend on numpy's addresses)
-    v_flat = Float(host_array(Vn.reshape(-1)))
-    f_flat = UInt32(host_array(Fn.reshape(-1), np.uint32))
-    i3 = dr.arange(UInt32, F) * 3
-    fi = [dr.gather(UInt32, f_flat, i3 + k) * 3 for k in range(3)]
-    lo, hi = [], []
-    for a in range(3):
-        p = [dr.gather(Float, v_flat, fi[k] + a) for k in range(3)]
-        lo.append(dr.minimum(dr.minimum(p[0], p[1]), p[2]))
-        hi.append(dr.maximum(dr.maximum(p[0], p[1]), p[2]))
-    dr.eval(lo, hi)
+    lo, hi = triangle_boxes(m, Vn, Fn)
     if phases is not None:
         _phase(phases, "triangle boxes", t_phase)
-    s_lo = [dr.min(x) for x in lo]
-    s_hi = [dr.max(x) for x in hi]
 
     # ---- 2. Morton codes of the box centres, sorted ---------------------------------------
-    scale = float(1 << MORTON_BITS)
-    code = dr.zeros(UInt32, F)
-    for k in range(3):
-        ext = s_hi[k] - s_lo[k]
-        inv = dr.select(ext > 0, scale / dr.maximum(ext, 1e-30), 0.0)
-        c = (lo[k] + hi[k]) * 0.5
-        q = UInt32(dr.clip((c - s_lo[k]) * inv, 0.0, scale - 1.0))
-        code |= _spread(q) << (2 - k)
+    code, s_lo, s_hi = morton_codes(UInt32, lo, hi)
     size = dr.maximum(dr.maximum(hi[0] - lo[0], hi[1] - lo[1]), hi[2] - lo[2])
     ext = dr.maximum(dr.maximum(s_hi[0] - s_lo[0], s_hi[1] - s_lo[1]), s_hi[2] - s_lo[2])
     code |= dr.select(size > ext * BIG_TRIANGLE, UInt32(1 << 30), 0)

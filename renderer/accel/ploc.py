@@ -46,12 +46,12 @@ import numpy as np
 
 from .bvh_build import C_TRAV, LEAF_SIZE, MAX_LEVELS, BVHArrays, build_bvh
 from .device_build import (
-    MORTON_BITS,
     _levels_needed,
     _module,
     _phase,
-    _spread,
     build_device,
+    morton_codes,
+    triangle_boxes,
 )
 from .traverse import COUNT_SHIFT, LEAF_BIT, MAX_LEAF
 from .triangle import unit_roundoff
@@ -108,26 +108,8 @@ def build_ploc(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm", *
     info = stats if stats is not None else {}
 
     # ---- 1. triangle boxes, Morton codes, sorted -------------------------------------------
-    v_flat = Float(Vn.reshape(-1))               # one upload each, gathered per corner
-    f_flat = UInt32(np.ascontiguousarray(Fn, np.uint32).reshape(-1))
-    tri = dr.arange(UInt32, F)
-    fi = [dr.gather(UInt32, f_flat, 3 * tri + k) * 3 for k in range(3)]
-    lo, hi = [], []
-    for axis in range(3):
-        p = [dr.gather(Float, v_flat, fi[k] + axis) for k in range(3)]
-        lo.append(dr.minimum(dr.minimum(p[0], p[1]), p[2]))
-        hi.append(dr.maximum(dr.maximum(p[0], p[1]), p[2]))
-    dr.eval(lo, hi)
-    s_lo = [dr.min(x) for x in lo]
-    s_hi = [dr.max(x) for x in hi]
-    scale = float(1 << MORTON_BITS)
-    code = dr.zeros(UInt32, F)
-    for k in range(3):
-        ext = s_hi[k] - s_lo[k]
-        inv = dr.select(ext > 0, scale / dr.maximum(ext, 1e-30), 0.0)
-        c = (lo[k] + hi[k]) * 0.5
-        q = UInt32(dr.clip((c - s_lo[k]) * inv, 0.0, scale - 1.0))
-        code |= _spread(q) << (2 - k)
+    lo, hi = triangle_boxes(m, Vn, Fn)
+    code, s_lo, s_hi = morton_codes(UInt32, lo, hi)
     perm = dr.argsort(code)
     slo = [dr.gather(Float, x, perm) for x in lo]        # triangle boxes in sorted order
     shi = [dr.gather(Float, x, perm) for x in hi]
