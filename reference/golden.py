@@ -774,8 +774,9 @@ def rekey(scene_paths, *, root: Path = BUNDLED_STORE, verify=MODES,
     (e.g. after a harness change that does not change a pixel), keeping their EXRs.
     verify: the modes whose goldens are first re-rendered: an exact golden must come out
     bit-identical, a converged one (re-rendered with its seeds) within 1e-6 relative;
-    otherwise it is left stale and reported. The sidecar's ``rekeyed`` says whether it was
-    verified. Returns the sidecars rewritten."""
+    otherwise it is left stale and reported. The sidecar's ``rekeyed`` records the
+    ``content_key`` it had (``from``) and whether it was verified. Returns the sidecars
+    rewritten."""
     import mitsuba as mi
 
     from . import mitsuba_variant
@@ -814,9 +815,9 @@ def rekey(scene_paths, *, root: Path = BUNDLED_STORE, verify=MODES,
                     new = sidecar(scene, inputs, resolution=[w, h], spp=meta["spp"],
                                   batch_spp=meta["batch_spp"], batches=meta["batches"],
                                   variant=meta["variant"], date=meta["date"])
-                    new["rekeyed"] = datetime.datetime.now(datetime.timezone.utc).isoformat(
-                        timespec="seconds") + (" (re-render verified identical)" if checked
-                                               else " (not verified)")
+                    # the key it had (its harness is in the history) and whether a
+                    # re-render confirmed its pixels
+                    new["rekeyed"] = {"from": meta.get("content_key"), "verified": checked}
                     write_text(side, json.dumps(new, indent=1) + "\n", overwrite=True)
                     report(f"rekeyed: {_display(side)}")
                     done.append(side)
