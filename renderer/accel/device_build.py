@@ -123,6 +123,27 @@ def morton_codes(UInt32, lo, hi):
     return code, s_lo, s_hi
 
 
+def host_arrays(boxes_d, refs_d, order_d, raw_d, scene_box, area, levels: int) -> BVHArrays:
+    """The host ``BVHArrays`` of a tree built on the device: its padded node boxes
+    (``boxes_d``, 12 Floats a node), child references (``refs_d``, 2 UInt32 a node),
+    triangle order, unpadded boxes (``raw_d``, or None), the scene box ``(s_lo, s_hi)`` (3
+    one-lane Floats each), the sum of the nodes' weighted half areas (``area``, one-lane
+    Float64) that gives the SAH cost, and the number of levels."""
+    n = dr.width(refs_d) // 2
+    boxes = np.asarray(boxes_d.numpy(), np.float32).reshape(n, 12)
+    ch = np.asarray(refs_d.numpy(), np.uint32).reshape(n, 2)
+    order = np.asarray(order_d.numpy(), np.int64)
+    b_lo = np.array([float(x.numpy()[0]) for x in scene_box[0]], np.float32)
+    b_hi = np.array([float(x.numpy()[0]) for x in scene_box[1]], np.float32)
+    leaf_count = int(np.count_nonzero(ch & np.uint32(LEAF_BIT)))
+    bounds = (b_lo.astype(np.float64), b_hi.astype(np.float64))
+    dd = bounds[1] - bounds[0]
+    root = float(dd[0] * dd[1] + dd[1] * dd[2] + dd[2] * dd[0])
+    sah = (C_TRAV * root + float(area.numpy()[0])) / root if root > 0 else 0.0
+    raw_h = np.asarray(raw_d.numpy(), np.float32).reshape(n, 12) if raw_d is not None else None
+    return BVHArrays(boxes, ch, order, levels, leaf_count, sah, 0.0, bounds, raw=raw_h)
+
+
 def build_device(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm", *,
                  leaf_size: int = LEAF_SIZE, progress=None,
                  phases: dict | None = None, raw: bool = False) -> BVHArrays:
@@ -303,18 +324,8 @@ def build_device(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm",
     dr.eval(boxes_d, refs_d, area, raw_d)
 
     # ---- the host arrays ------------------------------------------------------------------
-    boxes = np.asarray(boxes_d.numpy(), np.float32).reshape(N, 12)
-    ch = np.asarray(refs_d.numpy(), np.uint32).reshape(N, 2)
-    order = np.asarray(perm.numpy(), np.int64)
-    b_lo = np.array([float(x.numpy()[0]) for x in s_lo], np.float32)
-    b_hi = np.array([float(x.numpy()[0]) for x in s_hi], np.float32)
-    leaf_count = int(np.count_nonzero(ch & np.uint32(LEAF_BIT)))
-    bounds = (b_lo.astype(np.float64), b_hi.astype(np.float64))
-    dd = bounds[1] - bounds[0]
-    root = float(dd[0] * dd[1] + dd[1] * dd[2] + dd[2] * dd[0])
-    sah = (C_TRAV * root + float(area.numpy()[0])) / root if root > 0 else 0.0
-    raw_h = np.asarray(raw_d.numpy(), np.float32).reshape(N, 12) if raw else None
-    arrays = BVHArrays(boxes, ch, order, levels, leaf_count, sah, 0.0, bounds, raw=raw_h)
+    arrays = host_arrays(boxes_d, refs_d, perm, raw_d if raw else None, (s_lo, s_hi), area,
+                         levels)
     arrays.build_seconds = time.perf_counter() - t_start
     if phases is not None:
         _phase(phases, "host layout and copy", t_phase)

@@ -44,12 +44,13 @@ import time
 import drjit as dr
 import numpy as np
 
-from .bvh_build import C_TRAV, LEAF_SIZE, MAX_LEVELS, BVHArrays, build_bvh
+from .bvh_build import LEAF_SIZE, MAX_LEVELS, BVHArrays, build_bvh
 from .device_build import (
     _levels_needed,
     _module,
     _phase,
     build_device,
+    host_arrays,
     morton_codes,
     triangle_boxes,
 )
@@ -302,18 +303,7 @@ def build_ploc(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm", *
     info["fallback"] = False
 
     # ---- the host arrays ---------------------------------------------------------------------
-    boxes = np.asarray(boxes_d.numpy(), np.float32).reshape(N, 12)
-    ch = np.asarray(refs_d.numpy(), np.uint32).reshape(N, 2)
-    order = np.asarray(order_d.numpy(), np.int64)
-    b_lo = np.array([float(x.numpy()[0]) for x in s_lo], np.float32)
-    b_hi = np.array([float(x.numpy()[0]) for x in s_hi], np.float32)
-    leaf_count = int(np.count_nonzero(ch & np.uint32(LEAF_BIT)))
-    bounds = (b_lo.astype(np.float64), b_hi.astype(np.float64))
-    dd = bounds[1] - bounds[0]
-    root = float(dd[0] * dd[1] + dd[1] * dd[2] + dd[2] * dd[0])
-    sah = (C_TRAV * root + float(total.numpy()[0])) / root if root > 0 else 0.0
-    raw_h = np.asarray(raw_d.numpy(), np.float32).reshape(N, 12)
-    arrays = BVHArrays(boxes, ch, order, levels, leaf_count, sah, 0.0, bounds, raw=raw_h)
+    arrays = host_arrays(boxes_d, refs_d, order_d, raw_d, (s_lo, s_hi), total, levels)
     arrays.build_seconds = time.perf_counter() - t_start
     if phases is not None:
         _phase(phases, "inner nodes and host copy", t_phase)
