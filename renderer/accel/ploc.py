@@ -54,6 +54,7 @@ from .device_build import (
     morton_codes,
     triangle_boxes,
 )
+from . import toplevel
 from .traverse import COUNT_SHIFT, LEAF_BIT, MAX_LEAF
 from .triangle import unit_roundoff
 
@@ -133,7 +134,8 @@ def build_ploc(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm", *
     k, made, it = F, 0, 0
     bail = TALL * MAX_LEVELS
     fallback = False
-    while k > 1:
+    top = toplevel.TOP                                    # clusters left for the top tree
+    while k > max(top, 1):
         i = dr.arange(UInt32, k)
         best = dr.full(Float, dr.inf, k)
         best_j = UInt32(i)
@@ -203,6 +205,11 @@ def build_ploc(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm", *
     info["iterations"] = it
     if phases is not None:
         _phase(phases, "clustering", t_phase)
+    info["top"] = k if k > 1 and not fallback else 0
+    if info["top"]:
+        batches += toplevel.build_top(m, (c_ref, c_box, c_cnt), (n_ch, n_box, n_cnt), made)
+        if phases is not None:
+            _phase(phases, "top tree", t_phase)
     if fallback:
         info["levels"], info["rebuilt"], info["fallback"] = None, 0, True
         return build_device(Vn, Fn, backend, leaf_size=leaf_size, raw=True)
