@@ -54,7 +54,7 @@ from .device_build import (
     morton_codes,
     triangle_boxes,
 )
-from . import toplevel
+from . import presplit, toplevel
 from .traverse import COUNT_SHIFT, LEAF_BIT, MAX_LEAF
 from .triangle import unit_roundoff
 
@@ -111,6 +111,10 @@ def build_ploc(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm", *
 
     # ---- 1. triangle boxes, Morton codes, sorted -------------------------------------------
     lo, hi = triangle_boxes(m, Vn, Fn)
+    refs = presplit.split_references(m, Vn, Fn, lo, hi)  # large triangles cut, or None
+    if refs is not None:
+        lo, hi, refs = refs
+        F = dr.width(lo[0])                               # references from here on
     code, s_lo, s_hi = morton_codes(UInt32, lo, hi)
     perm = dr.argsort(code)
     slo = [dr.gather(Float, x, perm) for x in lo]        # triangle boxes in sorted order
@@ -311,6 +315,9 @@ def build_ploc(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm", *
 
     # ---- the host arrays ---------------------------------------------------------------------
     arrays = host_arrays(boxes_d, refs_d, order_d, raw_d, (s_lo, s_hi), total, levels)
+    if refs is not None:                  # reference positions to faces, with their cells
+        arrays.cells = (refs.cell_lo[arrays.order], refs.cell_hi[arrays.order])
+        arrays.order = refs.face[arrays.order]
     arrays.build_seconds = time.perf_counter() - t_start
     if phases is not None:
         _phase(phases, "inner nodes and host copy", t_phase)
