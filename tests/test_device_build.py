@@ -18,6 +18,7 @@ from evaluation.hard.cases import Config, load_cases
 from renderer.accel import ACCELERATORS, BruteForce, build_accelerator
 from renderer.accel.bvh_build import MAX_LEVELS, check_bvh
 from renderer.accel.device_build import build_device
+from renderer.accel.spatial import clipped_boxes
 from renderer.accel.traverse import COUNT_SHIFT, FIRST_MASK, LEAF_BIT
 from renderer.device import types
 from renderer.render import Renderer
@@ -30,9 +31,14 @@ SCENES = sorted(p.stem for p in (ROOT / "scenes").glob("*.toml") if p.stem != "b
 
 def child_boxes_nest(a, V, faces):
     """Assert: each leaf's box holds its triangles; each inner child's box holds both of
-    its own child boxes; leaf sizes and the parent links (every inner node once)."""
-    tri = np.asarray(V, np.float32)[np.asarray(faces)[a.order]]
-    tlo, thi = tri.min(axis=1), tri.max(axis=1)
+    its own child boxes; leaf sizes and the parent links (every inner node once). A tree
+    with cells (references of cut triangles) holds each reference's triangle clipped to its
+    cell (``spatial.clipped_boxes``, the host's computation)."""
+    if a.cells is None:
+        tri = np.asarray(V, np.float32)[np.asarray(faces)[a.order]]
+        tlo, thi = tri.min(axis=1), tri.max(axis=1)
+    else:
+        tlo, thi = clipped_boxes(V, faces, a.order, a.cells[0], a.cells[1], np.float32)
     for k in range(2):
         ref = a.children[:, k].astype(np.int64)
         box = a.boxes[:, 6 * k:6 * k + 6]

@@ -177,8 +177,9 @@ def test_ploc_raw_boxes_are_the_host_refit(case):
     and in the radix fallback."""
     from renderer.accel.bvh_build import raw_boxes
 
-    if case == "soup":
-        V, faces = soup(2000, seed=13)
+    if case == "soup":                    # float32, as a scene's (cut triangles' boxes are
+        V, faces = soup(2000, seed=13)    # clipped from the float32 vertices)
+        V = V.astype(np.float32)
     elif case == "rebuilt":
         Vs, fs = soup(1000, seed=11)
         Vc = nested_chain(60) + 0.3

@@ -31,15 +31,15 @@ import numpy as np
 from .spatial import clipped_boxes
 
 #: References longer than this fraction of the scene box's longest side are cut.
-SPLIT_SIZE = 1 / 16
+SPLIT_SIZE = 0.01
 #: At most this many extra references per triangle of the scene.
 SPLIT_BUDGET = 0.3
 #: At most this many rounds of cuts (each halves the longest references at most once).
 ROUNDS = 12
 #: A cut is made only where the two pieces' boxes have less than this fraction of the
 #: surface area of the reference's box (1: every cut).
-GAIN = 1.0
-GRID_LEVELS = 20                 # finest Morton-grid plane tried: the scene box / 2**20
+GAIN = 0.9
+GRID_LEVELS = 2                  # cuts at the planes of the scene box halved and quartered
 
 
 @dataclass

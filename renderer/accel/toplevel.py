@@ -21,7 +21,7 @@ import drjit as dr
 import numpy as np
 
 #: Clusters left when the clustering stops and the top tree is built over them.
-TOP = 2048
+TOP = 0
 WEIGHT = "clusters"
 
 

@@ -1,0 +1,134 @@
+"""PLOC's cut large triangles (``renderer.accel.presplit``) and its optional top tree over
+the last clusters (``renderer.accel.toplevel``) give valid trees: every face at least once
+(a cut one once per reference, only large ones cut), each leaf's box around its references'
+triangles clipped to their cells, the cells of one face's references covering it, the level
+bound, the device-summed SAH cost the host's, the unpadded boxes the host refit; hits
+bitwise brute force's.
+
+References: direct numpy checks of the structure, ``spatial.clipped_boxes`` and
+``bvh_build.raw_boxes`` (the host computations), ``BruteForce`` (the oracle), the uncut
+tree for the SAH cost."""
+import numpy as np
+import pytest
+from accel_util import assert_same_hits, hits, random_rays, scene_from_arrays, soup
+from test_device_build import child_boxes_nest
+from test_ploc import depth
+
+import renderer.accel.presplit as presplit
+import renderer.accel.toplevel as toplevel
+from renderer.accel import BruteForce, build_accelerator
+from renderer.accel.bvh_arrays import sah_cost
+from renderer.accel.bvh_build import MAX_LEVELS, check_bvh, raw_boxes
+from renderer.accel.ploc import build_ploc
+from renderer.device import types
+
+
+def floors_and_soup():
+    """2000 small triangles in the unit cube and 6 large ones across it (two floors, a
+    wall and a slanted beam), float32."""
+    V, faces = soup(2000, seed=21, size=0.004)
+    big = np.array([[0, 0.2, 0], [1, 0.2, 0], [1, 0.2, 1], [0, 0.2, 0], [1, 0.2, 1],
+                    [0, 0.2, 1], [0, 0.7, 0], [1, 0.7, 0.1], [0.5, 0.7, 1],
+                    [0.3, 0, 0], [0.35, 1, 0], [0.3, 0, 1], [0, 0, 0], [1, 1, 1],
+                    [0.05, 0, 0], [0.1, 0.9, 0.1], [0.9, 0.1, 0.9], [0.9, 0.15, 0.85]])
+    n = len(V)
+    V = np.concatenate([V, big]).astype(np.float32)
+    faces = np.concatenate([faces, n + np.arange(len(big)).reshape(-1, 3)])
+    return V, faces
+
+
+def test_large_triangles_are_cut_into_references():
+    V, faces = floors_and_soup()
+    F = len(faces)
+    st = {}
+    a = build_ploc(V, faces, "llvm", stats=st)
+    assert a.cells is not None and not st["fallback"]
+    check_bvh(a)
+    child_boxes_nest(a, V, faces)
+    seen = np.bincount(a.order, minlength=F)
+    tri = V[faces]
+    size = (tri.max(1) - tri.min(1)).max(1)
+    ext = float((V.max(0) - V.min(0)).max())
+    assert np.all(seen[size <= presplit.SPLIT_SIZE * ext] == 1)   # only large ones cut
+    assert np.count_nonzero(seen[F - 6:] > 1) >= 4 and seen.min() == 1
+    assert a.order.size <= F + presplit.SPLIT_BUDGET * F
+    assert a.levels == depth(a) == st["levels"] <= MAX_LEVELS
+    assert a.sah_cost == pytest.approx(sah_cost(a), rel=1e-6)
+    assert np.array_equal(a.raw, raw_boxes(a, V, faces, np.float32))
+    # a reference's cell is finite only where it was cut, and the uncut ones have none
+    once = seen[a.order] == 1
+    assert np.all(np.isinf(a.cells[0][once])) and np.all(np.isinf(a.cells[1][once]))
+
+
+def test_cells_of_a_cut_triangle_cover_it():
+    V, faces = floors_and_soup()
+    a = build_ploc(V, faces, "llvm")
+    rng = np.random.default_rng(3)
+    cut = np.flatnonzero(np.bincount(a.order) > 1)
+    assert cut.size >= 4
+    for f in cut:
+        pos = np.flatnonzero(a.order == f)
+        u = rng.random((500, 2))
+        u = np.where(u.sum(1, keepdims=True) > 1, 1 - u, u)
+        tri = V[faces[f]].astype(np.float64)
+        p = tri[0] + u[:, :1] * (tri[1] - tri[0]) + u[:, 1:] * (tri[2] - tri[0])
+        inside = np.zeros(len(p), bool)
+        for i in pos:
+            inside |= np.all((p >= a.cells[0][i]) & (p <= a.cells[1][i]), axis=1)
+        assert inside.all()
+
+
+def test_cuts_lower_the_sah_cost_of_large_triangles(monkeypatch):
+    V, faces = floors_and_soup()
+    cut = build_ploc(V, faces, "llvm")
+    monkeypatch.setattr(presplit, "SPLIT_SIZE", 0.0)
+    whole = build_ploc(V, faces, "llvm")
+    assert whole.cells is None and whole.order.size == len(faces)
+    assert cut.sah_cost < whole.sah_cost
+
+
+@pytest.mark.parametrize("accel", ["bvh", "bvh4"])
+def test_cut_tree_matches_brute_force(accel):
+    t = types("llvm")
+    V, faces = floors_and_soup()
+    scene = scene_from_arrays(V, faces)
+    ray, active = random_rays(t, 4000, seed=6)
+    ref = hits(BruteForce.build(scene, t), ray, active, t)
+    acc = build_accelerator(accel, scene, t, build="ploc")
+    assert acc.info["tree_build"] == "ploc"
+    assert_same_hits(hits(acc, ray, active, t), ref)
+
+
+def test_top_tree_over_the_last_clusters(monkeypatch):
+    monkeypatch.setattr(toplevel, "TOP", 300)
+    monkeypatch.setattr(presplit, "SPLIT_SIZE", 0.0)
+    V, faces = soup(3000, seed=3)
+    V = V.astype(np.float32)
+    st = {}
+    a = build_ploc(V, faces, "llvm", stats=st)
+    assert 2 <= st["top"] <= 300 and not st["fallback"]
+    check_bvh(a)
+    child_boxes_nest(a, V, faces)
+    assert a.levels == depth(a) == st["levels"] <= MAX_LEVELS
+    assert a.sah_cost == pytest.approx(sah_cost(a), rel=1e-6)
+    assert np.array_equal(a.raw, raw_boxes(a, V, faces, np.float32))
+    t = types("llvm")
+    scene = scene_from_arrays(V, faces)
+    ray, active = random_rays(t, 3000, seed=2)
+    acc = build_accelerator("bvh", scene, t, build="ploc")
+    assert_same_hits(hits(acc, ray, active, t), hits(BruteForce.build(scene, t), ray,
+                                                     active, t))
+
+
+def test_top_tree_holds_every_cluster_once():
+    rng = np.random.default_rng(5)
+    lo = rng.random((500, 3)).astype(np.float32)
+    boxes = np.concatenate([lo, lo + 0.05 * rng.random((500, 3)).astype(np.float32)], 1)
+    children, levels = toplevel.top_tree(boxes, np.ones(500, np.int64))
+    assert children.shape == (499, 2) and levels[0] == 0 and levels[-1] == 499
+    flat = children.reshape(-1)
+    assert np.array_equal(np.sort(flat[flat < 500]), np.arange(500))
+    assert np.array_equal(np.sort(flat[flat >= 500] - 500), np.arange(1, 499))
+    for a, b in zip(levels[:-1], levels[1:]):      # a level's children are in later levels
+        inner = children[a:b][children[a:b] >= 500] - 500
+        assert np.all(inner >= b)
