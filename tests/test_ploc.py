@@ -177,9 +177,8 @@ def test_ploc_raw_boxes_are_the_host_refit(case):
     and in the radix fallback."""
     from renderer.accel.bvh_build import raw_boxes
 
-    if case == "soup":                    # float32, as a scene's (cut triangles' boxes are
-        V, faces = soup(2000, seed=13)    # clipped from the float32 vertices)
-        V = V.astype(np.float32)
+    if case == "soup":
+        V, faces = soup(2000, seed=13)
     elif case == "rebuilt":
         Vs, fs = soup(1000, seed=11)
         Vc = nested_chain(60) + 0.3
@@ -188,6 +187,7 @@ def test_ploc_raw_boxes_are_the_host_refit(case):
     else:
         V = nested_chain(400)
         faces = np.arange(len(V)).reshape(-1, 3)
+    V = V.astype(np.float32)       # as a scene's (cut triangles are clipped in float32's)
     st = {}
     a = build_ploc(V, faces, "llvm", stats=st)
     assert st["fallback"] == (case == "fallback")

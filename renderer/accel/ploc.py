@@ -44,6 +44,7 @@ import time
 import drjit as dr
 import numpy as np
 
+from . import presplit, toplevel
 from .bvh_build import LEAF_SIZE, MAX_LEVELS, BVHArrays, build_bvh
 from .device_build import (
     _levels_needed,
@@ -54,7 +55,6 @@ from .device_build import (
     morton_codes,
     triangle_boxes,
 )
-from . import presplit, toplevel
 from .traverse import COUNT_SHIFT, LEAF_BIT, MAX_LEAF
 from .triangle import unit_roundoff
 
@@ -315,9 +315,18 @@ def build_ploc(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm", *
 
     # ---- the host arrays ---------------------------------------------------------------------
     arrays = host_arrays(boxes_d, refs_d, order_d, raw_d, (s_lo, s_hi), total, levels)
+    info["cut"] = refs is not None
     if refs is not None:                  # reference positions to faces, with their cells
         arrays.cells = (refs.cell_lo[arrays.order], refs.cell_hi[arrays.order])
         arrays.order = refs.face[arrays.order]
+        if presplit.KEEP_BETTER:          # the uncut tree where it costs less
+            w_info = {}
+            with presplit.no_cuts():
+                whole = build_ploc(Vn, Fn, backend, leaf_size=leaf_size, radius=radius,
+                                   stats=w_info)
+            if whole.sah_cost <= arrays.sah_cost:
+                arrays = whole
+                info.update(w_info)
     arrays.build_seconds = time.perf_counter() - t_start
     if phases is not None:
         _phase(phases, "inner nodes and host copy", t_phase)
