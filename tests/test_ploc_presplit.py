@@ -132,3 +132,29 @@ def test_top_tree_holds_every_cluster_once():
     for a, b in zip(levels[:-1], levels[1:]):      # a level's children are in later levels
         inner = children[a:b][children[a:b] >= 500] - 500
         assert np.all(inner >= b)
+
+
+def object_on_a_floor():
+    """3000 small triangles in a box in the middle of a floor of two triangles, float32."""
+    V, faces = soup(3000, seed=8, size=0.004)
+    V = 0.4 + 0.2 * V
+    floor = np.array([[-4, 0.39, -4], [-4, 0.39, 4], [4, 0.39, 4], [-4, 0.39, -4],
+                      [4, 0.39, 4], [4, 0.39, -4]])
+    n = len(V)
+    V = np.concatenate([V, floor]).astype(np.float32)
+    return V, np.concatenate([faces, n + np.arange(6).reshape(2, 3)])
+
+
+def test_a_floor_under_an_object_is_left_whole(monkeypatch):
+    V, faces = object_on_a_floor()
+    a = build_ploc(V, faces, "llvm")
+    assert a.cells is None and np.array_equal(np.sort(a.order), np.arange(len(faces)))
+    # the reason: its cut pieces join the object's clusters, and the tree costs more; where
+    # the rule lets the cut through, the uncut tree is kept
+    monkeypatch.setattr(presplit, "MIN_LARGE", 0.0)
+    monkeypatch.setattr(presplit, "KEEP_BETTER", False)
+    cut = build_ploc(V, faces, "llvm")
+    monkeypatch.setattr(presplit, "KEEP_BETTER", True)
+    kept = build_ploc(V, faces, "llvm")
+    assert cut.cells is not None and cut.sah_cost > a.sah_cost
+    assert kept.cells is None and np.array_equal(kept.children, a.children)

@@ -316,17 +316,17 @@ def build_ploc(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm", *
     # ---- the host arrays ---------------------------------------------------------------------
     arrays = host_arrays(boxes_d, refs_d, order_d, raw_d, (s_lo, s_hi), total, levels)
     info["cut"] = refs is not None
+    if refs is not None and presplit.KEEP_BETTER:     # the uncut tree where it costs less
+        w_info = {}
+        with presplit.no_cuts():
+            whole = build_ploc(Vn, Fn, backend, leaf_size=leaf_size, radius=radius,
+                               stats=w_info)
+        if whole.sah_cost <= arrays.sah_cost:
+            arrays, refs = whole, None
+            info.update(w_info)
     if refs is not None:                  # reference positions to faces, with their cells
         arrays.cells = (refs.cell_lo[arrays.order], refs.cell_hi[arrays.order])
         arrays.order = refs.face[arrays.order]
-        if presplit.KEEP_BETTER:          # the uncut tree where it costs less
-            w_info = {}
-            with presplit.no_cuts():
-                whole = build_ploc(Vn, Fn, backend, leaf_size=leaf_size, radius=radius,
-                                   stats=w_info)
-            if whole.sah_cost <= arrays.sah_cost:
-                arrays = whole
-                info.update(w_info)
     arrays.build_seconds = time.perf_counter() - t_start
     if phases is not None:
         _phase(phases, "inner nodes and host copy", t_phase)

@@ -35,6 +35,10 @@ from .spatial import clipped_boxes
 SPLIT_SIZE = 0.01
 #: At most this many extra references per triangle of the scene.
 SPLIT_BUDGET = 0.3
+#: Fewer large triangles than this fraction of the scene's are left whole: a handful of
+#: them is a floor or a backdrop around objects (the bunny's), whose pieces would join the
+#: objects' clusters and grow them.
+MIN_LARGE = 1e-3
 #: At most this many rounds of cuts (each halves the longest references at most once).
 ROUNDS = 12
 #: A cut is made only where the two pieces' boxes have less than this fraction of the
@@ -166,7 +170,7 @@ def split_references(m, Vn, Fn, lo, hi):
     size = dr.maximum(dr.maximum(hi[0] - lo[0], hi[1] - lo[1]), hi[2] - lo[2])
     ext = dr.maximum(dr.maximum(s_hi[0] - s_lo[0], s_hi[1] - s_lo[1]), s_hi[2] - s_lo[2])
     big_d = dr.compress(size > ext * SPLIT_SIZE)
-    if not dr.width(big_d):
+    if not dr.width(big_d) or dr.width(big_d) < MIN_LARGE * F:
         return None
     scene = (np.array([float(x.numpy()[0]) for x in s_lo]),
              np.array([float(x.numpy()[0]) for x in s_hi]))
