@@ -3,17 +3,23 @@ Dr.Jit: the same code on CUDA and LLVM.
 
 Steps, each a few Dr.Jit kernels over all triangles, clusters or nodes:
 
-1. triangle boxes, the scene box and 30-bit Morton codes of the box centres, sorted by
-   ``dr.argsort``, as ``device_build`` makes them but without its large-triangle key
-   (clustering merges a large triangle late by itself: its union boxes are large);
+1. triangle boxes, large triangles cut into references at coarse planes of the Morton
+   grid (``presplit``: the tree then carries their cells, ``BVHArrays.cells``, and
+   ``order`` holds a face once per reference; where anything is cut the uncut tree is built
+   too and the one of lower SAH cost kept), the scene box and 30-bit Morton codes of the
+   box centres, sorted by ``dr.argsort``, as ``device_build`` makes them but without its
+   large-triangle key (clustering merges a large triangle late by itself: its union boxes
+   are large);
 2. clustering: the sorted triangles are the first clusters. Each iteration, every cluster
    finds its nearest neighbour among the ``radius`` clusters on either side of it in the
    list: the one whose union box has the smallest surface area (ties ordered by a fixed
    total order on pairs, so the nearest-neighbour graph has no cycles longer than two and
    the closest pair is always mutual). Mutual pairs merge into a new node that takes the
    lower one's place; the higher one leaves the list (``dr.compress``: one count read per
-   iteration, the only host round trips of this step), until one cluster is left. A node's
-   box is its children's union, its count the sum of theirs;
+   iteration, the only host round trips of this step), until one cluster is left, or
+   ``toplevel.TOP`` (0: off) are left and ``toplevel.build_top`` builds the tree above
+   them by a full-sweep SAH on the host. A node's box is its children's union, its count
+   the sum of theirs;
 3. triangle order, top down over the iterations' nodes, last iteration first: a node's
    first child starts where the node starts, its second after the first's triangles, so
    every subtree is a contiguous run of the triangle order;
@@ -85,7 +91,9 @@ def build_ploc(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm", *
     ``phases``: None, or a dict that gets the seconds of each phase (the build then waits
     for the device at each phase's end). ``stats``: None, or a dict that gets
     ``iterations``, ``levels`` (the clustered tree's, before any rebuild), ``rebuilt``
-    (subtrees rebuilt balanced) and ``fallback`` (True when the radix tree was returned).
+    (subtrees rebuilt balanced), ``fallback`` (True when the radix tree was returned),
+    ``top`` (clusters under the top tree, 0 for none) and ``cut`` (True when the tree holds
+    cut triangles' references).
     A scene of at most ``leaf_size`` triangles gets ``build_bvh``'s single-leaf tree.
     The tree carries its unpadded child boxes too (``BVHArrays.raw``, what
     ``bvh_build.raw_boxes`` computes on the host), so the traversal pads them for its ray
@@ -215,7 +223,7 @@ def build_ploc(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm", *
         if phases is not None:
             _phase(phases, "top tree", t_phase)
     if fallback:
-        info["levels"], info["rebuilt"], info["fallback"] = None, 0, True
+        info["levels"], info["rebuilt"], info["fallback"], info["cut"] = None, 0, True, False
         return build_device(Vn, Fn, backend, leaf_size=leaf_size, raw=True)
 
     # ---- 3. triangle order, top down ---------------------------------------------------------

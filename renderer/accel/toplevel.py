@@ -20,8 +20,12 @@ from __future__ import annotations
 import drjit as dr
 import numpy as np
 
-#: Clusters left when the clustering stops and the top tree is built over them.
+#: Clusters left when the clustering stops and the top tree is built over them (0: the
+#: clustering runs to the root). Off: on Sponza and Conference the swept top costs more
+#: than PLOC's own merges (``lab/notes/device-build.md``).
 TOP = 0
+#: What weights a side's area in the split cost: "clusters" (each cluster 1: the top nodes
+#: below a side grow with its clusters, the subtrees' own cost is fixed) or "triangles".
 WEIGHT = "clusters"
 
 
