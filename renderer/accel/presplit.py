@@ -29,6 +29,7 @@ from dataclasses import dataclass
 import drjit as dr
 import numpy as np
 
+from .layout import COUNT_SHIFT
 from .spatial import clipped_boxes
 
 #: References longer than this fraction of the scene box's longest side are cut.
@@ -162,7 +163,7 @@ def split_references(m, Vn, Fn, lo, hi):
     the F triangles' slots first, then the extra pieces) and their ``References``."""
     Float, UInt32 = m.Float, m.UInt32
     F = dr.width(lo[0])
-    budget = int(SPLIT_BUDGET * F)
+    budget = min(int(SPLIT_BUDGET * F), (1 << COUNT_SHIFT) - 1 - F)   # references' bound
     if budget <= 0 or SPLIT_SIZE <= 0 or _off[-1]:
         return None
     s_lo = [dr.min(x) for x in lo]
