@@ -40,6 +40,7 @@ from __future__ import annotations
 
 import math
 import time
+from dataclasses import dataclass
 
 import drjit as dr
 import numpy as np
@@ -66,11 +67,177 @@ HEIGHT_CHECK = 8
 TALL = 3
 NODE = 1 << 31                   # a cluster or child reference to a node (else a triangle)
 MASK = NODE - 1
+#: Iterations between two host reads of the cluster count, per backend (a divisor of
+#: ``HEIGHT_CHECK``): the CPU backend reads after every iteration, so its arrays shrink
+#: each time; the GPU runs several iterations ahead of the host.
+READ_EVERY = {"llvm": 1, "cuda": 4}
 
 
 def _half_area(lo, hi):
     d = [hi[a] - lo[a] for a in range(3)]
     return d[0] * d[1] + d[1] * d[2] + d[2] * d[0]
+
+
+@dataclass
+class Clusters:
+    """What the clustering made: the nodes' child references ``ch`` (2 UInt32), boxes
+    ``box`` (6 Floats: lo xyz, hi xyz) and triangle counts ``cnt`` (UInt32), numbered in
+    merge order; ``batches``: (first node, node count) of each iteration; ``iterations``;
+    ``fallback``: True when a cluster grew taller than ``TALL * MAX_LEVELS``."""
+
+    ch: list
+    box: list
+    cnt: object
+    batches: list
+    iterations: int
+    fallback: bool
+
+
+def _nearest(m, c_box, k, radius: int):
+    """Each cluster's nearest neighbour among the ``radius`` clusters on either side of it
+    (one symbolic loop over the distance; see the module docstring for the pair order):
+    UInt32 over the ``dr.width(c_box[0])`` lanes, the lane itself where no candidate lies
+    in ``[0, k)`` (``k``: UInt32, the clusters' count, lanes past it idle)."""
+    Float, UInt32 = m.Float, m.UInt32
+    w = dr.width(c_box[0])
+    i = dr.arange(UInt32, w)
+    active = i < k
+
+    def body(d, best, best_j, best_t):
+        for side in (0, 1):
+            if side == 0:
+                ok = active & (i >= d)
+                j = i - d
+                a = j
+            else:
+                ok = i + d < k
+                j = i + d
+                a = i
+            bl = [dr.minimum(c_box[x], dr.gather(Float, c_box[x], j, ok)) for x in range(3)]
+            bh = [dr.maximum(c_box[3 + x], dr.gather(Float, c_box[3 + x], j, ok))
+                  for x in range(3)]
+            area = _half_area(bl, bh)
+            # pairs ordered by (area, distance, parity of the lower index, lower index):
+            # for one cluster, candidates of equal area and distance differ in the parity
+            # (d odd) or else the lower index is the left one's
+            tie = (d << 1) | (a & 1)
+            better = ok & ((area < best) | ((area == best) & (tie < best_t)))
+            best = dr.select(better, area, best)
+            best_j = dr.select(better, j, best_j)
+            best_t = dr.select(better, tie, best_t)
+        return d + 1, best, best_j, best_t
+
+    state = (dr.full(UInt32, 1, w), dr.full(Float, dr.inf, w), UInt32(i),
+             dr.full(UInt32, 0xFFFFFFFF, w))
+    state = dr.while_loop(state=state, cond=lambda d, *_: d <= radius, body=body,
+                          label="ploc_nearest")
+    return state[2]
+
+
+def _cluster(m, slo, shi, radius: int, every: int, progress) -> Clusters:
+    """Cluster the sorted triangles (boxes ``slo``, ``shi``: 3 Floats each) until one
+    cluster is left (see the module docstring). The cluster count lives on the device (the
+    nodes made so far, a one-lane array): each iteration compacts the clusters by a prefix
+    sum into arrays as wide as the last count read, lanes past the count idle, and the
+    host reads the nodes made every ``every`` iterations (a divisor of ``HEIGHT_CHECK``),
+    with the tallest cluster's height every ``HEIGHT_CHECK``. ``progress`` as
+    ``build_ploc``'s, called for each iteration at the next read."""
+    Float, UInt32, UInt64 = m.Float, m.UInt32, m.UInt64
+    F = dr.width(slo[0])
+    n_in = F - 1                                          # inner nodes of the full tree
+    n_ch = [dr.zeros(UInt32, n_in) for _ in range(2)]    # child references
+    n_box = [dr.zeros(Float, n_in) for _ in range(6)]    # node boxes: lo xyz, hi xyz
+    n_cnt = dr.zeros(UInt32, n_in)                        # triangles under each node
+    c_ref = dr.arange(UInt32, F)                          # the clusters: references,
+    c_box = [dr.gather(Float, x, dr.arange(UInt32, F)) for x in slo + shi]   # boxes,
+    c_cnt = dr.full(UInt32, 1, F)                         # triangle counts and heights
+    c_h = dr.zeros(UInt32, F)
+    made_d = dr.zeros(UInt32, 1)                          # nodes made so far (device)
+    dr.eval(c_box, made_d)
+    batches = []                                          # (first node, node count)
+    pending = []                                          # nodes made after each iteration
+    h_max = None
+    w, made, it = F, 0, 0
+    bail = TALL * MAX_LEVELS
+    log_f = math.log(F)
+    while True:
+        lane0 = dr.zeros(UInt32, w)
+        made_l = dr.gather(UInt32, made_d, lane0)
+        k = UInt32(F) - made_l
+        i = dr.arange(UInt32, w)
+        best_j = _nearest(m, c_box, k, radius)
+        dr.eval(best_j)
+        mutual = dr.gather(UInt32, best_j, best_j) == i
+        merge = mutual & (i < best_j)                   # idle lanes: best_j == i
+        gone = mutual & (i > best_j)
+        flags = (UInt64(dr.select(merge, UInt32(1), 0)) << 32) | UInt64(
+            dr.select(gone, UInt32(1), 0))
+        scan = dr.prefix_reduce(dr.ReduceOp.Add, flags, exclusive=False)
+        total = dr.gather(UInt64, scan, dr.opaque(UInt32, w - 1, 1))
+        made_d = made_d + UInt32(total >> 32)
+        pending.append(made_d)
+        it_next = it + len(pending)
+        read = it_next % every == 0
+        dr.eval(made_d)
+        ex = scan - flags
+        slot = UInt32(ex >> 32)
+        node = made_l + slot
+        o_ref = dr.gather(UInt32, c_ref, best_j, merge)
+        o_cnt = dr.gather(UInt32, c_cnt, best_j, merge)
+        o_h = dr.gather(UInt32, c_h, best_j, merge)
+        u_box = [dr.minimum(c_box[x], dr.gather(Float, c_box[x], best_j, merge))
+                 for x in range(3)]
+        u_box += [dr.maximum(c_box[3 + x], dr.gather(Float, c_box[3 + x], best_j, merge))
+                  for x in range(3)]
+        u_cnt = c_cnt + o_cnt
+        dr.scatter(n_ch[0], c_ref, node, merge)
+        dr.scatter(n_ch[1], o_ref, node, merge)
+        dr.scatter(n_cnt, u_cnt, node, merge)
+        for x in range(6):
+            dr.scatter(n_box[x], u_box[x], node, merge)
+        keep = (i < k) & ~gone
+        pos = i - UInt32(ex & 0xFFFFFFFF)
+        new_h = dr.select(merge, dr.maximum(c_h, o_h) + 1, c_h)
+        if read and it_next % HEIGHT_CHECK == 0:
+            h_max = dr.max(dr.select(keep, new_h, 0))
+        if read:
+            vals = pending + ([h_max] if h_max is not None else [])
+            buf = dr.zeros(UInt32, len(vals))
+            for x, v in enumerate(vals):
+                dr.scatter(buf, v, x)
+            host = buf.numpy()
+            done = False
+            for x in range(len(pending)):
+                it += 1
+                now = int(host[x])
+                batches.append((made, now - made))
+                made = now
+                kk = F - made
+                if progress is not None:
+                    progress(round(MAX_LEVELS * (1.0 - math.log(max(kk, 1)) / log_f)))
+                if kk <= 1:
+                    done = True
+                    break
+            pending, w_next = [], F - made
+            if not done and h_max is not None and int(host[-1]) > bail:
+                return Clusters(n_ch, n_box, n_cnt, batches, it, True)
+            h_max = None
+            if done:
+                dr.eval(n_ch, n_cnt, n_box)
+                return Clusters(n_ch, n_box, n_cnt, batches, it, False)
+        else:
+            w_next = w
+        t_ref = dr.empty(UInt32, w_next)
+        t_box = [dr.empty(Float, w_next) for _ in range(6)]
+        t_cnt = dr.empty(UInt32, w_next)
+        t_h = dr.empty(UInt32, w_next)
+        dr.scatter(t_ref, dr.select(merge, node | NODE, c_ref), pos, keep)
+        for x in range(6):
+            dr.scatter(t_box[x], dr.select(merge, u_box[x], c_box[x]), pos, keep)
+        dr.scatter(t_cnt, dr.select(merge, u_cnt, c_cnt), pos, keep)
+        dr.scatter(t_h, new_h, pos, keep)
+        dr.eval(n_ch, n_cnt, n_box, t_ref, t_box, t_cnt, t_h)
+        c_ref, c_box, c_cnt, c_h, w = t_ref, t_box, t_cnt, t_h, w_next
 
 
 def build_ploc(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm", *,
@@ -120,94 +287,17 @@ def build_ploc(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm", *
         _phase(phases, "boxes, Morton codes and sort", t_phase)
 
     # ---- 2. clustering -----------------------------------------------------------------------
-    n_in = F - 1                                          # inner nodes of the full tree
-    n_ch = [dr.zeros(UInt32, n_in) for _ in range(2)]    # child references
-    n_box = [dr.zeros(Float, n_in) for _ in range(6)]    # node boxes: lo xyz, hi xyz
-    n_cnt = dr.zeros(UInt32, n_in)                        # triangles under each node
-    c_ref = dr.arange(UInt32, F)                          # the clusters: references,
-    c_box = [dr.gather(Float, x, dr.arange(UInt32, F)) for x in slo + shi]   # boxes,
-    c_cnt = dr.full(UInt32, 1, F)                         # triangle counts and heights
-    c_h = dr.zeros(UInt32, F)
-    dr.eval(c_box)
-    batches = []                                          # (first node, node count)
-    k, made, it = F, 0, 0
-    bail = TALL * MAX_LEVELS
-    fallback = False
-    while k > 1:
-        i = dr.arange(UInt32, k)
-        best = dr.full(Float, dr.inf, k)
-        best_j = UInt32(i)
-        best_t = dr.full(UInt32, 0xFFFFFFFF, k)
-        for d in range(1, min(radius, k - 1) + 1):
-            for side in (0, 1):
-                if side == 0:
-                    ok = i >= d
-                    j = i - d
-                    a = j
-                else:
-                    ok = i + d < k
-                    j = i + d
-                    a = i
-                bl = [dr.minimum(c_box[x], dr.gather(Float, c_box[x], j, ok))
-                      for x in range(3)]
-                bh = [dr.maximum(c_box[3 + x], dr.gather(Float, c_box[3 + x], j, ok))
-                      for x in range(3)]
-                area = _half_area(bl, bh)
-                # pairs ordered by (area, distance, parity of the lower index, lower index):
-                # for one cluster, candidates of equal area and distance differ in the
-                # parity (d odd) or else the lower index is the left one's
-                tie = UInt32(2 * d) | (a & 1)
-                better = ok & ((area < best) | ((area == best) & (tie < best_t)))
-                best = dr.select(better, area, best)
-                best_j = dr.select(better, j, best_j)
-                best_t = dr.select(better, tie, best_t)
-        dr.eval(best_j)
-        mutual = dr.gather(UInt32, best_j, best_j) == i
-        merge = mutual & (i < best_j)
-        slot = dr.prefix_sum(dr.select(merge, UInt32(1), UInt32(0)))
-        node = dr.opaque(UInt32, made) + slot
-        o_ref = dr.gather(UInt32, c_ref, best_j, merge)
-        o_cnt = dr.gather(UInt32, c_cnt, best_j, merge)
-        o_h = dr.gather(UInt32, c_h, best_j, merge)
-        u_box = [dr.minimum(c_box[x], dr.gather(Float, c_box[x], best_j, merge))
-                 for x in range(3)]
-        u_box += [dr.maximum(c_box[3 + x], dr.gather(Float, c_box[3 + x], best_j, merge))
-                  for x in range(3)]
-        u_cnt = c_cnt + o_cnt
-        dr.scatter(n_ch[0], c_ref, node, merge)
-        dr.scatter(n_ch[1], o_ref, node, merge)
-        dr.scatter(n_cnt, u_cnt, node, merge)
-        for x in range(6):
-            dr.scatter(n_box[x], u_box[x], node, merge)
-        new_ref = dr.select(merge, node | NODE, c_ref)
-        new_box = [dr.select(merge, u_box[x], c_box[x]) for x in range(6)]
-        new_cnt = dr.select(merge, u_cnt, c_cnt)
-        new_h = dr.select(merge, dr.maximum(c_h, o_h) + 1, c_h)
-        dr.eval(n_ch, n_cnt, n_box, new_ref, new_box, new_cnt, new_h)
-        keep = dr.compress(~(mutual & (i > best_j)))
-        k_new = dr.width(keep)
-        c_ref = dr.gather(UInt32, new_ref, keep)
-        c_box = [dr.gather(Float, x, keep) for x in new_box]
-        c_cnt = dr.gather(UInt32, new_cnt, keep)
-        c_h = dr.gather(UInt32, new_h, keep)
-        dr.eval(c_ref, c_box, c_cnt, c_h)
-        batches.append((made, k - k_new))
-        made += k - k_new
-        k = k_new
-        it += 1
-        if progress is not None:
-            progress(round(MAX_LEVELS * (1.0 - math.log(max(k, 1)) / math.log(F))))
-        if it % HEIGHT_CHECK == 0 and k > 1 and dr.max(c_h)[0] > bail:
-            fallback = True
-            break
-    info["iterations"] = it
+    cl = _cluster(m, slo, shi, radius, READ_EVERY[backend], progress)
+    n_ch, n_box, n_cnt, batches = cl.ch, cl.box, cl.cnt, cl.batches
+    info["iterations"] = cl.iterations
     if phases is not None:
         _phase(phases, "clustering", t_phase)
-    if fallback:
+    if cl.fallback:
         info["levels"], info["rebuilt"], info["fallback"] = None, 0, True
         return build_device(Vn, Fn, backend, leaf_size=leaf_size, raw=True)
 
     # ---- 3. triangle order, top down ---------------------------------------------------------
+    n_in = F - 1
     n_first = dr.zeros(UInt32, n_in)          # first position of each node's triangles
     n_depth = dr.zeros(UInt32, n_in)
     t_pos = dr.zeros(UInt32, F)               # position of each (sorted) triangle
