@@ -263,12 +263,13 @@ def build_ploc(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm", *
     m = _module(backend)
     t_start = time.perf_counter()
     Vn = np.ascontiguousarray(np.asarray(vertices, np.float32))
-    Fn = np.asarray(faces, np.int64)
+    Fn = np.asarray(faces)
     F = int(Fn.shape[0])
     if F >= 1 << COUNT_SHIFT:
         raise ValueError(f"faces: at most {1 << COUNT_SHIFT} triangles, got {F}")
     if F <= leaf_size:
-        return build_bvh(Vn, Fn, leaf_size=leaf_size, spatial=0.0, optimize=0)
+        return build_bvh(Vn, Fn.astype(np.int64), leaf_size=leaf_size, spatial=0.0,
+                         optimize=0)
     if MAX_LEVELS < math.ceil(math.log2(math.ceil(F / leaf_size))) + 1:
         raise ValueError(f"faces: {F} triangles need more than {MAX_LEVELS} BVH levels")
     Float, UInt32 = m.Float, m.UInt32
@@ -391,12 +392,14 @@ def build_ploc(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm", *
         refs_d = dr.gather(UInt32, refs_d, dr.arange(UInt32, 2 * N))
         levels = max(levels, int(dr.max(dr.gather(UInt32, n_depth, src))[0]) + 1)
     info["fallback"] = False
+    if phases is not None:
+        _phase(phases, "inner nodes", t_phase)
 
     # ---- the host arrays ---------------------------------------------------------------------
     arrays = host_arrays(boxes_d, refs_d, order_d, raw_d, (s_lo, s_hi), total, levels)
     arrays.build_seconds = time.perf_counter() - t_start
     if phases is not None:
-        _phase(phases, "inner nodes and host copy", t_phase)
+        _phase(phases, "host copy", t_phase)
     return arrays
 
 
