@@ -24,6 +24,8 @@ sys.path.insert(0, str(ROOT / "lab" / "probes"))
 
 import ploc_main  # noqa: E402
 
+import renderer.accel.ploc as ploc  # noqa: E402
+from renderer.accel.device_build import morton_codes, triangle_boxes  # noqa: E402
 from renderer.accel.ploc import build_ploc  # noqa: E402
 from renderer.scene import load_scene  # noqa: E402
 
@@ -32,6 +34,9 @@ ap.add_argument("scenes", nargs="+")
 ap.add_argument("--backend", default="llvm")
 ap.add_argument("--out", default=".")
 ap.add_argument("--repeats", type=int, default=5)
+ap.add_argument("--every", default="", help="also time READ_EVERY = these (comma list)")
+ap.add_argument("--unrolled", action="store_true",
+                help="also time the neighbour search unrolled in Python")
 args = ap.parse_args()
 m = __import__(f"drjit.{args.backend}", fromlist=["UInt32"])
 
@@ -40,6 +45,59 @@ def same(a, b) -> bool:
     return all(getattr(a, f).tobytes() == getattr(b, f).tobytes()
                for f in ("boxes", "children", "order", "raw")) and (
         (a.levels, a.leaf_count, a.sah_cost) == (b.levels, b.leaf_count, b.sah_cost))
+
+
+def nearest_unrolled(m, c_box, k, radius):
+    """``ploc._nearest`` with the 2 x radius candidates unrolled in Python."""
+    Float, UInt32 = m.Float, m.UInt32
+    w = dr.width(c_box[0])
+    i = dr.arange(UInt32, w)
+    active = i < k
+    best = dr.full(Float, dr.inf, w)
+    best_j = UInt32(i)
+    best_t = dr.full(UInt32, 0xFFFFFFFF, w)
+    for d in range(1, radius + 1):
+        for side in (0, 1):
+            ok = (active & (i >= d)) if side == 0 else (i + d < k)
+            j = i - d if side == 0 else i + d
+            a = j if side == 0 else i
+            bl = [dr.minimum(c_box[x], dr.gather(Float, c_box[x], j, ok)) for x in range(3)]
+            bh = [dr.maximum(c_box[3 + x], dr.gather(Float, c_box[3 + x], j, ok))
+                  for x in range(3)]
+            area = ploc._half_area(bl, bh)
+            tie = UInt32(2 * d) | (a & 1)
+            better = ok & ((area < best) | ((area == best) & (tie < best_t)))
+            best = dr.select(better, area, best)
+            best_j = dr.select(better, j, best_j)
+            best_t = dr.select(better, tie, best_t)
+    return best_j
+
+
+def first_phase(V, Fa) -> dict:
+    """Milliseconds of the first phase's steps, waiting after each (median of repeats)."""
+    out, t = {}, []
+
+    def mark(name):
+        dr.sync_thread()
+        t.append(time.perf_counter())
+        out.setdefault(name, []).append((t[-1] - t[-2]) * 1e3)
+    for _ in range(args.repeats + 1):
+        t[:] = [time.perf_counter()]
+        Vn = np.ascontiguousarray(np.asarray(V, np.float32))
+        Fn = np.asarray(Fa)
+        mark("host arrays")
+        lo, hi = triangle_boxes(m, Vn, Fn)
+        mark("upload and boxes")
+        code, s_lo, s_hi = morton_codes(m.UInt32, lo, hi)
+        dr.eval(code, s_lo, s_hi)
+        mark("Morton codes")
+        perm = dr.argsort(code)
+        dr.eval(perm)
+        mark("argsort")
+        slo = [dr.gather(m.Float, x, perm) for x in lo + hi]
+        dr.eval(slo)
+        mark("sorted boxes")
+    return {k: statistics.median(v[1:]) for k, v in out.items()}
 
 
 def timed(fn):
@@ -81,6 +139,23 @@ def scene_row(name: str) -> dict:
         row[tag] = {"s": s, "all_s": ts, "mtri_s": F / s / 1e6, "phases_ms":
                     {k: v * 1e3 for k, v in ph.items()}, "stats": st,
                     "kernels": kernels(lambda b=build: b(V, Fa, args.backend))}
+    variants = [(f"every{e}", int(e), ploc._nearest) for e in args.every.split(",") if e]
+    if args.unrolled:
+        variants.append(("unrolled", ploc.READ_EVERY[args.backend], nearest_unrolled))
+    for tag, every, nearest in variants:
+        keep = ploc.READ_EVERY[args.backend], ploc._nearest
+        ploc.READ_EVERY[args.backend], ploc._nearest = every, nearest
+        a, s, ts = timed(lambda: build_ploc(V, Fa, args.backend))
+        ph = {}
+        build_ploc(V, Fa, args.backend, phases=ph)
+        ploc.READ_EVERY[args.backend], ploc._nearest = keep
+        row[tag] = {"s": s, "mtri_s": F / s / 1e6, "same_tree": same(a, trees["new"]),
+                    "phases_ms": {k: v * 1e3 for k, v in ph.items()}}
+        print(f"    {tag:9s} {s * 1e3:7.1f} ms same={row[tag]['same_tree']} " + ", ".join(
+            f"{k} {v:.1f}" for k, v in row[tag]["phases_ms"].items()), flush=True)
+    row["first_phase_ms"] = first_phase(V, Fa)
+    print("    first phase: " + ", ".join(f"{k} {v:.2f}" for k, v in
+                                         row["first_phase_ms"].items()), flush=True)
     row["same_tree"] = same(trees["main"], trees["new"])
     codes = m.UInt32(np.random.default_rng(1).integers(0, 1 << 30, F, dtype=np.uint32))
     dr.eval(codes)
