@@ -1,5 +1,6 @@
 """Main's PLOC build at cd4f323 (``renderer/accel/ploc.py`` before the device-side cluster
-count), frozen as the baseline of ``ploc_fast.py``; absolute imports, otherwise unchanged.
+count), frozen as the baseline of ``ploc_fast.py``, with main's ``device_build.triangle_boxes``
+and ``host_arrays`` (one read back per array); absolute imports, otherwise unchanged.
 
 BVH build on the device by locally-ordered clustering (PLOC, Meister & Bittner 2018), in
 Dr.Jit: the same code on CUDA and LLVM.
@@ -47,18 +48,17 @@ import time
 import drjit as dr
 import numpy as np
 
-from renderer.accel.bvh_build import LEAF_SIZE, MAX_LEVELS, BVHArrays, build_bvh
+from renderer.accel.bvh_build import C_TRAV, LEAF_SIZE, MAX_LEVELS, BVHArrays, build_bvh
 from renderer.accel.device_build import (
     _levels_needed,
     _module,
     _phase,
     build_device,
-    host_arrays,
     morton_codes,
-    triangle_boxes,
 )
 from renderer.accel.traverse import COUNT_SHIFT, LEAF_BIT, MAX_LEAF
 from renderer.accel.triangle import unit_roundoff
+from renderer.device import host_array
 
 #: Clusters searched on either side of each cluster for its nearest neighbour.
 RADIUS = 8
@@ -69,6 +69,47 @@ HEIGHT_CHECK = 8
 TALL = 3
 NODE = 1 << 31                   # a cluster or child reference to a node (else a triangle)
 MASK = NODE - 1
+
+
+def triangle_boxes(m, Vn: np.ndarray, Fn: np.ndarray):
+    """The float32 box ``(lo, hi)`` (3 ``m.Float`` each) of every face ``Fn`` (int (F, 3))
+    of ``Vn`` (float32 (V, 3), contiguous), evaluated: one upload of each array as it lies
+    in memory (no per-column copies on the host; ``host_array``: aligned, so the LLVM
+    kernels do not depend on numpy's addresses), the kernel gathering corner k's axis a at
+    ``3 * face[3 f + k] + a``."""
+    Float, UInt32 = m.Float, m.UInt32
+    v_flat = Float(host_array(Vn.reshape(-1)))
+    f_flat = UInt32(host_array(Fn.reshape(-1), np.uint32))
+    i3 = dr.arange(UInt32, int(Fn.shape[0])) * 3
+    fi = [dr.gather(UInt32, f_flat, i3 + k) * 3 for k in range(3)]
+    lo, hi = [], []
+    for a in range(3):
+        p = [dr.gather(Float, v_flat, fi[k] + a) for k in range(3)]
+        lo.append(dr.minimum(dr.minimum(p[0], p[1]), p[2]))
+        hi.append(dr.maximum(dr.maximum(p[0], p[1]), p[2]))
+    dr.eval(lo, hi)
+    return lo, hi
+
+
+def host_arrays(boxes_d, refs_d, order_d, raw_d, scene_box, area, levels: int) -> BVHArrays:
+    """The host ``BVHArrays`` of a tree built on the device: its padded node boxes
+    (``boxes_d``, 12 Floats a node), child references (``refs_d``, 2 UInt32 a node),
+    triangle order, unpadded boxes (``raw_d``, or None), the scene box ``(s_lo, s_hi)`` (3
+    one-lane Floats each), the sum of the nodes' weighted half areas (``area``, one-lane
+    Float64) that gives the SAH cost, and the number of levels."""
+    n = dr.width(refs_d) // 2
+    boxes = np.asarray(boxes_d.numpy(), np.float32).reshape(n, 12)
+    ch = np.asarray(refs_d.numpy(), np.uint32).reshape(n, 2)
+    order = np.asarray(order_d.numpy(), np.int64)
+    b_lo = np.array([float(x.numpy()[0]) for x in scene_box[0]], np.float32)
+    b_hi = np.array([float(x.numpy()[0]) for x in scene_box[1]], np.float32)
+    leaf_count = int(np.count_nonzero(ch & np.uint32(LEAF_BIT)))
+    bounds = (b_lo.astype(np.float64), b_hi.astype(np.float64))
+    dd = bounds[1] - bounds[0]
+    root = float(dd[0] * dd[1] + dd[1] * dd[2] + dd[2] * dd[0])
+    sah = (C_TRAV * root + float(area.numpy()[0])) / root if root > 0 else 0.0
+    raw_h = np.asarray(raw_d.numpy(), np.float32).reshape(n, 12) if raw_d is not None else None
+    return BVHArrays(boxes, ch, order, levels, leaf_count, sah, 0.0, bounds, raw=raw_h)
 
 
 def _half_area(lo, hi):
