@@ -190,11 +190,6 @@ def _cluster(m, slo, shi, radius: int, every: int, progress) -> Clusters:
         u_box += [dr.maximum(c_box[3 + x], dr.gather(Float, c_box[3 + x], best_j, merge))
                   for x in range(3)]
         u_cnt = c_cnt + o_cnt
-        dr.scatter(n_ch[0], c_ref, node, merge)
-        dr.scatter(n_ch[1], o_ref, node, merge)
-        dr.scatter(n_cnt, u_cnt, node, merge)
-        for x in range(6):
-            dr.scatter(n_box[x], u_box[x], node, merge)
         keep = (i < k) & ~gone
         pos = i - UInt32(ex & 0xFFFFFFFF)
         new_h = dr.select(merge, dr.maximum(c_h, o_h) + 1, c_h)
@@ -222,11 +217,18 @@ def _cluster(m, slo, shi, radius: int, every: int, progress) -> Clusters:
             if not done and h_max is not None and int(host[-1]) > bail:
                 return Clusters(n_ch, n_box, n_cnt, batches, it, True)
             h_max = None
-            if done:
-                dr.eval(n_ch, n_cnt, n_box)
-                return Clusters(n_ch, n_box, n_cnt, batches, it, False)
         else:
             w_next = w
+        # the new nodes, traced after the read so that one kernel writes them and the
+        # compacted clusters
+        dr.scatter(n_ch[0], c_ref, node, merge)
+        dr.scatter(n_ch[1], o_ref, node, merge)
+        dr.scatter(n_cnt, u_cnt, node, merge)
+        for x in range(6):
+            dr.scatter(n_box[x], u_box[x], node, merge)
+        if read and done:
+            dr.eval(n_ch, n_cnt, n_box)
+            return Clusters(n_ch, n_box, n_cnt, batches, it, False)
         t_ref = dr.empty(UInt32, w_next)
         t_box = [dr.empty(Float, w_next) for _ in range(6)]
         t_cnt = dr.empty(UInt32, w_next)
