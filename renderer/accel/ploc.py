@@ -242,6 +242,40 @@ def _cluster(m, slo, shi, radius: int, every: int, progress) -> Clusters:
         c_ref, c_box, c_cnt, c_h, w = t_ref, t_box, t_cnt, t_h, w_next
 
 
+def _positions(m, cl: Clusters):
+    """Where each node's triangles start in the triangle order and its depth (UInt32 over
+    the nodes; the root, the last node made, at 0), and each sorted triangle's position
+    (UInt32 over the triangles): a node's first child starts where the node starts, its
+    second after the first's triangles. Each node's offset from its parent's start, and
+    its depth, are summed over its ancestors by pointer jumping (every node adds its
+    ancestor's sum and jumps to that ancestor's ancestor): ``ceil(log2(iterations)) + 1``
+    rounds, since a node lies at most ``iterations - 1`` levels deep."""
+    UInt32 = m.UInt32
+    n_in = dr.width(cl.cnt)
+    root = n_in - 1
+    n = dr.arange(UInt32, n_in)
+    ch = cl.ch
+    is_node = [(r & NODE) != 0 for r in ch]
+    left = dr.select(is_node[0], dr.gather(UInt32, cl.cnt, ch[0] & MASK, is_node[0]), 1)
+    up = dr.full(UInt32, root, n_in)          # the jump target: the parent, then further
+    acc = dr.zeros(UInt32, n_in)              # offset from the jump target's start
+    dep = dr.full(UInt32, 1, n_in)            # levels below the jump target
+    for s in range(2):
+        dr.scatter(up, n, ch[s] & MASK, is_node[s])
+    dr.scatter(acc, left, ch[1] & MASK, is_node[1])
+    dr.scatter(dep, UInt32(0), dr.opaque(UInt32, root, 1))
+    dr.eval(up, acc, dep, left)
+    for _ in range(math.ceil(math.log2(max(cl.iterations, 1))) + 1):
+        acc, dep, up = (acc + dr.gather(UInt32, acc, up), dep + dr.gather(UInt32, dep, up),
+                        dr.gather(UInt32, up, up))
+        dr.eval(acc, dep, up)
+    t_pos = dr.zeros(UInt32, n_in + 1)
+    for s, start in ((0, acc), (1, acc + left)):
+        dr.scatter(t_pos, start, ch[s] & MASK, ~is_node[s])
+    dr.eval(t_pos)
+    return acc, dep, t_pos
+
+
 def build_ploc(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm", *,
                leaf_size: int = LEAF_SIZE, radius: int = RADIUS, progress=None,
                phases: dict | None = None, stats: dict | None = None) -> BVHArrays:
@@ -301,23 +335,7 @@ def build_ploc(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm", *
 
     # ---- 3. triangle order, top down ---------------------------------------------------------
     n_in = F - 1
-    n_first = dr.zeros(UInt32, n_in)          # first position of each node's triangles
-    n_depth = dr.zeros(UInt32, n_in)
-    t_pos = dr.zeros(UInt32, F)               # position of each (sorted) triangle
-    for b0, cnt in reversed(batches):
-        c = dr.opaque(UInt32, b0) + dr.arange(UInt32, cnt)
-        first = dr.gather(UInt32, n_first, c)
-        depth = dr.gather(UInt32, n_depth, c)
-        ch = [dr.gather(UInt32, n_ch[s], c) for s in range(2)]
-        is_node = [(r & NODE) != 0 for r in ch]
-        left = dr.select(is_node[0], dr.gather(UInt32, n_cnt, ch[0] & MASK, is_node[0]), 1)
-        dr.eval(first, depth, ch, left)
-        for s, start in ((0, first), (1, first + left)):
-            idx = ch[s] & MASK
-            dr.scatter(n_first, start, idx, is_node[s])
-            dr.scatter(n_depth, depth + 1, idx, is_node[s])
-            dr.scatter(t_pos, start, idx, ~is_node[s])
-        dr.eval(n_first, n_depth, t_pos)
+    n_first, n_depth, t_pos = _positions(m, cl)
     order_d = dr.zeros(UInt32, F)
     dr.scatter(order_d, perm, t_pos)
     kept = n_cnt > leaf_size
