@@ -1,12 +1,17 @@
 """The PLOC clustering (``ploc._cluster``: the cluster count kept on the device, one symbolic
-loop for the neighbour search, several iterations between host reads) builds the tree that
-the plain loop builds, bit for bit: every ``BVHArrays`` field and the stats.
+loop for the neighbour search, several iterations between host reads) and triangle order
+(``ploc._positions``: pointer jumping) build the tree that the plain loops build, bit for
+bit: every ``BVHArrays`` field, the stats and the progress calls.
 
-Reference: ``_cluster_reference`` below, the clustering loop as ``build_ploc`` ran it before
+Reference: ``_cluster_reference`` and ``_positions_reference`` below, the clustering loop
 (one ``dr.compress`` and its count read per iteration, the 2 x radius candidates unrolled
-in Python), frozen here; ``build_ploc`` runs it in place of ``_cluster`` for the reference
-tree. Each case runs with the host reading the count after every iteration and after 4 and
-8 (``ploc.READ_EVERY``, the GPU's setting), so the device-side count is tested on LLVM."""
+in Python) and the top-down triangle order (one pair of kernels per iteration) as
+``build_ploc`` ran them before, frozen here; ``build_ploc`` runs them in place of
+``_cluster`` and ``_positions`` for the reference tree. Each case runs with the host
+reading the count after every iteration and after 4 and 8 (``ploc.READ_EVERY``, the GPU's
+setting), so the device-side count is tested on LLVM. The whole build (one upload, one
+read back, the inner nodes) is checked against main's on every bundled scene by
+``lab/probes/ploc_hashes.py``."""
 import math
 
 import drjit as dr
@@ -20,6 +25,7 @@ from renderer.accel.bvh_build import MAX_LEVELS
 from renderer.accel.ploc import NODE, TALL, Clusters, _half_area, build_ploc
 
 CLUSTER = ploc._cluster                   # the clustering under test
+POSITIONS = ploc._positions               # and the triangle order
 _REFERENCE = {}                           # case -> the reference build
 
 
@@ -106,8 +112,37 @@ def _cluster_reference(m, slo, shi, radius, every, progress):
     return Clusters(n_ch, n_box, n_cnt, batches, it, False)
 
 
+def _positions_reference(m, cl):
+    """The triangle order of ``build_ploc`` before the pointer jumping: top down, one pair
+    of kernels per clustering iteration."""
+    UInt32 = m.UInt32
+    n_in = dr.width(cl.cnt)
+    n_ch, n_cnt = cl.ch, cl.cnt
+    n_first = dr.zeros(UInt32, n_in)
+    n_depth = dr.zeros(UInt32, n_in)
+    t_pos = dr.zeros(UInt32, n_in + 1)
+    for b0, cnt in reversed(cl.batches):
+        c = dr.opaque(UInt32, b0) + dr.arange(UInt32, cnt)
+        first = dr.gather(UInt32, n_first, c)
+        depth = dr.gather(UInt32, n_depth, c)
+        ch = [dr.gather(UInt32, n_ch[s], c) for s in range(2)]
+        is_node = [(r & NODE) != 0 for r in ch]
+        left = dr.select(is_node[0], dr.gather(UInt32, n_cnt, ch[0] & ploc.MASK, is_node[0]),
+                         1)
+        dr.eval(first, depth, ch, left)
+        for s, start in ((0, first), (1, first + left)):
+            idx = ch[s] & ploc.MASK
+            dr.scatter(n_first, start, idx, is_node[s])
+            dr.scatter(n_depth, depth + 1, idx, is_node[s])
+            dr.scatter(t_pos, start, idx, ~is_node[s])
+        dr.eval(n_first, n_depth, t_pos)
+    return n_first, n_depth, t_pos
+
+
 def _build(monkeypatch, V, faces, cluster, every, **kw):
     monkeypatch.setattr(ploc, "_cluster", cluster)
+    monkeypatch.setattr(ploc, "_positions", POSITIONS if cluster is CLUSTER else
+                        _positions_reference)
     monkeypatch.setitem(ploc.READ_EVERY, "llvm", every)
     st, prog = {}, []
     a = build_ploc(V, faces, "llvm", stats=st, progress=prog.append, **kw)
