@@ -9,7 +9,8 @@ in Python) and the top-down triangle order (one pair of kernels per iteration) a
 ``build_ploc`` ran them before, frozen here; ``build_ploc`` runs them in place of
 ``_cluster`` and ``_positions`` for the reference tree. Each case runs with the host
 reading the count after every iteration and after 4 and 8 (``ploc.READ_EVERY``, the GPU's
-setting), so the device-side count is tested on LLVM. The whole build (one upload, one
+setting), each traced every time and replayed (``ploc.FREEZE``, the GPU's setting), so the
+device-side count and the frozen iteration are tested on LLVM. The whole build (one upload, one
 read back, the inner nodes) is checked against main's on every bundled scene by
 ``lab/probes/ploc_hashes.py``."""
 import math
@@ -29,9 +30,9 @@ POSITIONS = ploc._positions               # and the triangle order
 _REFERENCE = {}                           # case -> the reference build
 
 
-def _cluster_reference(m, slo, shi, radius, every, progress):
-    """The clustering loop of ``build_ploc`` before the device-side count (``every``
-    unused): one ``dr.compress`` count read per iteration."""
+def _cluster_reference(m, slo, shi, radius, every, freeze, progress):
+    """The clustering loop of ``build_ploc`` before the device-side count (``every`` and
+    ``freeze`` unused): one ``dr.compress`` count read per iteration."""
     Float, UInt32 = m.Float, m.UInt32
     F = dr.width(slo[0])
     n_in = F - 1
@@ -139,11 +140,12 @@ def _positions_reference(m, cl):
     return n_first, n_depth, t_pos
 
 
-def _build(monkeypatch, V, faces, cluster, every, **kw):
+def _build(monkeypatch, V, faces, cluster, every, freeze=False, **kw):
     monkeypatch.setattr(ploc, "_cluster", cluster)
     monkeypatch.setattr(ploc, "_positions", POSITIONS if cluster is CLUSTER else
                         _positions_reference)
     monkeypatch.setitem(ploc.READ_EVERY, "llvm", every)
+    monkeypatch.setitem(ploc.FREEZE, "llvm", freeze)
     st, prog = {}, []
     a = build_ploc(V, faces, "llvm", stats=st, progress=prog.append, **kw)
     return a, st, prog
@@ -184,15 +186,16 @@ CASES = {
 }
 
 
-@pytest.mark.parametrize("every", [1, 4, 8])
+@pytest.mark.parametrize("every,freeze", [(1, False), (4, False), (8, False), (1, True),
+                                          (4, True), (8, True)])
 @pytest.mark.parametrize("case", list(CASES))
-def test_clustering_builds_the_reference_tree(monkeypatch, case, every):
+def test_clustering_builds_the_reference_tree(monkeypatch, case, every, freeze):
     make, kw = CASES[case]
     V, faces = make()
     if case not in _REFERENCE:
         _REFERENCE[case] = _build(monkeypatch, V, faces, _cluster_reference, 1, **kw)
     ref, st_ref, prog_ref = _REFERENCE[case]
-    new, st_new, prog_new = _build(monkeypatch, V, faces, CLUSTER, every, **kw)
+    new, st_new, prog_new = _build(monkeypatch, V, faces, CLUSTER, every, freeze, **kw)
     _assert_same(new, ref)
     assert st_new == st_ref
     assert prog_new == prog_ref

@@ -37,6 +37,8 @@ ap.add_argument("--repeats", type=int, default=5)
 ap.add_argument("--every", default="", help="also time READ_EVERY = these (comma list)")
 ap.add_argument("--unrolled", action="store_true",
                 help="also time the neighbour search unrolled in Python")
+ap.add_argument("--nofreeze", action="store_true",
+                help="also time the iteration traced each time (no dr.freeze)")
 args = ap.parse_args()
 m = __import__(f"drjit.{args.backend}", fromlist=["UInt32"])
 
@@ -139,16 +141,22 @@ def scene_row(name: str) -> dict:
         row[tag] = {"s": s, "all_s": ts, "mtri_s": F / s / 1e6, "phases_ms":
                     {k: v * 1e3 for k, v in ph.items()}, "stats": st,
                     "kernels": kernels(lambda b=build: b(V, Fa, args.backend))}
-    variants = [(f"every{e}", int(e), ploc._nearest) for e in args.every.split(",") if e]
+    fresh = dr.freeze(ploc._step)             # a variant's own recordings
+    variants = [(f"every{e}", int(e), ploc._nearest, fresh) for e in args.every.split(",")
+                if e]
     if args.unrolled:
-        variants.append(("unrolled", ploc.READ_EVERY[args.backend], nearest_unrolled))
-    for tag, every, nearest in variants:
-        keep = ploc.READ_EVERY[args.backend], ploc._nearest
-        ploc.READ_EVERY[args.backend], ploc._nearest = every, nearest
+        variants.append(("unrolled", ploc.READ_EVERY[args.backend], nearest_unrolled,
+                         dr.freeze(ploc._step)))
+    if args.nofreeze:
+        variants.append(("nofreeze", ploc.READ_EVERY[args.backend], ploc._nearest,
+                         ploc._step))
+    for tag, every, nearest, step in variants:
+        keep = ploc.READ_EVERY[args.backend], ploc._nearest, ploc._STEP
+        ploc.READ_EVERY[args.backend], ploc._nearest, ploc._STEP = every, nearest, step
         a, s, ts = timed(lambda: build_ploc(V, Fa, args.backend))
         ph = {}
         build_ploc(V, Fa, args.backend, phases=ph)
-        ploc.READ_EVERY[args.backend], ploc._nearest = keep
+        ploc.READ_EVERY[args.backend], ploc._nearest, ploc._STEP = keep
         row[tag] = {"s": s, "mtri_s": F / s / 1e6, "same_tree": same(a, trees["new"]),
                     "phases_ms": {k: v * 1e3 for k, v in ph.items()}}
         print(f"    {tag:9s} {s * 1e3:7.1f} ms same={row[tag]['same_tree']} " + ", ".join(

@@ -50,6 +50,7 @@ from .device_build import (
     _levels_needed,
     _module,
     _phase,
+    _read_back,
     build_device,
     host_arrays,
     morton_codes,
@@ -71,6 +72,9 @@ MASK = NODE - 1
 #: ``HEIGHT_CHECK``): the CPU backend reads after every iteration, so its arrays shrink
 #: each time; the GPU runs several iterations ahead of the host.
 READ_EVERY = {"llvm": 1, "cuda": 4}
+#: Whether the iterations replay recorded kernels (``dr.freeze``) per backend: the GPU's
+#: iteration costs its tracing more than its kernels; the CPU's the other way round.
+FREEZE = {"llvm": False, "cuda": True}
 
 
 def _half_area(lo, hi):
@@ -134,7 +138,75 @@ def _nearest(m, c_box, k, radius: int):
     return state[2]
 
 
-def _cluster(m, slo, shi, radius: int, every: int, progress) -> Clusters:
+def _pairs(m, radius: int, c_box, made_d, f_d):
+    """The first half of a clustering iteration over the clusters with boxes ``c_box`` (6
+    Floats), lanes past the count ``f_d - made_d`` idle (``made_d``: the nodes made so
+    far, ``f_d``: the triangles, one-lane UInt32 each): each cluster's nearest neighbour
+    ``best_j`` and the exclusive prefix sum ``ex`` (UInt64) of the lanes that merge (high
+    word: the lower lane of a mutual pair) and that leave (low word: the higher one);
+    answers them with the nodes made after the iteration (one lane)."""
+    UInt32, UInt64 = m.UInt32, m.UInt64
+    i = dr.arange(UInt32, dr.width(c_box[0]))
+    k = dr.gather(UInt32, f_d, i & 0) - dr.gather(UInt32, made_d, i & 0)
+    best_j = _nearest(m, c_box, k, radius)
+    dr.eval(best_j)
+    mutual = dr.gather(UInt32, best_j, best_j) == i
+    merge = mutual & (i < best_j)                   # idle lanes: best_j == i
+    gone = mutual & (i > best_j)
+    flags = (UInt64(dr.select(merge, UInt32(1), 0)) << 32) | UInt64(dr.select(gone,
+                                                                             UInt32(1), 0))
+    ex = dr.prefix_reduce(dr.ReduceOp.Add, flags, exclusive=True)
+    made_new = made_d + dr.sum(dr.select(merge, UInt32(1), 0))
+    dr.eval(best_j, ex, made_new)
+    return best_j, ex, made_new
+
+
+def _merge(m, c, pair, made_d, f_d, n, t):
+    """The second half of a clustering iteration: the mutual pairs of ``pair`` = (best_j,
+    ex) (``_pairs``) among the clusters ``c`` = (references, 6 boxes, counts, heights)
+    merge into new nodes, scattered into ``n`` = (2 child references, 6 boxes, counts)
+    from node ``made_d`` on, and the clusters that stay (the merged ones at the lower lane
+    of their pair) are compacted into ``t`` (arrays like ``c``, at least as wide as the
+    clusters left), one kernel for both."""
+    Float, UInt32 = m.Float, m.UInt32
+    c_ref, c_box, c_cnt, c_h = c
+    n_ch, n_box, n_cnt = n
+    best_j, ex = pair
+    i = dr.arange(UInt32, dr.width(c_ref))
+    made_l = dr.gather(UInt32, made_d, i & 0)
+    k = dr.gather(UInt32, f_d, i & 0) - made_l
+    mutual = dr.gather(UInt32, best_j, best_j) == i
+    merge = mutual & (i < best_j)
+    gone = mutual & (i > best_j)
+    node = made_l + UInt32(ex >> 32)
+    o_ref = dr.gather(UInt32, c_ref, best_j, merge)
+    o_cnt = dr.gather(UInt32, c_cnt, best_j, merge)
+    o_h = dr.gather(UInt32, c_h, best_j, merge)
+    u_box = [dr.minimum(c_box[x], dr.gather(Float, c_box[x], best_j, merge)) for x in range(3)]
+    u_box += [dr.maximum(c_box[3 + x], dr.gather(Float, c_box[3 + x], best_j, merge))
+              for x in range(3)]
+    u_cnt = c_cnt + o_cnt
+    dr.scatter(n_ch[0], c_ref, node, merge)
+    dr.scatter(n_ch[1], o_ref, node, merge)
+    dr.scatter(n_cnt, u_cnt, node, merge)
+    for x in range(6):
+        dr.scatter(n_box[x], u_box[x], node, merge)
+    keep = (i < k) & ~gone
+    pos = i - UInt32(ex & 0xFFFFFFFF)
+    t_ref, t_box, t_cnt, t_h = t
+    dr.scatter(t_ref, dr.select(merge, node | NODE, c_ref), pos, keep)
+    for x in range(6):
+        dr.scatter(t_box[x], dr.select(merge, u_box[x], c_box[x]), pos, keep)
+    dr.scatter(t_cnt, dr.select(merge, u_cnt, c_cnt), pos, keep)
+    dr.scatter(t_h, dr.select(merge, dr.maximum(c_h, o_h) + 1, c_h), pos, keep)
+    dr.eval(n_ch, n_box, n_cnt, t)
+
+
+#: The two halves of an iteration, traced once per input layout (``dr.freeze``: the
+#: iterations after the first replay the recorded kernels, widths may change).
+_PAIRS, _MERGE = dr.freeze(_pairs), dr.freeze(_merge)
+
+def _cluster(m, slo, shi, radius: int, every: int, freeze: bool, progress) -> Clusters:
     """Cluster the sorted triangles (boxes ``slo``, ``shi``: 3 Floats each) until one
     cluster is left (see the module docstring). The cluster count lives on the device (the
     nodes made so far, a one-lane array): each iteration compacts the clusters by a prefix
@@ -142,7 +214,7 @@ def _cluster(m, slo, shi, radius: int, every: int, progress) -> Clusters:
     host reads the nodes made every ``every`` iterations (a divisor of ``HEIGHT_CHECK``),
     with the tallest cluster's height every ``HEIGHT_CHECK``. ``progress`` as
     ``build_ploc``'s, called for each iteration at the next read."""
-    Float, UInt32, UInt64 = m.Float, m.UInt32, m.UInt64
+    Float, UInt32 = m.Float, m.UInt32
     F = dr.width(slo[0])
     n_in = F - 1                                          # inner nodes of the full tree
     n_ch = [dr.zeros(UInt32, n_in) for _ in range(2)]    # child references
@@ -156,55 +228,22 @@ def _cluster(m, slo, shi, radius: int, every: int, progress) -> Clusters:
     dr.eval(c_box, made_d)
     batches = []                                          # (first node, node count)
     pending = []                                          # nodes made after each iteration
-    h_max = None
     w, made, it = F, 0, 0
     bail = TALL * MAX_LEVELS
     log_f = math.log(F)
+    f_d = dr.opaque(UInt32, F, 1)
+    pairs, merge = (_PAIRS, _MERGE) if freeze else (_pairs, _merge)
     while True:
-        lane0 = dr.zeros(UInt32, w)
-        made_l = dr.gather(UInt32, made_d, lane0)
-        k = UInt32(F) - made_l
-        i = dr.arange(UInt32, w)
-        best_j = _nearest(m, c_box, k, radius)
-        dr.eval(best_j)
-        mutual = dr.gather(UInt32, best_j, best_j) == i
-        merge = mutual & (i < best_j)                   # idle lanes: best_j == i
-        gone = mutual & (i > best_j)
-        flags = (UInt64(dr.select(merge, UInt32(1), 0)) << 32) | UInt64(
-            dr.select(gone, UInt32(1), 0))
-        scan = dr.prefix_reduce(dr.ReduceOp.Add, flags, exclusive=False)
-        total = dr.gather(UInt64, scan, dr.opaque(UInt32, w - 1, 1))
-        made_d = made_d + UInt32(total >> 32)
-        pending.append(made_d)
+        best_j, ex, made_new = pairs(m, radius, tuple(c_box), made_d, f_d)
+        pending.append(made_new)
         it_next = it + len(pending)
-        read = it_next % every == 0
-        dr.eval(made_d)
-        ex = scan - flags
-        slot = UInt32(ex >> 32)
-        node = made_l + slot
-        o_ref = dr.gather(UInt32, c_ref, best_j, merge)
-        o_cnt = dr.gather(UInt32, c_cnt, best_j, merge)
-        o_h = dr.gather(UInt32, c_h, best_j, merge)
-        u_box = [dr.minimum(c_box[x], dr.gather(Float, c_box[x], best_j, merge))
-                 for x in range(3)]
-        u_box += [dr.maximum(c_box[3 + x], dr.gather(Float, c_box[3 + x], best_j, merge))
-                  for x in range(3)]
-        u_cnt = c_cnt + o_cnt
-        keep = (i < k) & ~gone
-        pos = i - UInt32(ex & 0xFFFFFFFF)
-        new_h = dr.select(merge, dr.maximum(c_h, o_h) + 1, c_h)
-        if read and it_next % HEIGHT_CHECK == 0:
-            h_max = dr.max(dr.select(keep, new_h, 0))
-        if read:
-            vals = pending + ([h_max] if h_max is not None else [])
-            buf = dr.zeros(UInt32, len(vals))
-            for x, v in enumerate(vals):
-                dr.scatter(buf, v, x)
-            host = buf.numpy()
-            done = False
+        done = False
+        w_next = w
+        if it_next % every == 0:
+            host = _read_back(pending)
             for x in range(len(pending)):
                 it += 1
-                now = int(host[x])
+                now = int(host[x][0])
                 batches.append((made, now - made))
                 made = now
                 kk = F - made
@@ -213,33 +252,18 @@ def _cluster(m, slo, shi, radius: int, every: int, progress) -> Clusters:
                 if kk <= 1:
                     done = True
                     break
-            pending, w_next = [], F - made
-            if not done and h_max is not None and int(host[-1]) > bail:
-                return Clusters(n_ch, n_box, n_cnt, batches, it, True)
-            h_max = None
-        else:
-            w_next = w
-        # the new nodes, traced after the read so that one kernel writes them and the
-        # compacted clusters
-        dr.scatter(n_ch[0], c_ref, node, merge)
-        dr.scatter(n_ch[1], o_ref, node, merge)
-        dr.scatter(n_cnt, u_cnt, node, merge)
-        for x in range(6):
-            dr.scatter(n_box[x], u_box[x], node, merge)
-        if read and done:
-            dr.eval(n_ch, n_cnt, n_box)
+            pending, w_next = [], max(F - made, 1)
+        t = (dr.empty(UInt32, w_next), tuple(dr.empty(Float, w_next) for _ in range(6)),
+             dr.empty(UInt32, w_next), dr.empty(UInt32, w_next))
+        merge(m, (c_ref, tuple(c_box), c_cnt, c_h), (best_j, ex), made_d, f_d,
+              (tuple(n_ch), tuple(n_box), n_cnt), t)
+        if done:
             return Clusters(n_ch, n_box, n_cnt, batches, it, False)
-        t_ref = dr.empty(UInt32, w_next)
-        t_box = [dr.empty(Float, w_next) for _ in range(6)]
-        t_cnt = dr.empty(UInt32, w_next)
-        t_h = dr.empty(UInt32, w_next)
-        dr.scatter(t_ref, dr.select(merge, node | NODE, c_ref), pos, keep)
-        for x in range(6):
-            dr.scatter(t_box[x], dr.select(merge, u_box[x], c_box[x]), pos, keep)
-        dr.scatter(t_cnt, dr.select(merge, u_cnt, c_cnt), pos, keep)
-        dr.scatter(t_h, new_h, pos, keep)
-        dr.eval(n_ch, n_cnt, n_box, t_ref, t_box, t_cnt, t_h)
-        c_ref, c_box, c_cnt, c_h, w = t_ref, t_box, t_cnt, t_h, w_next
+        if (it_next % HEIGHT_CHECK == 0 and it_next % every == 0
+                and int(dr.max(t[3])[0]) > bail):
+            return Clusters(n_ch, n_box, n_cnt, batches, it, True)
+        c_ref, c_box, c_cnt, c_h = t[0], list(t[1]), t[2], t[3]
+        made_d, w = made_new, w_next
 
 
 def _positions(m, cl: Clusters):
@@ -324,7 +348,7 @@ def build_ploc(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm", *
         _phase(phases, "boxes, Morton codes and sort", t_phase)
 
     # ---- 2. clustering -----------------------------------------------------------------------
-    cl = _cluster(m, slo, shi, radius, READ_EVERY[backend], progress)
+    cl = _cluster(m, slo, shi, radius, READ_EVERY[backend], FREEZE[backend], progress)
     n_ch, n_box, n_cnt, batches = cl.ch, cl.box, cl.cnt, cl.batches
     info["iterations"] = cl.iterations
     if phases is not None:
