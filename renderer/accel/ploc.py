@@ -225,7 +225,7 @@ def _cluster(m, slo, shi, radius: int, every: int, freeze: bool, progress) -> Cl
     c_cnt = dr.full(UInt32, 1, F)                         # triangle counts and heights
     c_h = dr.zeros(UInt32, F)
     made_d = dr.zeros(UInt32, 1)                          # nodes made so far (device)
-    dr.eval(c_box, made_d)
+    dr.eval(c_ref, c_box, c_cnt, c_h, made_d, n_ch, n_box, n_cnt)
     batches = []                                          # (first node, node count)
     pending = []                                          # nodes made after each iteration
     w, made, it = F, 0, 0
@@ -253,10 +253,14 @@ def _cluster(m, slo, shi, radius: int, every: int, freeze: bool, progress) -> Cl
                     done = True
                     break
             pending, w_next = [], max(F - made, 1)
-        t = (dr.empty(UInt32, w_next), tuple(dr.empty(Float, w_next) for _ in range(6)),
-             dr.empty(UInt32, w_next), dr.empty(UInt32, w_next))
-        merge(m, (c_ref, tuple(c_box), c_cnt, c_h), (best_j, ex), made_d, f_d,
-              (tuple(n_ch), tuple(n_box), n_cnt), t)
+        new = dr.zeros if freeze else dr.empty     # (frozen: an empty input re-records)
+        t = (new(UInt32, w_next), tuple(new(Float, w_next) for _ in range(6)),
+             new(UInt32, w_next), new(UInt32, w_next))
+        # (a compaction into narrower arrays, after a read, is traced: a frozen one would
+        # be recorded anew for each pair of widths)
+        (merge if w_next == w else _merge)(m, (c_ref, tuple(c_box), c_cnt, c_h),
+                                           (best_j, ex), made_d, f_d,
+                                           (tuple(n_ch), tuple(n_box), n_cnt), t)
         if done:
             return Clusters(n_ch, n_box, n_cnt, batches, it, False)
         if (it_next % HEIGHT_CHECK == 0 and it_next % every == 0
