@@ -37,8 +37,8 @@ ap.add_argument("--repeats", type=int, default=5)
 ap.add_argument("--every", default="", help="also time READ_EVERY = these (comma list)")
 ap.add_argument("--unrolled", action="store_true",
                 help="also time the neighbour search unrolled in Python")
-ap.add_argument("--nofreeze", action="store_true",
-                help="also time the iteration traced each time (no dr.freeze)")
+ap.add_argument("--freeze", action="store_true",
+                help="also time the iteration the other way (dr.freeze on / off)")
 args = ap.parse_args()
 m = __import__(f"drjit.{args.backend}", fromlist=["UInt32"])
 
@@ -141,22 +141,25 @@ def scene_row(name: str) -> dict:
         row[tag] = {"s": s, "all_s": ts, "mtri_s": F / s / 1e6, "phases_ms":
                     {k: v * 1e3 for k, v in ph.items()}, "stats": st,
                     "kernels": kernels(lambda b=build: b(V, Fa, args.backend))}
-    fresh = dr.freeze(ploc._step)             # a variant's own recordings
-    variants = [(f"every{e}", int(e), ploc._nearest, fresh) for e in args.every.split(",")
-                if e]
+    be = args.backend
+    # (tag, READ_EVERY, FREEZE, neighbour search); a frozen variant gets its own recordings
+    variants = [(f"every{e}", int(e), ploc.FREEZE[be], ploc._nearest)
+                for e in args.every.split(",") if e]
     if args.unrolled:
-        variants.append(("unrolled", ploc.READ_EVERY[args.backend], nearest_unrolled,
-                         dr.freeze(ploc._step)))
-    if args.nofreeze:
-        variants.append(("nofreeze", ploc.READ_EVERY[args.backend], ploc._nearest,
-                         ploc._step))
-    for tag, every, nearest, step in variants:
-        keep = ploc.READ_EVERY[args.backend], ploc._nearest, ploc._STEP
-        ploc.READ_EVERY[args.backend], ploc._nearest, ploc._STEP = every, nearest, step
+        variants.append(("unrolled", ploc.READ_EVERY[be], True, nearest_unrolled))
+    if args.freeze:
+        variants.append(("frozen" if not ploc.FREEZE[be] else "traced", ploc.READ_EVERY[be],
+                         not ploc.FREEZE[be], ploc._nearest))
+    for tag, every, freeze, nearest in variants:
+        keep = (ploc.READ_EVERY[be], ploc.FREEZE[be], ploc._nearest, ploc._PAIRS,
+                ploc._MERGE)
+        ploc.READ_EVERY[be], ploc.FREEZE[be], ploc._nearest = every, freeze, nearest
+        ploc._PAIRS, ploc._MERGE = dr.freeze(ploc._pairs), dr.freeze(ploc._merge)
         a, s, ts = timed(lambda: build_ploc(V, Fa, args.backend))
         ph = {}
         build_ploc(V, Fa, args.backend, phases=ph)
-        ploc.READ_EVERY[args.backend], ploc._nearest, ploc._STEP = keep
+        (ploc.READ_EVERY[be], ploc.FREEZE[be], ploc._nearest, ploc._PAIRS,
+         ploc._MERGE) = keep
         row[tag] = {"s": s, "mtri_s": F / s / 1e6, "same_tree": same(a, trees["new"]),
                     "phases_ms": {k: v * 1e3 for k, v in ph.items()}}
         print(f"    {tag:9s} {s * 1e3:7.1f} ms same={row[tag]['same_tree']} " + ", ".join(

@@ -8,15 +8,20 @@ Steps, each a few Dr.Jit kernels over all triangles, clusters or nodes:
    (clustering merges a large triangle late by itself: its union boxes are large);
 2. clustering: the sorted triangles are the first clusters. Each iteration, every cluster
    finds its nearest neighbour among the ``radius`` clusters on either side of it in the
-   list: the one whose union box has the smallest surface area (ties ordered by a fixed
-   total order on pairs, so the nearest-neighbour graph has no cycles longer than two and
-   the closest pair is always mutual). Mutual pairs merge into a new node that takes the
-   lower one's place; the higher one leaves the list (``dr.compress``: one count read per
-   iteration, the only host round trips of this step), until one cluster is left. A node's
-   box is its children's union, its count the sum of theirs;
-3. triangle order, top down over the iterations' nodes, last iteration first: a node's
-   first child starts where the node starts, its second after the first's triangles, so
-   every subtree is a contiguous run of the triangle order;
+   list (one symbolic loop over the distance): the one whose union box has the smallest
+   surface area (ties ordered by a fixed total order on pairs, so the nearest-neighbour
+   graph has no cycles longer than two and the closest pair is always mutual). Mutual
+   pairs merge into a new node that takes the lower one's place; the higher one leaves the
+   list, until one cluster is left. A node's box is its children's union, its count the
+   sum of theirs. The count of nodes made stays on the device: one prefix sum numbers the
+   new nodes and compacts the list into arrays as wide as the last count the host read
+   (lanes past the count idle), and the host reads the counts every ``READ_EVERY``
+   iterations, one transfer for all of them (on the CPU after each, so its arrays shrink
+   each time). With ``FREEZE`` an iteration's two halves replay their recorded kernels
+   (``dr.freeze``) instead of being traced again;
+3. triangle order: a node's first child starts where the node starts, its second after
+   the first's triangles, so every subtree is a contiguous run of the triangle order; each
+   node's start and depth are sums over its ancestors, taken by pointer jumping;
 4. nodes of at most ``leaf_size`` triangles become leaves; the others are the inner nodes,
    numbered latest first (the root is node 0, every child after its parent), their child
    boxes padded on the device by ``pad_boxes``'s rule (the same float32 operations) and
@@ -72,9 +77,11 @@ MASK = NODE - 1
 #: ``HEIGHT_CHECK``): the CPU backend reads after every iteration, so its arrays shrink
 #: each time; the GPU runs several iterations ahead of the host.
 READ_EVERY = {"llvm": 1, "cuda": 4}
-#: Whether the iterations replay recorded kernels (``dr.freeze``) per backend: the GPU's
-#: iteration costs its tracing more than its kernels; the CPU's the other way round.
-FREEZE = {"llvm": False, "cuda": True}
+#: Whether the iterations replay recorded kernels (``dr.freeze``: no tracing after the
+#: first) per backend. Off on the CPU, whose iteration costs its kernels, not its
+#: tracing; off on the GPU until measured there (the replay builds the same tree on the
+#: CPU backend: ``test_ploc_reference.py``).
+FREEZE = {"llvm": False, "cuda": False}
 
 
 def _half_area(lo, hi):
