@@ -1,10 +1,12 @@
 """PLOC build time, main's build (``ploc_main.py``, frozen at cd4f323) against today's
-``renderer.accel.ploc.build_ploc``: median of ``--repeats`` builds after a warm-up build
-(``dr.sync_thread`` before each clock read; a build is triangles in as numpy arrays, tree
-out as host ``BVHArrays``), each build's phases (one build that waits at each phase's end),
-the kernels one build launches (``dr.kernel_history``), ``dr.argsort`` alone over as many
-Morton codes, and whether the two trees are equal bit for bit. Writes
-``OUT/ploc_fast-BACKEND.json``. Usage:
+``renderer.accel.ploc.build_ploc``: median of ``--repeats`` builds after a warm-up build,
+the two interleaved (``dr.sync_thread`` before each clock read; a build is triangles in as
+numpy arrays, tree out as host ``BVHArrays``), each build's phases (one build that waits at
+each phase's end), the kernels one build launches (``dr.kernel_history``), ``dr.argsort``
+alone over as many Morton codes, and whether the two trees are equal bit for bit; with
+``--every``, ``--freeze``, ``--unrolled`` also today's build with other ``READ_EVERY``, the
+other ``FREEZE`` or the neighbour search unrolled. Writes ``OUT/ploc_fast-BACKEND.json``.
+Usage:
     python lab/probes/ploc_fast.py --backend cuda --out DIR SCENE...
 """
 import argparse
@@ -132,15 +134,24 @@ def scene_row(name: str) -> dict:
     V, Fa, F = sc.vertices, sc.faces, sc.face_count
     row = {"scene": name, "triangles": F}
     trees = {}
-    for tag, build in (("main", ploc_main.build_ploc), ("new", build_ploc)):
-        st = {}
-        a, s, ts = timed(lambda b=build, st=st: b(V, Fa, args.backend, stats=st))
+    builds = {"main": ploc_main.build_ploc, "new": build_ploc}
+    st = {tag: {} for tag in builds}
+    trees = {tag: b(V, Fa, args.backend, stats=st[tag]) for tag, b in builds.items()}
+    ts = {tag: [] for tag in builds}
+    for _ in range(args.repeats):             # interleaved: load drift hits both alike
+        for tag, b in builds.items():
+            dr.sync_thread()
+            t = time.perf_counter()
+            b(V, Fa, args.backend)
+            dr.sync_thread()
+            ts[tag].append(time.perf_counter() - t)
+    for tag, b in builds.items():
         ph = {}
-        build(V, Fa, args.backend, phases=ph)
-        trees[tag] = a
-        row[tag] = {"s": s, "all_s": ts, "mtri_s": F / s / 1e6, "phases_ms":
-                    {k: v * 1e3 for k, v in ph.items()}, "stats": st,
-                    "kernels": kernels(lambda b=build: b(V, Fa, args.backend))}
+        b(V, Fa, args.backend, phases=ph)
+        s = statistics.median(ts[tag])
+        row[tag] = {"s": s, "all_s": ts[tag], "mtri_s": F / s / 1e6, "phases_ms":
+                    {k: v * 1e3 for k, v in ph.items()}, "stats": st[tag],
+                    "kernels": kernels(lambda b=b: b(V, Fa, args.backend))}
     be = args.backend
     # (tag, READ_EVERY, FREEZE, neighbour search); a frozen variant gets its own recordings
     variants = [(f"every{e}", int(e), ploc.FREEZE[be], ploc._nearest)
