@@ -56,10 +56,11 @@ from .triangle import (
     STRIDE,
     bind_routine,
     box_reach,
+    device_triangles,
     origin_reach,
     pad_extent,
+    triangle_arrays,
     triangle_routine,
-    upload_triangles,
 )
 
 
@@ -152,34 +153,58 @@ class BVH(Accelerator):
               leaf_size: int = LEAF_SIZE, bins: int = BINS, binary: BVHArrays | None = None,
               **build_options) -> "BVH":
         """``build_options`` go to ``build_bvh`` (root_bins, all_axes, sah_leaves,
-        depth_first, sample); ``binary``: an existing build of ``scene`` to upload instead."""
+        depth_first, sample); ``binary``: an existing build of ``scene`` to upload instead.
+        The host arrays of ``host_layout``, uploaded by ``from_layout``."""
         triangle_routine(intersection)
         a = binary if binary is not None else build_bvh(
             scene.vertices, scene.faces, leaf_size=leaf_size, bins=bins, **build_options)
         t0 = time.perf_counter()
-        tri_data, tris = upload_triangles(scene, t, order=a.order, routine=intersection)
+        arrays, info = cls.host_layout(scene, t, a, intersection=intersection)
+        info.update(leaf_size=leaf_size, bins=bins)
+        acc = cls.from_layout(t, arrays, info)
+        acc.info["upload_seconds"] = time.perf_counter() - t0
+        return acc
+
+    @classmethod
+    def host_layout(cls, scene, t: Types, a: BVHArrays, *,
+                    intersection: str = DEFAULT_ROUTINE) -> tuple[dict, dict]:
+        """Everything the accelerator of tree ``a`` uploads, as host arrays in their device
+        dtypes (``triangle_arrays``' and ``nodes`` (N, 12) the traversal's boxes,
+        ``children`` uint32 (N, 2)), and its ``info`` (JSON-able; ``reach`` included)."""
+        arrays = triangle_arrays(scene, t.is_double, a.order, routine=intersection)
         fdt = np.float64 if t.is_double else np.float32
-        boxes = traversal_boxes(a, scene, t, intersection).astype(fdt)
-        if uses_pairs(t):
-            nodes, children = as_pairs(t, boxes.view(np.uint32)), as_pairs(t, a.children)
-        else:
-            nodes = t.Float(host_array(boxes.reshape(-1)))
-            children = t.UInt32(host_array(a.children.reshape(-1)))
-        tri_trav = traversal_triangles(t, tri_data)
-        dr.eval(nodes, children, tri_data, tri_trav, tris)
+        arrays["nodes"] = np.ascontiguousarray(traversal_boxes(a, scene, t, intersection),
+                                               fdt)
+        arrays["children"] = np.ascontiguousarray(a.children, np.uint32)
         fsize = 8 if t.is_double else 4
         F = max(scene.face_count, 1)
         info = {
             "accel": "bvh", "intersection": intersection, "build_seconds": a.build_seconds,
-            "upload_seconds": time.perf_counter() - t0, "triangles": scene.face_count,
-            "nodes": a.node_count, "leaves": a.leaf_count, "levels": a.levels,
-            "sah_cost": a.sah_cost, "leaf_size": leaf_size, "bins": bins,
+            "triangles": scene.face_count, "nodes": a.node_count, "leaves": a.leaf_count,
+            "levels": a.levels, "sah_cost": a.sah_cost, "leaf_size": LEAF_SIZE, "bins": BINS,
             "node_bytes_per_triangle": a.node_count * (12 * fsize + 8) / F,
             "traversal_triangle_bytes_per_triangle": STRIDE * fsize,
+            "reach": origin_reach(scene, intersection),
         }
+        return arrays, info
+
+    @classmethod
+    def from_layout(cls, t: Types, arrays: dict, info: dict) -> "BVH":
+        """The accelerator on the device from ``host_layout``'s ``arrays`` and ``info``
+        (uploads only: no host work beyond the aligned copies)."""
+        tri_data, tris = device_triangles(t, arrays)
+        boxes, children = arrays["nodes"], arrays["children"]
+        if uses_pairs(t):
+            nodes, children = as_pairs(t, boxes.view(np.uint32)), as_pairs(t, children)
+        else:
+            nodes = t.Float(host_array(boxes.reshape(-1)))
+            children = t.UInt32(host_array(children.reshape(-1)))
+        tri_trav = traversal_triangles(t, tri_data)
+        dr.eval(nodes, children, tri_data, tri_trav, tris)
+        info = dict(info)
         return cls(nodes, children, tri_data, tris, backend=t.backend, precision=t.precision,
-                   intersection=intersection, info=info, tri_trav=tri_trav,
-                   reach=origin_reach(scene, intersection))
+                   intersection=info["intersection"], info=info, tri_trav=tri_trav,
+                   reach=float(info["reach"]))
 
     def counts(self, ray: Ray, active=True, any_hit: bool = False):
         """The instrumented traversal (profiling): ``(node_steps, triangle_steps,
