@@ -323,7 +323,7 @@ def tree_accelerator(scene, t, req: LayoutRequest, build_request) -> object:
                               "scene; rebuilding", CacheWarning, stacklevel=3)
                 continue
             seconds = time.perf_counter() - t0
-            acc = req.cls.from_layout(t, got, got["meta"]["info"])
+            acc = req.cls.from_layout(t, got, got["meta"]["info"], own=True)
             acc.info.update(tree_build=name, tree_cached=True, tree_seconds=seconds,
                             layout_cached=True,
                             upload_seconds=time.perf_counter() - t0 - seconds)

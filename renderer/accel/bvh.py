@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 import drjit as dr
 import numpy as np
 
-from ..device import Types, host_array
+from ..device import Types, host_array, host_view
 from .base import (
     Accelerator,
     DeviceTriangles,
@@ -189,16 +189,19 @@ class BVH(Accelerator):
         return arrays, info
 
     @classmethod
-    def from_layout(cls, t: Types, arrays: dict, info: dict) -> "BVH":
+    def from_layout(cls, t: Types, arrays: dict, info: dict, own: bool = False) -> "BVH":
         """The accelerator on the device from ``host_layout``'s ``arrays`` and ``info``
-        (uploads only: no host work beyond the aligned copies)."""
-        tri_data, tris = device_triangles(t, arrays)
+        (uploads only: no host work beyond aligned copies; ``own``: the arrays are this
+        call's to hand over, as ``device_triangles``)."""
+        tri_data, tris = device_triangles(t, arrays, own)
         boxes, children = arrays["nodes"], arrays["children"]
+        put = host_view if own else host_array
         if uses_pairs(t):
-            nodes, children = as_pairs(t, boxes.view(np.uint32)), as_pairs(t, children)
+            nodes = as_pairs(t, boxes.view(np.uint32), copy=not own)
+            children = as_pairs(t, children, copy=not own)
         else:
-            nodes = t.Float(host_array(boxes.reshape(-1)))
-            children = t.UInt32(host_array(children.reshape(-1)))
+            nodes = t.Float(put(boxes.reshape(-1)))
+            children = t.UInt32(put(children.reshape(-1)))
         tri_trav = traversal_triangles(t, tri_data)
         dr.eval(nodes, children, tri_data, tri_trav, tris)
         info = dict(info)

@@ -26,7 +26,7 @@ from __future__ import annotations
 import drjit as dr
 import numpy as np
 
-from ..device import Types, host_array, rcp
+from ..device import Types, host_array, host_view, rcp
 from ..device import unit_roundoff as unit_roundoff
 from .base import DeviceTriangles, gather_floats
 
@@ -355,22 +355,25 @@ def triangle_arrays(scene, double: bool, order: np.ndarray | None = None,
     return out
 
 
-def device_triangles(t: Types, arrays: dict):
+def device_triangles(t: Types, arrays: dict, own: bool = False):
     """``(tri_data, tris)`` on the device from ``triangle_arrays``'s ``arrays`` (of the
     precision of ``t``): the packed geometry as a Float and the ``DeviceTriangles``
-    (width-1 zero vertex normals where ``arrays`` has none)."""
+    (width-1 zero vertex normals where ``arrays`` has none). ``own``: the arrays are
+    this call's to hand over (a cache hit's views): aligned ones become the device
+    arrays' memory on LLVM (``device.host_view``) instead of being copied."""
     fdt = np.float64 if t.is_double else np.float32
-    cols = lambda a: t.Array3f(*(t.Float(host_array(a[k], fdt)) for k in range(3)))  # noqa: E731
+    put = host_view if own else host_array
+    cols = lambda a: t.Array3f(*(t.Float(put(a[k], fdt)) for k in range(3)))  # noqa: E731
     if "n0" in arrays:
         n0, n1, n2 = (cols(arrays[f"n{k}"]) for k in range(3))
     else:
         n0 = n1 = n2 = t.Array3f(0, 0, 0)
-    tri_data = t.Float(host_array(arrays["tri_data"].reshape(-1), fdt))
+    tri_data = t.Float(put(arrays["tri_data"].reshape(-1), fdt))
     tris = DeviceTriangles(
         ng=cols(arrays["ng"]), n0=n0, n1=n1, n2=n2,
-        material=t.UInt32(host_array(arrays["material"], np.uint32)),
-        smooth=t.Bool(host_array(arrays["smooth"], bool)),
-        order=t.UInt32(host_array(arrays["order"], np.uint32)))
+        material=t.UInt32(put(arrays["material"], np.uint32)),
+        smooth=t.Bool(put(arrays["smooth"], bool)),
+        order=t.UInt32(put(arrays["order"], np.uint32)))
     return tri_data, tris
 
 

@@ -43,7 +43,7 @@ from dataclasses import dataclass, field, replace
 import drjit as dr
 import numpy as np
 
-from ..device import Types, host_array
+from ..device import Types, host_array, host_view
 from .base import (
     Accelerator,
     DeviceTriangles,
@@ -463,18 +463,23 @@ class WideBVH(Accelerator):
         return arrays, info
 
     @classmethod
-    def from_layout(cls, t: Types, arrays: dict, info: dict) -> "WideBVH":
+    def from_layout(cls, t: Types, arrays: dict, info: dict, own: bool = False
+                    ) -> "WideBVH":
         """The accelerator on the device from ``host_layout``'s ``arrays`` and ``info``
-        (uploads only: no host work beyond the aligned copies)."""
-        tri_data, tris = device_triangles(t, arrays)
+        (uploads only: no host work beyond aligned copies; ``own``: the arrays are this
+        call's to hand over, as ``device_triangles``)."""
+        tri_data, tris = device_triangles(t, arrays, own)
         qwords, wrefs = arrays["nodes"], arrays["refs"]
         pairs = uses_pairs(t)
+        put = host_view if own else host_array
         if info["quantized"]:
-            nodes = as_pairs(t, qwords) if pairs else t.UInt32(host_array(qwords.reshape(-1)))
+            nodes = (as_pairs(t, qwords, copy=not own) if pairs
+                     else t.UInt32(put(qwords.reshape(-1))))
         else:
             fdt = np.float64 if t.is_double else np.float32
-            nodes = t.Float(host_array(qwords.reshape(-1), fdt))
-        refs = as_pairs(t, wrefs) if pairs else t.UInt32(host_array(wrefs.reshape(-1)))
+            nodes = t.Float(put(qwords.reshape(-1), fdt))
+        refs = (as_pairs(t, wrefs, copy=not own) if pairs
+                else t.UInt32(put(wrefs.reshape(-1))))
         tri_trav = traversal_triangles(t, tri_data)
         dr.eval(nodes, refs, tri_data, tri_trav, tris)
         info = dict(info)
