@@ -19,6 +19,7 @@ the SAH tree.
 """
 from __future__ import annotations
 
+import threading
 import time
 import warnings
 from dataclasses import dataclass, replace
@@ -31,7 +32,7 @@ from .cache import CacheWarning, TreeCache, code_version, content_key
 from .device_build import build_device
 from .layout import COUNT_SHIFT, DONE, FIRST_MASK, LEAF_BIT, MAX_LEAF
 from .ploc import build_ploc
-from .triangle import STRIDE, pad_extent
+from .triangle import STRIDE, pad_extent, permuted, triangle_arrays
 from .wide import record_words
 
 BUILDS = TREE_BUILDS
@@ -276,8 +277,7 @@ def _layout_fits(e: dict, req: LayoutRequest, scene, t) -> bool:
               and e["material"].dtype == np.uint32 and e["material"].shape == (F,)
               and e["smooth"].dtype == np.bool_ and e["smooth"].shape == (F,)
               and e["order"].dtype == np.uint32 and e["order"].shape == (F,))
-        ok = ok and (F == 0 or (int(e["order"].max()) < F
-                                and int(e["material"].max()) < len(scene.materials)))
+        ok = ok and (F == 0 or int(e["order"].max()) < F)
         nodes = e["nodes"]
         N = nodes.shape[0]
         if req.width == 2:
@@ -328,12 +328,16 @@ def tree_accelerator(scene, t, req: LayoutRequest, build_request) -> object:
                             layout_cached=True,
                             upload_seconds=time.perf_counter() - t0 - seconds)
             return acc
+    packing = _Packing(scene, t, req.intersection) if (
+        t.backend == "cuda" and scene.face_count >= OVERLAP_MIN_TRIANGLES) else None
     tree, how = binary_tree(scene, t.backend, build=build, cache=cache,
                             frames=build_request.frames, progress=build_request.progress,
                             triangles=tri)
     t1 = time.perf_counter()
     kw = {} if req.width == 2 else {"width": req.width}
-    arrays, info = req.cls.host_layout(scene, t, tree, intersection=req.intersection, **kw)
+    tris = permuted(packing.result(), tree.order) if packing is not None else None
+    arrays, info = req.cls.host_layout(scene, t, tree, intersection=req.intersection,
+                                       extent=extent, triangles=tris, **kw)
     if cache is not None:
         key = layout_key(scene, tree_key(scene, how.build, LEAF_SIZE, tri), req, t, extent)
         cache.put("layout", key, arrays, {"info": info})
@@ -343,3 +347,33 @@ def tree_accelerator(scene, t, req: LayoutRequest, build_request) -> object:
     acc.info.update(tree_build=how.build, tree_cached=how.cached, tree_seconds=how.seconds,
                     layout_cached=False, layout_seconds=t2 - t1)
     return acc
+
+
+#: ``tree_accelerator`` on CUDA packs the triangles (``triangle_arrays``, face order) on a
+#: thread while the tree is got, for scenes of at least this many triangles (numpy
+#: releases the GIL; the device builds meanwhile). On LLVM the build's kernels use every
+#: core, so the packing waits for the tree there.
+OVERLAP_MIN_TRIANGLES = 100000
+
+
+class _Packing:
+    """``triangle_arrays(scene, ...)`` in face order on a daemon thread; ``result()``
+    waits for it (and raises what it raised)."""
+
+    def __init__(self, scene, t, intersection: str):
+        self._out = {}
+
+        def run():
+            try:
+                self._out["arrays"] = triangle_arrays(scene, t.is_double, None,
+                                                      routine=intersection)
+            except BaseException as e:      # handed to result()
+                self._out["error"] = e
+        self._thread = threading.Thread(target=run, name="pack triangles", daemon=True)
+        self._thread.start()
+
+    def result(self) -> dict:
+        self._thread.join()
+        if "error" in self._out:
+            raise self._out["error"]
+        return self._out["arrays"]

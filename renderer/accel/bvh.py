@@ -57,7 +57,6 @@ from .triangle import (
     bind_routine,
     box_reach,
     device_triangles,
-    origin_reach,
     pad_extent,
     triangle_arrays,
     triangle_routine,
@@ -107,15 +106,17 @@ def node_step(bvh: "BVH", ray: TraversalRay, t_max, stack: Stack, to_pop, active
     return stack, to_pop | missed
 
 
-def traversal_boxes(a: BVHArrays, scene, t: Types, intersection: str) -> np.ndarray:
+def traversal_boxes(a: BVHArrays, scene, t: Types, intersection: str,
+                    extent: float | None = None) -> np.ndarray:
     """The node boxes of ``a`` that the traversal of ``intersection`` in precision ``t``
     needs: refitted (in float64 for float64 renders) and padded for the ray origins'
     reach (``pad_extent``); the build's own float32 boxes where no origin lies away from 0
     (``box_reach`` 0). A float32 traversal of a tree that carries its unpadded boxes
-    (``BVHArrays.raw``: a cached tree) pads those (``pad_refit``): the same boxes."""
+    (``BVHArrays.raw``: a cached tree) pads those (``pad_refit``): the same boxes.
+    ``extent``: ``pad_extent(scene, intersection)`` where the caller has it."""
     if not (t.is_double or box_reach(scene, intersection) > 0):
         return a.boxes
-    extent = pad_extent(scene, intersection)
+    extent = pad_extent(scene, intersection) if extent is None else extent
     if not t.is_double and a.raw is not None and a.order.size:
         return pad_refit(a, a.raw, extent)
     fdt = np.float64 if t.is_double else np.float32
@@ -167,14 +168,19 @@ class BVH(Accelerator):
 
     @classmethod
     def host_layout(cls, scene, t: Types, a: BVHArrays, *,
-                    intersection: str = DEFAULT_ROUTINE) -> tuple[dict, dict]:
+                    intersection: str = DEFAULT_ROUTINE, extent: float | None = None,
+                    triangles: dict | None = None) -> tuple[dict, dict]:
         """Everything the accelerator of tree ``a`` uploads, as host arrays in their device
         dtypes (``triangle_arrays``' and ``nodes`` (N, 12) the traversal's boxes,
-        ``children`` uint32 (N, 2)), and its ``info`` (JSON-able; ``reach`` included)."""
-        arrays = triangle_arrays(scene, t.is_double, a.order, routine=intersection)
+        ``children`` uint32 (N, 2)), and its ``info`` (JSON-able; ``reach`` included).
+        ``extent``: ``pad_extent`` where the caller has it; ``triangles``: the
+        ``triangle_arrays`` of ``a.order`` where the caller has them."""
+        extent = pad_extent(scene, intersection) if extent is None else extent
+        arrays = dict(triangles or triangle_arrays(scene, t.is_double, a.order,
+                                                   routine=intersection))
         fdt = np.float64 if t.is_double else np.float32
-        arrays["nodes"] = np.ascontiguousarray(traversal_boxes(a, scene, t, intersection),
-                                               fdt)
+        arrays["nodes"] = np.ascontiguousarray(
+            traversal_boxes(a, scene, t, intersection, extent), fdt)
         arrays["children"] = np.ascontiguousarray(a.children, np.uint32)
         fsize = 8 if t.is_double else 4
         F = max(scene.face_count, 1)
@@ -184,7 +190,7 @@ class BVH(Accelerator):
             "levels": a.levels, "sah_cost": a.sah_cost, "leaf_size": LEAF_SIZE, "bins": BINS,
             "node_bytes_per_triangle": a.node_count * (12 * fsize + 8) / F,
             "traversal_triangle_bytes_per_triangle": STRIDE * fsize,
-            "reach": origin_reach(scene, intersection),
+            "reach": extent if scene.face_count else float("inf"),
         }
         return arrays, info
 

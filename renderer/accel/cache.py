@@ -17,11 +17,10 @@ parameter or code misses.
 - verified on read: a short, corrupt or foreign entry (bad magic, header digest, size,
   key, array checksum) is never trusted: ``get`` warns once (``CacheWarning``), removes it
   where it can and returns None, so the caller rebuilds. An array's ``checksum`` is two
-  position-weighted sums of its 64-bit words (mod 2^64: blocks of ``BLOCK`` words weighted
-  by their index, and the words' places in a block by theirs): one pass of additions,
-  several times cheaper than SHA-256, and any change of one or two words (a flipped bit, a
-  zeroed or torn page, a swap of blocks) changes it; the header that names the arrays is
-  covered by SHA-256;
+  position-weighted sums of its 32-bit words (blocks of ``BLOCK`` words weighted by their
+  index, and the words' places in a block by theirs): additions only, cheaper than
+  SHA-256, and any change of one or two words (flipped bits, a swap) changes it, as does
+  a zeroed or torn page; the header that names the arrays is covered by SHA-256;
 - bounded: after each write the least recently used entries (file mtimes, touched on
   every hit) are removed until the folder holds at most ``max_bytes``;
 - optional: a folder that cannot be made or written leaves the cache read-only or off,
@@ -59,8 +58,8 @@ MAGIC = b"whitted-cache 2\n"
 MAX_BYTES = 2 << 30
 #: Byte alignment of every array in an entry file (and so of the arrays a hit gives).
 ALIGN = 64
-#: 64-bit words per block of ``checksum``.
-BLOCK = 512
+#: 32-bit words per block of ``checksum``.
+BLOCK = 1024
 _PREFIX = len(MAGIC) + 8 + 32
 
 
@@ -81,23 +80,24 @@ def default_folder() -> Path:
 
 def checksum(a: np.ndarray) -> list[int]:
     """``[s_blocks, s_places]`` of the bytes of ``a`` (C order) read as little-endian
-    64-bit words (the last one zero-padded): the words in blocks of ``BLOCK``, each
-    block's sum weighted by ``2 b + 1`` (``b`` its index), and each place's sum over the
-    blocks weighted by ``2 k + 1`` (``k`` the place in the block), all mod 2^64. The
-    weights are odd, so a change of any one word changes both sums."""
+    32-bit words (the last one zero-padded), in blocks of ``BLOCK`` words: each block's
+    sum weighted by ``2 b + 1`` (``b`` its index) and each place's sum over the blocks
+    weighted by ``2 k + 1`` (``k`` the place in a block), mod 2^64. The words are summed
+    exactly (64-bit sums of 32-bit words) and the weights are odd, so a change of any one
+    or two words (two bits flipped anywhere, a swap of two words) changes the pair."""
     b = np.ascontiguousarray(a).reshape(-1).view(np.uint8)
-    n = b.size // 8
-    words = b[:n * 8].view("<u8")
-    if b.size > n * 8:
-        last = np.zeros(8, np.uint8)
-        last[:b.size - n * 8] = b[n * 8:]
-        words = np.concatenate([words, last.view("<u8")])
+    n = b.size // 4
+    words = b[:n * 4].view("<u4")
+    if b.size > n * 4:
+        last = np.zeros(4, np.uint8)
+        last[:b.size - n * 4] = b[n * 4:]
+        words = np.concatenate([words, last.view("<u4")])
     m = words.size // BLOCK * BLOCK
     blocks = words[:m].reshape(-1, BLOCK)
     rows = np.concatenate([np.add.reduce(blocks, axis=1, dtype=np.uint64),
                            [np.add.reduce(words[m:], dtype=np.uint64)]])
-    places = np.add.reduce(blocks, axis=0, dtype=np.uint64) if m else np.zeros(BLOCK,
-                                                                              np.uint64)
+    places = (np.add.reduce(blocks, axis=0, dtype=np.uint64) if m
+              else np.zeros(BLOCK, np.uint64))
     places[:words.size - m] += words[m:]
     odd = lambda k: np.arange(k, dtype=np.uint64) * np.uint64(2) + np.uint64(1)  # noqa: E731
     with np.errstate(over="ignore"):

@@ -355,6 +355,18 @@ def triangle_arrays(scene, double: bool, order: np.ndarray | None = None,
     return out
 
 
+def permuted(arrays: dict, order: np.ndarray) -> dict:
+    """``triangle_arrays`` made in face order, permuted by ``order`` (int (F,)): the
+    arrays ``triangle_arrays`` gives for ``order`` (each row's values depend on its face
+    only), by gathers."""
+    order = np.asarray(order, np.int64)
+    out = {k: np.ascontiguousarray(v[:, order]) for k, v in arrays.items()
+           if k in ("ng", "n0", "n1", "n2")}
+    out.update(tri_data=arrays["tri_data"][order], material=arrays["material"][order],
+               smooth=arrays["smooth"][order], order=arrays["order"][order])
+    return out
+
+
 def device_triangles(t: Types, arrays: dict, own: bool = False):
     """``(tri_data, tris)`` on the device from ``triangle_arrays``'s ``arrays`` (of the
     precision of ``t``): the packed geometry as a Float and the ``DeviceTriangles``

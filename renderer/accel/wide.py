@@ -79,7 +79,7 @@ from .triangle import (
     STRIDE,
     bind_routine,
     device_triangles,
-    origin_reach,
+    pad_extent,
     triangle_arrays,
     triangle_routine,
 )
@@ -422,24 +422,27 @@ class WideBVH(Accelerator):
 
     @classmethod
     def host_layout(cls, scene, t: Types, a: BVHArrays, *, width: int = 4,
-                    quantized: bool | None = None, intersection: str = DEFAULT_ROUTINE
+                    quantized: bool | None = None, intersection: str = DEFAULT_ROUTINE,
+                    extent: float | None = None, triangles: dict | None = None
                     ) -> tuple[dict, dict]:
         """Everything the ``width``-wide accelerator of the binary tree ``a`` uploads, as
         host arrays in their device dtypes (``triangle_arrays``' and ``nodes``: uint32
         (N, ``record_words(width)``) quantised records, or (N, 6, width) SoA boxes of the
         precision; ``refs`` uint32 (N, width)), and its ``info`` (JSON-able; ``reach`` and
-        ``width`` included)."""
+        ``width`` included). ``extent``, ``triangles``: as ``BVH.host_layout``."""
         triangle_routine(intersection)
+        extent = pad_extent(scene, intersection) if extent is None else extent
         if quantized is None:  # 8-bit boxes are fitted to float32 boxes: float64 keeps floats
             quantized = not t.is_double
-        a = replace(a, boxes=traversal_boxes(a, scene, t, intersection))
+        a = replace(a, boxes=traversal_boxes(a, scene, t, intersection, extent))
         w = collapse(a, width)
         tq = time.perf_counter()
         fdt = np.float64 if t.is_double else np.float32
         nodes = quantize(w) if quantized else np.ascontiguousarray(w.boxes, fdt)
         quantize_seconds = time.perf_counter() - tq if quantized else 0.0
         t0 = time.perf_counter()
-        arrays = triangle_arrays(scene, t.is_double, a.order, routine=intersection)
+        arrays = dict(triangles or triangle_arrays(scene, t.is_double, a.order,
+                                                   routine=intersection))
         arrays["nodes"] = nodes
         arrays["refs"] = np.ascontiguousarray(w.refs, np.uint32)
         fsize = 8 if t.is_double else 4
@@ -458,7 +461,7 @@ class WideBVH(Accelerator):
                 (4 * record_words(width) if quantized else 6 * fsize * width)
                 + 4 * width) / F,
             "traversal_triangle_bytes_per_triangle": STRIDE * fsize,
-            "reach": origin_reach(scene, intersection),
+            "reach": extent if scene.face_count else float("inf"),
         }
         return arrays, info
 
