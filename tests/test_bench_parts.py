@@ -59,7 +59,7 @@ def test_throughput_rays_agree_with_mitsuba_on_a_small_batch():
         assert b["closest"]["agreement"]["same_triangle"] > 0.95
         assert b["any"]["agreement"]["same_answer"] > 0.99
         assert set(b["closest"]["ms"]) == {"bvh", "bvh4", "bvh8", "bvh4+sort", "bvh4+refill",
-                                           "mitsuba"}
+                                           "bvh-ploc", "bvh4-ploc", "mitsuba"}
         assert all(b["closest"]["variants_bitwise_equal"].values())
     steps = res["batches"]["primary"]["closest"]["steps"]
     assert steps["bvh4"]["node"] < steps["bvh"]["node"]
@@ -82,6 +82,31 @@ def test_throughput_times_the_bvh_without_spatial_splits_where_they_cut(monkeypa
             if q in b:
                 assert "bvh-nosplit" in b[q]["ms"], (batch, q)
                 assert b[q]["variants_bitwise_equal"]["bvh-nosplit"], (batch, q)
+
+
+def test_throughput_reports_every_row_over_the_device_tree_too():
+    """Every batch and query is timed over the PLOC tree as well (binary and 4-wide), with
+    the same hits as the SAH tree's, and the part's markdown has the both-trees table with
+    one line per row and the two trees' SAH costs."""
+    from evaluation.bench.throughput import markdown
+    res = ray_throughput(load_scene(ROOT / "scenes/platonic_solids.toml"), backend="llvm",
+                         width=32, height=20, repeats=1, steps=False)
+    res["scene"] = "platonic_solids"
+    assert {"bvh-ploc", "bvh4-ploc"} <= set(res["variants"])
+    assert res["build"]["ploc"]["sah_cost"] > 0
+    rows = 0
+    for batch, b in res["batches"].items():
+        for q in ("closest", "any"):
+            if q in b:
+                rows += 1
+                for v in ("bvh-ploc", "bvh4-ploc"):
+                    assert b[q]["ms"][v]["mrays_per_s"] > 0, (batch, q, v)
+                    assert b[q]["variants_bitwise_equal"][v], (batch, q, v)
+    text = "\n".join(markdown([res]))
+    both = text.split("Both trees, every row")[1].split("\n\n#")[0]
+    lines = [ln for ln in both.splitlines() if ln.startswith("| platonic_solids")]
+    assert len(lines) == rows == 7
+    assert f"{res['build']['ploc']['sah_cost']:.2f}" in lines[0]
 
 
 def test_interrupted_run_keeps_the_rows_saved_so_far(tmp_path, monkeypatch):

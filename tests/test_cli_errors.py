@@ -85,7 +85,7 @@ def test_defines_reach_the_golden_and_its_key(tmp_path, capsys):
     resolution, set by -D); ``check`` with the same -D finds them, without it they are
     stale and the line says how the file was read."""
     pytest.importorskip("mitsuba")
-    teapot = Path("/work/shared/data/meshes/utah_teapot/teapot.obj")
+    teapot = ROOT.parent / "shared" / "data" / "meshes" / "utah_teapot" / "teapot.obj"
     if not teapot.exists():
         pytest.skip("the shared teapot mesh is not here")
     store = tmp_path / "g"

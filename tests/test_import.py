@@ -14,7 +14,8 @@ import pytest
 from renderer.scene import SceneError, load_scene
 from renderer.scene.objmtl import ILLUM, read_mtl
 
-MESHES = Path("/work/shared/data/meshes")
+# the shared meshes lie beside the repository, as tests/data/imports/*.xml name them
+MESHES = Path(__file__).resolve().parents[2] / "shared" / "data" / "meshes"
 CORNELL = MESHES / "cornell_box" / "cornell_box.obj"
 TEAPOT = MESHES / "utah_teapot" / "teapot.obj"
 DATA = Path(__file__).resolve().parent / "data" / "imports"

@@ -8,7 +8,8 @@ import pytest
 
 from renderer.scene.meshio import MeshError, load_mesh, load_obj, load_ply
 
-MESHES = Path("/work/shared/data/meshes")
+# the shared meshes lie beside the repository, as tests/data/imports/*.xml name them
+MESHES = Path(__file__).resolve().parents[2] / "shared" / "data" / "meshes"
 SQUARE = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], float)
 
 

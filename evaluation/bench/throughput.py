@@ -35,6 +35,7 @@ import numpy as np
 from renderer.accel import ACCELERATORS, Ray, build_accelerator
 from renderer.accel.bvh_build import build_bvh
 from renderer.accel.order import SortedQueries
+from renderer.accel.ploc import build_ploc
 from renderer.device import array3, types
 from renderer.stats import kernel_launches
 
@@ -49,17 +50,22 @@ BATCHES = ("primary", "shadow", "incoherent", "reflection")
 #: than it saves, ``lab/notes/ray-sort.md``) and lanes that take the next ray
 #: when theirs is done (``traverse.refill_traversal``, ``REFILL`` rays per lane by
 #: backend); and the BVH built without spatial splits (``build_bvh(spatial=0)``; only in
-#: scenes where the default build cuts references), to show what the splits gain or cost.
+#: scenes where the default build cuts references), to show what the splits gain or cost;
+#: and the binary and 4-wide BVHs over the device-built tree (``renderer.accel.ploc``, what
+#: ``--build device`` traces), so every row shows both trees.
 #: The backends and the batches each kind runs on.
 VARIANTS = {"bvh4+sort": ("bvh4", "sort"), "bvh4+refill": ("bvh4", "refill"),
-            "bvh-nosplit": ("bvh", "nosplit")}
+            "bvh-nosplit": ("bvh", "nosplit"), "bvh-ploc": ("bvh", "ploc"),
+            "bvh4-ploc": ("bvh4", "ploc")}
 VARIANT_BACKENDS = {"sort": ("llvm",), "refill": ("llvm", "cuda"),
-                    "nosplit": ("llvm", "cuda")}
+                    "nosplit": ("llvm", "cuda"), "ploc": ("llvm", "cuda")}
 VARIANT_BATCHES = {"sort": ("incoherent", "reflection"),
-                   "refill": ("incoherent", "reflection"), "nosplit": BATCHES}
+                   "refill": ("incoherent", "reflection"), "nosplit": BATCHES,
+                   "ploc": BATCHES}
 EAGER = ("sort", "refill")            # kinds that launch kernels while tracing
-#: Variants shown beside the contenders but never "best": the renderer does not build them.
-NOT_CONTENDERS = ("bvh-nosplit",)
+#: Variants shown beside the contenders but never "best": other trees than the one the
+#: renderer builds by default.
+NOT_CONTENDERS = ("bvh-nosplit", "bvh-ploc", "bvh4-ploc")
 #: Rays per lane of the refill variant by backend: on CUDA 16 per thread beat 8 on every
 #: incoherent batch (``lab/notes/refill-count.md``).
 REFILL = {"llvm": 32, "cuda": 16}
@@ -282,10 +288,18 @@ def ray_throughput(scene, *, backend: str, width: int = 1920, height: int = 1080
     first = accels[0]
 
     sorted_q, kinds = {}, {}
+    ploc = None
     for s, (a, kind) in VARIANTS.items():
         if a not in accs or t.backend not in VARIANT_BACKENDS[kind]:
             continue
-        if kind == "sort":
+        if kind == "ploc":
+            if ploc is None:
+                ploc = build_ploc(scene.vertices, scene.faces, t.backend)
+                build["ploc"] = {"binary_build_s": ploc.build_seconds,
+                                 "sah_cost": ploc.sah_cost, "sah_cost_sah": binary.sah_cost}
+            sorted_q[s] = _build_accelerator(a, scene, t, binary=ploc)
+            dr.eval(sorted_q[s])
+        elif kind == "sort":
             sorted_q[s] = SortedQueries.for_scene(accs[a], scene)
         elif kind == "refill":
             sorted_q[s] = replace(accs[a], refill=REFILL[t.backend])
@@ -509,6 +523,9 @@ def markdown(rows: list[dict]) -> list[str]:
                               + (" and bvh+spatial (the BVH built with spatial splits, "
                                  "where they cut references)" if "bvh+spatial" in sorted_
                                  else "")
+                              + (" and bvh-ploc / bvh4-ploc (the BVHs over the device-built "
+                                 "PLOC tree, ``--build device``)" if "bvh-ploc" in sorted_
+                                 else "")
                               + ": M rays/s from kernel time like the others)")
     elif sorted_:
         title = title[:-1] + ("; the query variants (+sort: rays sorted first, "
@@ -519,6 +536,8 @@ def markdown(rows: list[dict]) -> list[str]:
                                  if "bvh-nosplit" in sorted_ else "")
                               + ("; +spatial: the BVH built with spatial splits, where they "
                                  "cut references" if "bvh+spatial" in sorted_ else "")
+                              + ("; -ploc: the BVHs over the device-built PLOC tree, "
+                                 "``--build device``" if "bvh-ploc" in sorted_ else "")
                               + "): M rays per CPU s, the call itself "
                               "(sort, ray copy, Python tracing) included)")
     unit = "Mrays/s" if by_kernel else "Mrays/CPU s"
@@ -530,7 +549,41 @@ def markdown(rows: list[dict]) -> list[str]:
             + table("Traversal steps per ray (instrumented traversal): node steps / triangle "
                     "steps / loop iterations of the slowest ray of each SIMD packet or warp",
                     ["scene", "batch", "query"] + accels, "lll" + "r" * n, steps)
-            + table(build_title, build_head, "lrrrr" + "r" * (len(build_head) - 5), build))
+            + table(build_title, build_head, "lrrrr" + "r" * (len(build_head) - 5), build)
+            + _trees_markdown(rows, by_kernel))
+
+
+def _trees_markdown(rows: list[dict], by_kernel: bool) -> list[str]:
+    """Each row's rate over the device-built PLOC tree against the SAH tree's, per
+    accelerator (binary and 4-wide), with the two trees' SAH costs; [] before the PLOC
+    variants existed."""
+    pairs = [(a, f"{a}-ploc") for a in ("bvh", "bvh4")]
+    key = "mrays_per_s" if by_kernel else "mrays_per_cpu_s"
+    cells = []
+    for r in rows:
+        cost = r["build"].get("ploc")
+        if not cost:
+            continue
+        for batch, b in r["batches"].items():
+            for q in ("closest", "any"):
+                ms = b.get(q, {}).get("ms", {})
+                row = [r["scene"], batch, q]
+                for a, p in pairs:
+                    if a in ms and p in ms:
+                        x, y = ms[a][key], ms[p][key]
+                        row += [_fmt(x), _fmt(y), f"{y / x:.2f}"]
+                    else:
+                        row += ["–"] * 3
+                if q in b:
+                    row.append(f"{cost['sah_cost_sah']:.2f} / {cost['sah_cost']:.2f}")
+                    cells.append(row)
+    if not cells:
+        return []
+    unit = "Mrays/s" if by_kernel else "Mrays/CPU s"
+    return table(f"Both trees, every row ({unit}): the SAH tree (the default) and the "
+                 "device-built PLOC tree (``--build device``), and PLOC / SAH",
+                 ["scene", "batch", "query", "bvh SAH", "bvh PLOC", "PLOC / SAH", "bvh4 SAH",
+                  "bvh4 PLOC", "PLOC / SAH", "SAH cost SAH / PLOC"], "lll" + "r" * 7, cells)
 
 
 PART = Part(name="throughput", key="throughput", run=run, markdown=markdown)
