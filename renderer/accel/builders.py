@@ -16,6 +16,13 @@ at most ``AUTO_MAX_FRAMES`` frames of a scene of at least ``AUTO_MIN_TRIANGLES``
 gets the device tree (its much faster build outweighs its slower traversal
 over so few frames), every other caller (a study, a bench, an unknown number of frames)
 the SAH tree.
+
+``tree_accelerator`` (``build_accelerator``'s way to a ``TREE_ACCELS`` accelerator) puts a
+second entry in front of the tree: the arrays the accelerator uploads (``host_layout`` of
+``bvh.BVH`` and ``wide.WideBVH``), keyed by ``layout_key`` (the tree's key and everything
+else the upload reads). A hit checks dtypes, shapes and node references and uploads the
+arrays as they were read; a miss gets the tree, makes the layout (on CUDA the triangles are
+packed on a thread while the tree is got) and stores it.
 """
 from __future__ import annotations
 
