@@ -246,18 +246,25 @@ def _decoded(q, o, s):
 
 def _outward(q, o, s, bound, real, step: int):
     """``q`` moved by ``step`` (-1 for lo, +1 for hi) where the decoded value does not yet
-    lie outside ``bound`` (both decodings); raises if one is left inside after 4 moves."""
+    lie outside ``bound`` (both decodings) for ``real`` entries; raises if one is left
+    inside after 4 moves. The first test runs over the whole arrays, the later ones over
+    the entries moved."""
     q = q.copy()
-    idx = np.nonzero(real)
-    for _ in range(5):
+    ex, f = _decoded(q, o, s)
+    with np.errstate(invalid="ignore"):
+        bad = real & (((ex > bound) | (f > bound)) if step < 0 else
+                      ((ex < bound) | (f < bound)))
+    idx = np.nonzero(bad)
+    for k in range(5):
+        if not idx[0].size:
+            return q
+        q[idx] = np.clip(q[idx] + step, 0, 255)
+        if k == 4:
+            break
         ex, f = _decoded(q[idx], o[idx], s[idx])
         b = bound[idx]
         bad = (ex > b) | (f > b) if step < 0 else (ex < b) | (f < b)
-        if not bad.any():
-            return q
-        sel = tuple(i[bad] for i in idx)
-        q[sel] = np.clip(q[sel] + step, 0, 255)
-        idx = sel
+        idx = tuple(i[bad] for i in idx)
     raise AssertionError("quantize: a decoded box does not contain its float box")
 
 
