@@ -57,6 +57,7 @@ from .triangle import (
     bind_routine,
     box_reach,
     device_triangles,
+    origin_reach,
     pad_extent,
     triangle_arrays,
     triangle_routine,
@@ -190,7 +191,7 @@ class BVH(Accelerator):
             "levels": a.levels, "sah_cost": a.sah_cost, "leaf_size": LEAF_SIZE, "bins": BINS,
             "node_bytes_per_triangle": a.node_count * (12 * fsize + 8) / F,
             "traversal_triangle_bytes_per_triangle": STRIDE * fsize,
-            "reach": extent if scene.face_count else float("inf"),
+            "reach": origin_reach(scene, intersection),
         }
         return arrays, info
 

@@ -79,6 +79,7 @@ from .triangle import (
     STRIDE,
     bind_routine,
     device_triangles,
+    origin_reach,
     pad_extent,
     triangle_arrays,
     triangle_routine,
@@ -468,7 +469,7 @@ class WideBVH(Accelerator):
                 (4 * record_words(width) if quantized else 6 * fsize * width)
                 + 4 * width) / F,
             "traversal_triangle_bytes_per_triangle": STRIDE * fsize,
-            "reach": extent if scene.face_count else float("inf"),
+            "reach": origin_reach(scene, intersection),
         }
         return arrays, info
 
