@@ -43,7 +43,7 @@ def content_key(*parts) -> str:
         if isinstance(p, np.ndarray):
             a = np.ascontiguousarray(p)
             h.update(f"array {a.dtype.str} {a.shape}\0".encode())
-            h.update(a.tobytes())
+            h.update(a.reshape(-1).view(np.uint8).data if a.size else b"")
         elif isinstance(p, (bytes, bytearray)):
             h.update(b"bytes\0" + bytes(p))
         else:

@@ -131,6 +131,19 @@ def host_array(x, dtype=None) -> np.ndarray:
     return out
 
 
+def host_view(x: np.ndarray, dtype=None) -> np.ndarray:
+    """``x`` itself where it is a C-contiguous array of ``dtype`` (default its own) that
+    starts at a ``HOST_ALIGN``-byte boundary (a cache entry's arrays), else
+    ``host_array(x, dtype)``. Only for arrays no other device array is made from: on LLVM
+    the device array is then ``x``'s memory (``base.as_pairs`` on why two device arrays
+    must not share it)."""
+    dt = x.dtype if dtype is None else np.dtype(dtype)
+    if (isinstance(x, np.ndarray) and x.dtype == dt and x.flags.c_contiguous
+            and x.ctypes.data % HOST_ALIGN == 0):
+        return x
+    return host_array(x, dtype)
+
+
 def array3(t: Types, rows) -> object:
     """``t.Array3f`` of width N from host rows (anything numpy reads as (N, 3) or (3,))."""
     x = np.asarray(rows, np.float64).reshape(-1, 3)

@@ -1,9 +1,9 @@
-"""PLOC's cut large triangles (``renderer.accel.presplit``) and its optional top tree over
-the last clusters (``renderer.accel.toplevel``) give valid trees: every face at least once
-(a cut one once per reference, only large ones cut), each leaf's box around its references'
-triangles clipped to their cells, the cells of one face's references covering it, the level
-bound, the device-summed SAH cost the host's, the unpadded boxes the host refit; hits
-bitwise brute force's.
+"""PLOC's cut large triangles (``renderer.accel.presplit``) give valid trees: every face at
+least once (a cut one once per reference, only large ones cut), each leaf's box around its
+references' triangles clipped to their cells, the cells of one face's references covering
+it, the level bound, the device-summed SAH cost the host's, the unpadded boxes the host
+refit; hits bitwise brute force's; a floor under an object stays whole, and a cut tree that
+costs more than the uncut one is not kept.
 
 References: direct numpy checks of the structure, ``spatial.clipped_boxes`` and
 ``bvh_build.raw_boxes`` (the host computations), ``BruteForce`` (the oracle), the uncut
@@ -15,7 +15,6 @@ from test_device_build import child_boxes_nest
 from test_ploc import depth
 
 import renderer.accel.presplit as presplit
-import renderer.accel.toplevel as toplevel
 from renderer.accel import BruteForce, build_accelerator
 from renderer.accel.bvh_arrays import sah_cost
 from renderer.accel.bvh_build import MAX_LEVELS, check_bvh, raw_boxes
@@ -97,41 +96,6 @@ def test_cut_tree_matches_brute_force(accel):
     acc = build_accelerator(accel, scene, t, build="ploc")
     assert acc.info["tree_build"] == "ploc"
     assert_same_hits(hits(acc, ray, active, t), ref)
-
-
-def test_top_tree_over_the_last_clusters(monkeypatch):
-    monkeypatch.setattr(toplevel, "TOP", 300)
-    monkeypatch.setattr(presplit, "SPLIT_SIZE", 0.0)
-    V, faces = soup(3000, seed=3)
-    V = V.astype(np.float32)
-    st = {}
-    a = build_ploc(V, faces, "llvm", stats=st)
-    assert 2 <= st["top"] <= 300 and not st["fallback"]
-    check_bvh(a)
-    child_boxes_nest(a, V, faces)
-    assert a.levels == depth(a) == st["levels"] <= MAX_LEVELS
-    assert a.sah_cost == pytest.approx(sah_cost(a), rel=1e-6)
-    assert np.array_equal(a.raw, raw_boxes(a, V, faces, np.float32))
-    t = types("llvm")
-    scene = scene_from_arrays(V, faces)
-    ray, active = random_rays(t, 3000, seed=2)
-    acc = build_accelerator("bvh", scene, t, build="ploc")
-    assert_same_hits(hits(acc, ray, active, t), hits(BruteForce.build(scene, t), ray,
-                                                     active, t))
-
-
-def test_top_tree_holds_every_cluster_once():
-    rng = np.random.default_rng(5)
-    lo = rng.random((500, 3)).astype(np.float32)
-    boxes = np.concatenate([lo, lo + 0.05 * rng.random((500, 3)).astype(np.float32)], 1)
-    children, levels = toplevel.top_tree(boxes, np.ones(500, np.int64))
-    assert children.shape == (499, 2) and levels[0] == 0 and levels[-1] == 499
-    flat = children.reshape(-1)
-    assert np.array_equal(np.sort(flat[flat < 500]), np.arange(500))
-    assert np.array_equal(np.sort(flat[flat >= 500] - 500), np.arange(1, 499))
-    for a, b in zip(levels[:-1], levels[1:]):      # a level's children are in later levels
-        inner = children[a:b][children[a:b] >= 500] - 500
-        assert np.all(inner >= b)
 
 
 def object_on_a_floor():

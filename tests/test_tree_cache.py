@@ -277,3 +277,204 @@ def test_background_writes_are_whole_entries_after_flush(tmp_path):
     assert info.cached
     _same_tree(a, b)
     _same_tree(b, binary_tree(scene, "llvm", build="device")[0])
+
+
+# ---- the cached layout: the arrays an accelerator uploads ----------------------------------
+
+def _device_arrays(acc) -> dict:
+    """Every array ``acc`` holds on the device, as numpy (an Array3f: its components)."""
+    import drjit as dr
+    out = {}
+    for name in ("nodes", "children", "refs", "tri_data", "tri_trav"):
+        v = getattr(acc, name, None)
+        if v is not None:
+            out[name] = np.asarray(v.numpy())
+    for name in ("ng", "n0", "n1", "n2", "material", "smooth", "order"):
+        v = getattr(acc.tris, name)
+        parts = [v.x, v.y, v.z] if dr.size_v(v) == 3 else [v]
+        out[f"tris.{name}"] = [np.asarray(p.numpy()) for p in parts]
+    return out
+
+
+def _same_arrays(a: dict, b: dict):
+    assert a.keys() == b.keys()
+    for k in a:
+        x, y = (a[k], b[k]) if isinstance(a[k], list) else ([a[k]], [b[k]])
+        assert all(np.array_equal(p.view(np.uint8), q.view(np.uint8)) for p, q in zip(x, y)), k
+
+
+@pytest.mark.parametrize("precision", ["float32", "float64"])
+@pytest.mark.parametrize("accel", ["bvh", "bvh4", "bvh8"])
+def test_layout_hit_uploads_the_built_arrays(tmp_path, accel, precision):
+    """A layout hit reads no tree (the tree entry is gone) and uploads, byte for byte, the
+    arrays of the accelerator built without a cache (the reference)."""
+    from renderer.accel import build_accelerator
+    from renderer.device import types
+    from renderer.scene import load_scene
+
+    scene = load_scene(_scene_file(tmp_path))          # smooth sphere: vertex normals too
+    t = types("llvm", precision)
+    ref = _device_arrays(build_accelerator(accel, scene, t, build="device"))
+    cache = TreeCache(tmp_path / "c")
+    cold = build_accelerator(accel, scene, t, build="device", cache=cache)
+    assert not cold.info["layout_cached"]
+    _same_arrays(_device_arrays(cold), ref)
+    for p in (tmp_path / "c").glob("tree-*.bin"):
+        p.unlink()
+    warm = build_accelerator(accel, scene, t, build="device", cache=TreeCache(tmp_path / "c"))
+    assert warm.info["layout_cached"] and warm.info["tree_cached"]
+    assert warm.info["tree_build"] == "device"
+    _same_arrays(_device_arrays(warm), ref)
+    assert warm.info["sah_cost"] == cold.info["sah_cost"]
+
+
+def test_layout_key_misses_on_what_the_upload_depends_on(tmp_path):
+    """Materials, normals, float64 vertices, precision, routine, accelerator and the
+    padding extent each change the layout key; the triangles change the tree's."""
+    from dataclasses import replace
+
+    from renderer.accel import BVH, BVH4
+    from renderer.accel.builders import LayoutRequest, layout_key, triangles_key
+    from renderer.device import types
+    from renderer.scene import load_scene
+
+    scene = load_scene(_scene_file(tmp_path))
+    f32, f64 = types("llvm", "float32"), types("llvm", "float64")
+    tree = tree_key(scene, "device")
+    bvh = LayoutRequest("bvh", BVH, 2, "watertight")
+    base = layout_key(scene, tree, bvh, f32, 3.0)
+    material = scene.face_material.copy()
+    material[0] += 1
+    normals = scene.normals.copy()
+    normals[0, 0] = np.nextafter(normals[0, 0], np.float32(2))
+    v64 = scene.vertices64.copy()
+    v64[0, 0] = np.nextafter(v64[0, 0], 2.0)
+    keys = [base,
+            layout_key(replace(scene, face_material=material), tree, bvh, f32, 3.0),
+            layout_key(replace(scene, normals=normals), tree, bvh, f32, 3.0),
+            layout_key(scene, tree, bvh, f64, 3.0),
+            layout_key(replace(scene, vertices64=v64), tree, bvh, f64, 3.0),
+            layout_key(scene, tree, replace(bvh, intersection="moller_trumbore"), f32, 3.0),
+            layout_key(scene, tree, LayoutRequest("bvh4", BVH4, 4, "watertight"), f32, 3.0),
+            layout_key(scene, tree, bvh, f32, float(np.nextafter(3.0, 4.0))),
+            layout_key(scene, tree_key(scene, "sah"), bvh, f32, 3.0)]
+    assert len(set(keys)) == len(keys)
+    # float32 renders do not read the float64 vertices: the same key
+    assert layout_key(replace(scene, vertices64=v64), tree, bvh, f32, 3.0) == base
+    assert triangles_key(scene) == triangles_key(replace(scene, face_material=material))
+
+
+def test_a_material_change_misses_the_layout_but_not_the_tree(tmp_path):
+    from dataclasses import replace
+
+    from renderer.accel import build_accelerator
+    from renderer.device import types
+    from renderer.scene import load_scene
+
+    scene = load_scene(_scene_file(tmp_path))
+    t = types("llvm", "float32")
+    cache = TreeCache(tmp_path / "c")
+    build_accelerator("bvh4", scene, t, build="sah", cache=cache)
+    material = scene.face_material.copy()
+    material[: len(material) // 2] = 1                   # a second material
+    other = replace(scene, face_material=material, materials=scene.materials * 2)
+    acc = build_accelerator("bvh4", other, t, build="sah", cache=cache)
+    assert acc.info["tree_cached"] and not acc.info["layout_cached"]
+    assert np.array_equal(acc.tris.material.numpy(), material[acc.tris.order.numpy()])
+
+
+@pytest.mark.parametrize("damage", ["flip", "truncate", "foreign", "references"])
+def test_corrupt_or_foreign_layout_is_rebuilt_with_one_warning(tmp_path, damage):
+    """A layout entry that is damaged, another scene's, or whose (checksummed) references
+    leave the tree is never uploaded: one ``CacheWarning``, the arrays of the build
+    without a cache (the reference), and the entry replaced."""
+    from renderer.accel import BVH4, build_accelerator
+    from renderer.accel.builders import LayoutRequest, layout_key
+    from renderer.accel.triangle import pad_extent
+    from renderer.device import types
+    from renderer.scene import load_scene
+
+    scene = load_scene(_scene_file(tmp_path))
+    other = load_scene(_scene_file(tmp_path, levels=1))
+    t = types("llvm", "float32")
+    ref = _device_arrays(build_accelerator("bvh4", scene, t, build="sah"))
+    cache = TreeCache(tmp_path / "c")
+    build_accelerator("bvh4", scene, t, build="sah", cache=cache)
+    build_accelerator("bvh4", other, t, build="sah", cache=cache)
+    req = LayoutRequest("bvh4", BVH4, 4, "watertight")
+
+    def key(s):
+        return layout_key(s, tree_key(s, "sah"), req, t, pad_extent(s, "watertight"))
+    path = cache.path("layout", key(scene))
+    if damage == "references":          # a well-formed entry whose references are wrong
+        e = cache.get("layout", key(scene))
+        arrays = {k: np.array(v) for k, v in e.items() if k != "meta"}
+        arrays["refs"][0, 0] = np.uint32(arrays["nodes"].shape[0] + 5)
+        cache.put("layout", key(scene), arrays, e["meta"])
+    else:
+        data = bytearray(path.read_bytes())
+        if damage == "flip":
+            data[len(data) // 2] ^= 0x08
+        elif damage == "truncate":
+            data = data[: len(data) - 100]
+        else:
+            data = bytearray(cache.path("layout", key(other)).read_bytes())
+        path.write_bytes(bytes(data))
+    with warnings.catch_warnings(record=True) as w:
+        warnings.simplefilter("always")
+        acc = build_accelerator("bvh4", scene, t, build="sah", cache=TreeCache(tmp_path / "c"))
+    assert [x.category for x in w] == [CacheWarning], [str(x.message) for x in w]
+    assert not acc.info["layout_cached"] and acc.info["tree_cached"]
+    _same_arrays(_device_arrays(acc), ref)
+    acc = build_accelerator("bvh4", scene, t, build="sah", cache=TreeCache(tmp_path / "c"))
+    assert acc.info["layout_cached"]
+
+
+def test_checksum_changes_with_any_word():
+    """``checksum`` against the arrays' bytes: every single-bit flip of a small array;
+    in a large one a zeroed block, the top bit of two words of one block flipped, and two
+    swapped words; the same bytes in another dtype or shape give the same checksum."""
+    from renderer.accel.cache import BLOCK, checksum
+
+    rng = np.random.default_rng(3)
+    small = rng.integers(0, 2**63, 7, dtype=np.uint64).view(np.uint8)[:53].copy()
+    ref = checksum(small)
+    for i in range(small.size):
+        for bit in range(8):
+            x = small.copy()
+            x[i] ^= np.uint8(1 << bit)
+            assert checksum(x) != ref, (i, bit)
+    big = rng.integers(0, 2**63, 5 * BLOCK + 17, dtype=np.uint64)
+    ref = checksum(big)
+    x = big.copy()
+    x[BLOCK:2 * BLOCK] = 0
+    assert checksum(x) != ref
+    top = np.uint64(1 << 63)
+    for i, j in ((3, 5), (3, 4), (3, 3 + BLOCK // 2), (7, 7 + 2 * BLOCK)):
+        x = big.copy()
+        x[i] ^= top
+        x[j] ^= top
+        assert checksum(x) != ref, (i, j)
+    x = big.copy()
+    x[[10, 10 + BLOCK]] = x[[10 + BLOCK, 10]]
+    assert checksum(x) != ref
+    assert checksum(big.view(np.float64).reshape(-1)) == ref
+
+
+def test_packing_in_face_order_then_permuting_is_the_ordered_packing():
+    """``permuted(triangle_arrays(order=None), order)`` (the packing that overlaps the
+    device build) against ``triangle_arrays(order)``: the same bytes in both layouts and
+    precisions."""
+    from renderer.accel.triangle import permuted, triangle_arrays
+    from renderer.scene import load_scene
+
+    scene = load_scene(ROOT / "scenes" / "glass_bunny.toml")
+    order = np.random.default_rng(0).permutation(scene.face_count)
+    for double in (False, True):
+        for routine in ("watertight", "moller_trumbore"):
+            ref = triangle_arrays(scene, double, order, True, routine=routine)
+            got = permuted(triangle_arrays(scene, double, None, True, routine=routine), order)
+            assert ref.keys() == got.keys()
+            for k in ref:
+                assert ref[k].dtype == got[k].dtype and ref[k].shape == got[k].shape, k
+                assert ref[k].tobytes() == got[k].tobytes(), (k, double, routine)

@@ -129,7 +129,8 @@ def cmd_render(args: argparse.Namespace) -> int:
     info = renderer.arrays.accel.stats()
     if "tree_build" in info:
         print(f"bvh: {info['tree_build']} tree of {scene.face_count} triangles "
-              f"{'read from the cache' if info['tree_cached'] else 'built'} in "
+              f"{'read from the cache' if info['tree_cached'] else 'built'}"
+              f"{' with its uploaded layout' if info.get('layout_cached') else ''} in "
               f"{info['tree_seconds']:.2f} s")
     first = None
     for v, f in zip(views, files):

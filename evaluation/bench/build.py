@@ -220,8 +220,8 @@ def markdown(rows: list[dict]) -> list[str]:
              for r in rows if r.get("device_phases_s")]
     out += table("Radix build by phase (ms; one build that waits at each phase's end)",
                  ["scene"] + names, "l" + "r" * len(names), cells)
-    names = list(rows[0].get("ploc_phases_s", {})) if rows else []
-    cells = [[r["scene"]] + [f"{1e3 * r['ploc_phases_s'].get(n, 0.0):.1f}" for n in names]
+    names = _phase_names(rows, "ploc_phases_s")      # (deep subtrees: some scenes only)
+    cells = [[r["scene"]] + [_get(r["ploc_phases_s"], n, ".1f", 1e3) for n in names]
              for r in rows if r.get("ploc_phases_s")]
     if cells:
         out += table("PLOC build by phase (ms; one build that waits at each phase's end)",
@@ -261,9 +261,23 @@ def markdown(rows: list[dict]) -> list[str]:
     return out
 
 
-def _get(row: dict, key: str, fmt: str) -> str:
-    """``row[key]`` formatted, or "-" (rows written before the PLOC columns)."""
-    return "-" if row.get(key) is None else format(row[key], fmt)
+def _get(row: dict, key: str, fmt: str, scale: float = 1.0) -> str:
+    """``row[key]`` (times ``scale``) formatted, or "-" (rows written before the PLOC
+    columns, a phase a build did not run)."""
+    return "-" if row.get(key) is None else format(scale * row[key], fmt)
+
+
+def _phase_names(rows: list, key: str) -> list:
+    """The phase names of ``rows[i][key]`` (dicts) in build order: every row's phases, one
+    that only some rows ran placed after the phase it follows there."""
+    names = []
+    for r in rows:
+        prev = None
+        for n in r.get(key) or {}:
+            if n not in names:
+                names.insert(names.index(prev) + 1 if prev is not None else 0, n)
+            prev = n
+    return names
 
 
 PART = Part(name="build", key="build", run=run, markdown=markdown)

@@ -33,7 +33,7 @@ from ..device import Types
 from .base import Accelerator, ClosestHit, DeviceTriangles, Ray
 from .boxes import ObjectBoxes
 from .brute import BruteForce
-from .builders import BUILDS, binary_tree, check_build
+from .builders import BUILDS, LayoutRequest, check_build, tree_accelerator
 from .bvh import BVH
 from .query import TIE_BREAKS
 from .triangle import DEFAULT_ROUTINE, ROUTINES, triangle_routine
@@ -72,7 +72,8 @@ class BuildRequest:
     unused). ``build`` (``builders.BUILDS``), ``cache`` (a ``cache.TreeCache`` or None) and
     ``frames`` (frames the caller renders, None: unknown) choose how the tree of a
     ``TREE_ACCELS`` accelerator is got (``builders.binary_tree``, which calls
-    ``progress(build, levels_done)`` during a build)."""
+    ``progress(build, levels_done)`` during a build), and with a cache the arrays it
+    uploads (``builders.tree_accelerator``)."""
 
     intersection: str = DEFAULT_ROUTINE
     tie_break: str = "lowest"
@@ -104,11 +105,9 @@ def build_accelerator(name: str, scene, t: Types, request: BuildRequest | None =
     triangle_routine(intersection)
     check_build(build)
     if name in TREE_ACCELS:
-        tree, how = binary_tree(scene, t.backend, build=build, cache=req.cache,
-                                frames=req.frames, progress=req.progress)
-        acc = ACCELERATORS[name].build(scene, t, intersection=intersection, binary=tree)
-        acc.info.update(tree_build=how.build, tree_cached=how.cached,
-                        tree_seconds=how.seconds)
+        cls = ACCELERATORS[name]
+        width = {"bvh": 2, "bvh4": 4, "bvh8": 8}[name]
+        acc = tree_accelerator(scene, t, LayoutRequest(name, cls, width, intersection), req)
     else:
         acc = ACCELERATORS[name].build(scene, t, intersection=intersection)
     if tie_break == "lowest":

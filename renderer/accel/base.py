@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import drjit as dr
 import numpy as np
 
-from ..device import Types, host_array, types
+from ..device import Types, host_array, host_view, types
 from .query import ClosestHit as ClosestHit
 from .query import Ray as Ray
 from .query import tie_probe, tie_probe_p
@@ -148,14 +148,15 @@ def gather_pairs(t: Types, src, index, stride: int, count: int, active=True) -> 
     return out[:count]
 
 
-def as_pairs(t: Types, words: np.ndarray):
+def as_pairs(t: Types, words: np.ndarray, copy: bool = True):
     """A host array of 32-bit words (last axis even) as the UInt64 device array that
-    ``gather_pairs`` reads."""
+    ``gather_pairs`` reads; ``copy=False``: from ``words``' own memory where it is
+    aligned (``device.host_view``: only for words no other device array is made from)."""
     # a fresh copy: ``words`` may be a view of a Dr.Jit array's memory (``.numpy()`` on
     # LLVM), and a second array on the same memory confuses ``dr.freeze``, which tells
     # its inputs apart by address (it then compiled float ops on the UInt64 view)
     # (``host_array``: aligned, so the traced kernel does not depend on the address)
-    w = host_array(words, np.uint32)
+    w = host_array(words, np.uint32) if copy else host_view(words, np.uint32)
     return array_type(t, "UInt64")(w.view(np.uint64).reshape(-1))
 
 

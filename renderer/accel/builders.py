@@ -16,9 +16,17 @@ at most ``AUTO_MAX_FRAMES`` frames of a scene of at least ``AUTO_MIN_TRIANGLES``
 gets the device tree (its much faster build outweighs its slower traversal
 over so few frames), every other caller (a study, a bench, an unknown number of frames)
 the SAH tree.
+
+``tree_accelerator`` (``build_accelerator``'s way to a ``TREE_ACCELS`` accelerator) puts a
+second entry in front of the tree: the arrays the accelerator uploads (``host_layout`` of
+``bvh.BVH`` and ``wide.WideBVH``), keyed by ``layout_key`` (the tree's key and everything
+else the upload reads). A hit checks dtypes, shapes and node references and uploads the
+arrays as they were read; a miss gets the tree, makes the layout (on CUDA the triangles are
+packed on a thread while the tree is got) and stores it.
 """
 from __future__ import annotations
 
+import threading
 import time
 import warnings
 from dataclasses import dataclass, replace
@@ -29,8 +37,10 @@ from ..scene.model import TREE_BUILDS
 from .bvh_build import LEAF_SIZE, BVHArrays, build_bvh, raw_boxes
 from .cache import CacheWarning, TreeCache, code_version, content_key
 from .device_build import build_device
+from .layout import COUNT_SHIFT, DONE, FIRST_MASK, LEAF_BIT, MAX_LEAF
 from .ploc import build_ploc
-from .traverse import LEAF_BIT
+from .triangle import STRIDE, pad_extent, permuted, triangle_arrays
+from .wide import record_words
 
 BUILDS = TREE_BUILDS
 #: The builder "device" (and "auto"'s device choice) runs: PLOC, whose trees trace nearly as
@@ -94,16 +104,17 @@ def tree_key(scene, build: str, leaf_size: int = LEAF_SIZE, triangles: str | Non
 
 
 def binary_tree(scene, backend: str, *, build: str = "sah", cache: TreeCache | None = None,
-                frames: int | None = None, leaf_size: int = LEAF_SIZE, progress=None
-                ) -> tuple[BVHArrays, TreeInfo]:
+                frames: int | None = None, leaf_size: int = LEAF_SIZE, progress=None,
+                triangles: str | None = None) -> tuple[BVHArrays, TreeInfo]:
     """``scene``'s binary tree from ``build`` (a value of ``BUILDS``) on ``backend``,
     through ``cache`` (None: no cache). ``frames``: how many frames the caller renders
     (None: unknown), for "auto". ``progress(build, levels_done)``: None, or called after
-    each level of the build that runs (at most ``MAX_LEVELS``)."""
+    each level of the build that runs (at most ``MAX_LEVELS``). ``triangles``:
+    ``triangles_key(scene)`` where the caller has it."""
     check_build(build)
     t0 = time.perf_counter()
     keys = {}
-    tri = triangles_key(scene) if cache is not None else None
+    tri = (triangles or triangles_key(scene)) if cache is not None else None
     if cache is not None:
         keys["sah"] = tree_key(scene, "sah", leaf_size, tri)
         if build == "auto":
@@ -201,3 +212,175 @@ def _from_entry(e: dict, face_count: int) -> BVHArrays | None:
                       CacheWarning, stacklevel=3)
         return None
     return a
+
+
+#: Source files (relative to the ``renderer`` package) whose text is part of every layout
+#: key besides ``CODE_MODULES``: the modules that compute what an accelerator uploads.
+LAYOUT_MODULES = ("accel/triangle.py", "accel/bvh.py", "accel/wide.py", "accel/base.py",
+                  "accel/layout.py", "accel/bvh_arrays.py", "scene/model.py")
+
+
+@dataclass(frozen=True)
+class LayoutRequest:
+    """What an accelerator's uploaded layout depends on beyond its tree: the accelerator
+    (``name``, the class ``cls`` with ``host_layout``/``from_layout``, its ``width``, 2 for
+    the binary BVH), the precision of ``t`` and the triangle routine ``intersection``."""
+
+    name: str
+    cls: type
+    width: int
+    intersection: str
+
+
+def layout_key(scene, tree: str, req: LayoutRequest, t, extent: float) -> str:
+    """The cache key of the arrays ``req.cls.host_layout`` uploads for ``scene`` over the
+    tree of key ``tree`` (``tree_key``) in the precision of ``t``: the tree, the
+    accelerator and its width, the precision, the routine, the boxes' padding extent
+    (``pad_extent``), the face materials and smooth flags, the vertex normals (where any
+    face is smooth), the float64 vertices (float64 renders: the float32 ones are in the
+    tree's key) and the code (``code_version`` of ``LAYOUT_MODULES``)."""
+    double = t.is_double
+    smooth = bool(scene.face_smooth.any())
+    parts = [tree, req.name, req.width, t.precision, req.intersection, float(extent), smooth,
+             np.asarray(scene.face_material), np.asarray(scene.face_smooth)]
+    if smooth:
+        parts.append(np.asarray(scene.normals_of(double)))
+    if double and scene.vertices64 is not None:
+        parts.append(np.asarray(scene.vertices64))
+    return content_key("layout", *parts, code_version(LAYOUT_MODULES))
+
+
+def _refs_fit(refs: np.ndarray, nodes: int, faces: int) -> bool:
+    """Whether every node reference of ``refs`` (uint32) is ``DONE``, an inner node below
+    ``nodes`` or a leaf of triangle positions below ``faces``."""
+    r = refs.reshape(-1).astype(np.int64)
+    real = r[r != DONE]
+    leaf = (real & LEAF_BIT) != 0
+    inner = real[~leaf]
+    if inner.size and int(inner.max()) >= nodes:
+        return False
+    packed = real[leaf]
+    if not packed.size:
+        return True
+    end = (packed & FIRST_MASK) + ((packed >> COUNT_SHIFT) & (MAX_LEAF - 1)) + 1
+    return int(end.max()) <= faces
+
+
+def _layout_fits(e: dict, req: LayoutRequest, scene, t) -> bool:
+    """Whether the entry ``e`` can be ``req``'s layout of ``scene`` in the precision of
+    ``t``: the arrays of ``host_layout`` with their dtypes and shapes, references inside
+    the tree and the triangles, and an ``info`` of the same accelerator."""
+    F = scene.face_count
+    fdt = np.dtype(np.float64 if t.is_double else np.float32)
+    try:
+        info = e["meta"]["info"]
+        normals = bool(scene.face_smooth.any())
+        ok = (info["accel"] == ("bvh" if req.width == 2 else f"bvh{req.width}")
+              and info["intersection"] == req.intersection and info["triangles"] == F
+              and e["tri_data"].dtype == fdt and e["tri_data"].shape == (F, STRIDE)
+              and all(e[k].dtype == fdt and e[k].shape == (3, F)
+                      for k in ("ng", "n0", "n1", "n2")[:4 if normals else 1])
+              and normals == ("n0" in e)
+              and e["material"].dtype == np.uint32 and e["material"].shape == (F,)
+              and e["smooth"].dtype == np.bool_ and e["smooth"].shape == (F,)
+              and e["order"].dtype == np.uint32 and e["order"].shape == (F,))
+        ok = ok and (F == 0 or int(e["order"].max()) < F)
+        nodes = e["nodes"]
+        N = nodes.shape[0]
+        if req.width == 2:
+            refs = e["children"]
+            ok = ok and nodes.dtype == fdt and nodes.shape == (N, 12)
+            ok = ok and refs.dtype == np.uint32 and refs.shape == (N, 2)
+        else:
+            refs = e["refs"]
+            shape = ((N, record_words(req.width)) if info["quantized"]
+                     else (N, 6, req.width))
+            ok = ok and info["width"] == req.width and nodes.shape == shape
+            ok = ok and nodes.dtype == (np.uint32 if info["quantized"] else fdt)
+            ok = ok and refs.dtype == np.uint32 and refs.shape == (N, req.width)
+        return bool(ok and _refs_fit(refs, N, F))
+    except (KeyError, TypeError, ValueError, AttributeError, IndexError):
+        return False
+
+
+def tree_accelerator(scene, t, req: LayoutRequest, build_request) -> object:
+    """The accelerator ``req`` of ``scene`` on the tree ``build_request`` asks for (a
+    ``BuildRequest``: ``build``, ``cache``, ``frames``, ``progress``). With a cache, the
+    arrays it uploads are an entry of their own (``layout_key``): a hit uploads them as
+    they are read (no tree read, no host work), after a check of their dtypes, shapes and
+    references (a bad entry: one ``CacheWarning``, then the accelerator is made as
+    without it); a miss gets the tree (``binary_tree``), makes the layout and stores it.
+    ``acc.info`` names how the tree was got (``tree_build``, ``tree_cached``,
+    ``tree_seconds``: for a layout hit, the seconds to the verified entry) and
+    ``layout_cached``."""
+    cache, build = build_request.cache, build_request.build
+    t0 = time.perf_counter()
+    tri = extent = None
+    if cache is not None:
+        tri = triangles_key(scene)
+        extent = pad_extent(scene, req.intersection)
+        chosen = resolve_build(build, scene.face_count, build_request.frames, False)
+        for name in dict.fromkeys(["sah", chosen] if build == "auto" else [build]):
+            key = layout_key(scene, tree_key(scene, name, LEAF_SIZE, tri), req, t, extent)
+            got = cache.get("layout", key)
+            if got is None:
+                continue
+            if not _layout_fits(got, req, scene, t):
+                warnings.warn("cache entry does not hold an accelerator layout of this "
+                              "scene; rebuilding", CacheWarning, stacklevel=3)
+                continue
+            seconds = time.perf_counter() - t0
+            acc = req.cls.from_layout(t, got, got["meta"]["info"], own=True)
+            acc.info.update(tree_build=name, tree_cached=True, tree_seconds=seconds,
+                            layout_cached=True,
+                            upload_seconds=time.perf_counter() - t0 - seconds)
+            return acc
+    packing = _Packing(scene, t, req.intersection) if (
+        t.backend == "cuda" and scene.face_count >= OVERLAP_MIN_TRIANGLES) else None
+    tree, how = binary_tree(scene, t.backend, build=build, cache=cache,
+                            frames=build_request.frames, progress=build_request.progress,
+                            triangles=tri)
+    t1 = time.perf_counter()
+    kw = {} if req.width == 2 else {"width": req.width}
+    tris = permuted(packing.result(), tree.order) if packing is not None else None
+    arrays, info = req.cls.host_layout(scene, t, tree, intersection=req.intersection,
+                                       extent=extent, triangles=tris, **kw)
+    if cache is not None:
+        key = layout_key(scene, tree_key(scene, how.build, LEAF_SIZE, tri), req, t, extent)
+        cache.put("layout", key, arrays, {"info": info})
+    t2 = time.perf_counter()
+    acc = req.cls.from_layout(t, arrays, info)
+    acc.info["upload_seconds"] = time.perf_counter() - t1
+    acc.info.update(tree_build=how.build, tree_cached=how.cached, tree_seconds=how.seconds,
+                    layout_cached=False, layout_seconds=t2 - t1)
+    return acc
+
+
+#: ``tree_accelerator`` on CUDA packs the triangles (``triangle_arrays``, face order) on a
+#: thread while the tree is got, for scenes of at least this many triangles (numpy
+#: releases the GIL; the device builds meanwhile). On LLVM the build's kernels use every
+#: core, so the packing waits for the tree there.
+OVERLAP_MIN_TRIANGLES = 100000
+
+
+class _Packing:
+    """``triangle_arrays(scene, ...)`` in face order on a daemon thread; ``result()``
+    waits for it (and raises what it raised)."""
+
+    def __init__(self, scene, t, intersection: str):
+        self._out = {}
+
+        def run():
+            try:
+                self._out["arrays"] = triangle_arrays(scene, t.is_double, None,
+                                                      routine=intersection)
+            except BaseException as e:      # handed to result()
+                self._out["error"] = e
+        self._thread = threading.Thread(target=run, name="pack triangles", daemon=True)
+        self._thread.start()
+
+    def result(self) -> dict:
+        self._thread.join()
+        if "error" in self._out:
+            raise self._out["error"]
+        return self._out["arrays"]

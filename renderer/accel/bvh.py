@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 import drjit as dr
 import numpy as np
 
-from ..device import Types, host_array
+from ..device import Types, host_array, host_view
 from .base import (
     Accelerator,
     DeviceTriangles,
@@ -56,10 +56,11 @@ from .triangle import (
     STRIDE,
     bind_routine,
     box_reach,
+    device_triangles,
     origin_reach,
     pad_extent,
+    triangle_arrays,
     triangle_routine,
-    upload_triangles,
 )
 
 
@@ -106,15 +107,17 @@ def node_step(bvh: "BVH", ray: TraversalRay, t_max, stack: Stack, to_pop, active
     return stack, to_pop | missed
 
 
-def traversal_boxes(a: BVHArrays, scene, t: Types, intersection: str) -> np.ndarray:
+def traversal_boxes(a: BVHArrays, scene, t: Types, intersection: str,
+                    extent: float | None = None) -> np.ndarray:
     """The node boxes of ``a`` that the traversal of ``intersection`` in precision ``t``
     needs: refitted (in float64 for float64 renders) and padded for the ray origins'
     reach (``pad_extent``); the build's own float32 boxes where no origin lies away from 0
     (``box_reach`` 0). A float32 traversal of a tree that carries its unpadded boxes
-    (``BVHArrays.raw``: a cached tree) pads those (``pad_refit``): the same boxes."""
+    (``BVHArrays.raw``: a cached tree) pads those (``pad_refit``): the same boxes.
+    ``extent``: ``pad_extent(scene, intersection)`` where the caller has it."""
     if not (t.is_double or box_reach(scene, intersection) > 0):
         return a.boxes
-    extent = pad_extent(scene, intersection)
+    extent = pad_extent(scene, intersection) if extent is None else extent
     if not t.is_double and a.raw is not None and a.order.size:
         return pad_refit(a, a.raw, extent)
     fdt = np.float64 if t.is_double else np.float32
@@ -152,34 +155,66 @@ class BVH(Accelerator):
               leaf_size: int = LEAF_SIZE, bins: int = BINS, binary: BVHArrays | None = None,
               **build_options) -> "BVH":
         """``build_options`` go to ``build_bvh`` (root_bins, all_axes, sah_leaves,
-        depth_first, sample); ``binary``: an existing build of ``scene`` to upload instead."""
+        depth_first, sample); ``binary``: an existing build of ``scene`` to upload instead.
+        The host arrays of ``host_layout``, uploaded by ``from_layout``."""
         triangle_routine(intersection)
         a = binary if binary is not None else build_bvh(
             scene.vertices, scene.faces, leaf_size=leaf_size, bins=bins, **build_options)
         t0 = time.perf_counter()
-        tri_data, tris = upload_triangles(scene, t, order=a.order, routine=intersection)
+        arrays, info = cls.host_layout(scene, t, a, intersection=intersection)
+        info.update(leaf_size=leaf_size, bins=bins)
+        acc = cls.from_layout(t, arrays, info)
+        acc.info["upload_seconds"] = time.perf_counter() - t0
+        return acc
+
+    @classmethod
+    def host_layout(cls, scene, t: Types, a: BVHArrays, *,
+                    intersection: str = DEFAULT_ROUTINE, extent: float | None = None,
+                    triangles: dict | None = None) -> tuple[dict, dict]:
+        """Everything the accelerator of tree ``a`` uploads, as host arrays in their device
+        dtypes (``triangle_arrays``' and ``nodes`` (N, 12) the traversal's boxes,
+        ``children`` uint32 (N, 2)), and its ``info`` (JSON-able; ``reach`` included).
+        ``extent``: ``pad_extent`` where the caller has it; ``triangles``: the
+        ``triangle_arrays`` of ``a.order`` where the caller has them."""
+        extent = pad_extent(scene, intersection) if extent is None else extent
+        arrays = dict(triangles or triangle_arrays(scene, t.is_double, a.order,
+                                                   routine=intersection))
         fdt = np.float64 if t.is_double else np.float32
-        boxes = traversal_boxes(a, scene, t, intersection).astype(fdt)
-        if uses_pairs(t):
-            nodes, children = as_pairs(t, boxes.view(np.uint32)), as_pairs(t, a.children)
-        else:
-            nodes = t.Float(host_array(boxes.reshape(-1)))
-            children = t.UInt32(host_array(a.children.reshape(-1)))
-        tri_trav = traversal_triangles(t, tri_data)
-        dr.eval(nodes, children, tri_data, tri_trav, tris)
+        arrays["nodes"] = np.ascontiguousarray(
+            traversal_boxes(a, scene, t, intersection, extent), fdt)
+        arrays["children"] = np.ascontiguousarray(a.children, np.uint32)
         fsize = 8 if t.is_double else 4
         F = max(scene.face_count, 1)
         info = {
             "accel": "bvh", "intersection": intersection, "build_seconds": a.build_seconds,
-            "upload_seconds": time.perf_counter() - t0, "triangles": scene.face_count,
-            "nodes": a.node_count, "leaves": a.leaf_count, "levels": a.levels,
-            "sah_cost": a.sah_cost, "leaf_size": leaf_size, "bins": bins,
+            "triangles": scene.face_count, "nodes": a.node_count, "leaves": a.leaf_count,
+            "levels": a.levels, "sah_cost": a.sah_cost, "leaf_size": LEAF_SIZE, "bins": BINS,
             "node_bytes_per_triangle": a.node_count * (12 * fsize + 8) / F,
             "traversal_triangle_bytes_per_triangle": STRIDE * fsize,
+            "reach": origin_reach(scene, intersection),
         }
+        return arrays, info
+
+    @classmethod
+    def from_layout(cls, t: Types, arrays: dict, info: dict, own: bool = False) -> "BVH":
+        """The accelerator on the device from ``host_layout``'s ``arrays`` and ``info``
+        (uploads only: no host work beyond aligned copies; ``own``: the arrays are this
+        call's to hand over, as ``device_triangles``)."""
+        tri_data, tris = device_triangles(t, arrays, own)
+        boxes, children = arrays["nodes"], arrays["children"]
+        put = host_view if own else host_array
+        if uses_pairs(t):
+            nodes = as_pairs(t, boxes.view(np.uint32), copy=not own)
+            children = as_pairs(t, children, copy=not own)
+        else:
+            nodes = t.Float(put(boxes.reshape(-1)))
+            children = t.UInt32(put(children.reshape(-1)))
+        tri_trav = traversal_triangles(t, tri_data)
+        dr.eval(nodes, children, tri_data, tri_trav, tris)
+        info = dict(info)
         return cls(nodes, children, tri_data, tris, backend=t.backend, precision=t.precision,
-                   intersection=intersection, info=info, tri_trav=tri_trav,
-                   reach=origin_reach(scene, intersection))
+                   intersection=info["intersection"], info=info, tri_trav=tri_trav,
+                   reach=float(info["reach"]))
 
     def counts(self, ray: Ray, active=True, any_hit: bool = False):
         """The instrumented traversal (profiling): ``(node_steps, triangle_steps,

@@ -1,17 +1,26 @@
 """A disk cache of built trees (and other arrays), keyed by their content.
 
-An entry is one file ``<folder>/<kind>-<key>.bin``: the magic line ``MAGIC``, the SHA-256
-of the payload (32 bytes), then the payload, an uncompressed ``.npz`` of named arrays
-plus a ``meta`` JSON string that repeats the key. The key (``content_key``) hashes the
-input bytes, the producer and its parameters and ``code_version()`` (the source text of the
-modules that write the layout), so any change of triangles, builder, parameter or code
-misses.
+An entry is one file ``<folder>/<kind>-<key>.bin``: the magic line ``MAGIC``, the length
+(8 bytes, little-endian) and SHA-256 (32 bytes) of a JSON header, the header, then each
+array's bytes at a multiple of ``ALIGN`` bytes from the start of the file. The header
+repeats the kind and the key, holds the caller's ``meta`` and, per array, its name,
+dtype, shape, offset and ``checksum``, and the file's size. The key (``content_key``)
+hashes the input bytes, the producer and its parameters and ``code_version()`` (the
+source text of the modules that write the layout), so any change of triangles, builder,
+parameter or code misses.
 
+- read without copies: the arrays of a hit are views of a private memory map of the
+  file (writable: a write changes the process's pages, never the file), each at an
+  ``ALIGN``-byte boundary;
 - written atomically (``renderer.outputs.atomic_path``): a reader sees a whole entry or
   none; two processes writing one key both write the same bytes and the last rename wins;
-- verified on read: a short, corrupt or foreign entry (bad magic, digest, key or arrays)
-  is never trusted: ``get`` warns once (``CacheWarning``), removes it where it can and
-  returns None, so the caller rebuilds;
+- verified on read: a short, corrupt or foreign entry (bad magic, header digest, size,
+  key, array checksum) is never trusted: ``get`` warns once (``CacheWarning``), removes it
+  where it can and returns None, so the caller rebuilds. An array's ``checksum`` is two
+  position-weighted sums of its 32-bit words (blocks of ``BLOCK`` words weighted by their
+  index, and the words' places in a block by theirs): additions only, cheaper than
+  SHA-256, and any change of one or two words (flipped bits, a swap) changes it, as does
+  a zeroed or torn page; the header that names the arrays is covered by SHA-256;
 - bounded: after each write the least recently used entries (file mtimes, touched on
   every hit) are removed until the folder holds at most ``max_bytes``;
 - optional: a folder that cannot be made or written leaves the cache read-only or off,
@@ -27,8 +36,8 @@ The folder is ``$WHITTED_CACHE`` when set, else the user cache folder
 from __future__ import annotations
 
 import hashlib
-import io
 import json
+import mmap
 import os
 import sys
 import threading
@@ -41,12 +50,19 @@ import numpy as np
 from ..cache_key import CODE_MODULES, code_version, content_key
 from ..outputs import OutputError, atomic_path
 
-__all__ = ["CODE_MODULES", "MAGIC", "MAX_BYTES", "CacheWarning", "TreeCache", "code_version",
-           "content_key", "default_folder"]
+__all__ = ["ALIGN", "CODE_MODULES", "MAGIC", "MAX_BYTES", "CacheWarning", "TreeCache",
+           "checksum", "code_version", "content_key", "default_folder"]
 
-MAGIC = b"whitted-cache 1\n"
+MAGIC = b"whitted-cache 2\n"
 #: Default bound on the folder's size (bytes).
 MAX_BYTES = 2 << 30
+#: Byte alignment of every array in an entry file (and so of the arrays a hit gives).
+ALIGN = 64
+#: 32-bit words per block of ``checksum``.
+BLOCK = 1024
+_PREFIX = len(MAGIC) + 8 + 32
+
+
 class CacheWarning(UserWarning):
     """A cache entry that could not be used or written (the work is redone)."""
 
@@ -60,6 +76,33 @@ def default_folder() -> Path:
         return Path.home() / "Library" / "Caches" / "whitted"
     xdg = os.environ.get("XDG_CACHE_HOME")
     return (Path(xdg) if xdg else Path.home() / ".cache") / "whitted"
+
+
+def checksum(a: np.ndarray) -> list[int]:
+    """``[s_blocks, s_places]`` of the bytes of ``a`` (C order) read as little-endian
+    32-bit words (the last one zero-padded), in blocks of ``BLOCK`` words: each block's
+    sum weighted by ``2 b + 1`` (``b`` its index) and each place's sum over the blocks
+    weighted by ``2 k + 1`` (``k`` the place in a block), mod 2^64. The words are summed
+    exactly (64-bit sums of 32-bit words) and the weights are odd, so a change of any one
+    or two words (two bits flipped anywhere, a swap of two words) changes the pair."""
+    b = np.ascontiguousarray(a).reshape(-1).view(np.uint8)
+    n = b.size // 4
+    words = b[:n * 4].view("<u4")
+    if b.size > n * 4:
+        last = np.zeros(4, np.uint8)
+        last[:b.size - n * 4] = b[n * 4:]
+        words = np.concatenate([words, last.view("<u4")])
+    m = words.size // BLOCK * BLOCK
+    blocks = words[:m].reshape(-1, BLOCK)
+    rows = np.concatenate([np.add.reduce(blocks, axis=1, dtype=np.uint64),
+                           [np.add.reduce(words[m:], dtype=np.uint64)]])
+    places = (np.add.reduce(blocks, axis=0, dtype=np.uint64) if m
+              else np.zeros(BLOCK, np.uint64))
+    places[:words.size - m] += words[m:]
+    odd = lambda k: np.arange(k, dtype=np.uint64) * np.uint64(2) + np.uint64(1)  # noqa: E731
+    with np.errstate(over="ignore"):
+        return [int(np.add.reduce(rows * odd(rows.size), dtype=np.uint64)),
+                int(np.add.reduce(places * odd(BLOCK), dtype=np.uint64))]
 
 
 @dataclass
@@ -88,7 +131,7 @@ class TreeCache:
         ``CacheWarning``, and the entry is removed where the folder allows)."""
         p = self.path(kind, key)
         try:
-            data = p.read_bytes()
+            f = open(p, "rb")
         except (FileNotFoundError, NotADirectoryError):
             self.misses += 1
             return None
@@ -98,8 +141,9 @@ class TreeCache:
                           CacheWarning, stacklevel=2)
             return None
         try:
-            out = _decode(data, kind, key)
-        except ValueError as e:
+            with f:
+                out = _read(f, kind, key)
+        except (ValueError, OSError) as e:
             self.rejected += 1
             warnings.warn(f"{p}: cache entry {e}; rebuilding", CacheWarning, stacklevel=2)
             try:
@@ -134,13 +178,11 @@ class TreeCache:
             self._pending.pop().join()
 
     def _write(self, kind: str, key: str, arrays: dict, meta: dict | None) -> bool:
-        payload = _encode(arrays, dict(meta or {}, kind=kind, key=key))
-        blob = MAGIC + hashlib.sha256(payload).digest() + payload
         try:
             self.folder.mkdir(parents=True, exist_ok=True)
             with atomic_path(self.path(kind, key), overwrite=True) as tmp:
                 with open(tmp, "wb") as f:
-                    f.write(blob)
+                    _write_entry(f, kind, key, arrays, dict(meta or {}))
         except (OutputError, OSError) as e:
             if not self._write_warned:
                 self._write_warned = True
@@ -173,28 +215,80 @@ class TreeCache:
                 pass
 
 
-def _encode(arrays: dict, meta: dict) -> bytes:
-    buf = io.BytesIO()
-    np.savez(buf, __meta__=np.frombuffer(json.dumps(meta, sort_keys=True).encode(), np.uint8),
-             **{k: np.ascontiguousarray(v) for k, v in arrays.items()})
-    return buf.getvalue()
+def _aligned(n: int) -> int:
+    return -(-n // ALIGN) * ALIGN
 
 
-def _decode(data: bytes, kind: str, key: str) -> dict:
-    """The arrays of an entry; ValueError (the reason) when it fails verification."""
+def _write_entry(f, kind: str, key: str, arrays: dict, meta: dict) -> None:
+    """One entry (the module docstring's layout) to the open binary file ``f``."""
+    arrays = {k: np.ascontiguousarray(v) for k, v in arrays.items()}
+    table, offset = [], 0
+    for name, a in arrays.items():
+        table.append([name, a.dtype.str, list(a.shape), offset, a.nbytes, checksum(a)])
+        offset = _aligned(offset + a.nbytes)
+    head = {"kind": kind, "key": key, "meta": meta, "arrays": table}
+    # the file size closes the header; its digits do not move the data start by more
+    # than the alignment absorbs, so it is computed for the longest it can be
+    text = json.dumps(dict(head, size=0), sort_keys=True).encode()
+    start = _aligned(_PREFIX + len(text) + 24)
+    text = json.dumps(dict(head, size=start + offset), sort_keys=True).encode()
+    text += b" " * (start - _PREFIX - len(text))
+    f.write(MAGIC + len(text).to_bytes(8, "little") + hashlib.sha256(text).digest() + text)
+    for a in arrays.values():
+        f.write(a.reshape(-1).view(np.uint8).data)
+        f.write(b"\0" * (_aligned(a.nbytes) - a.nbytes))
+
+
+def _map(f, size: int):
+    """A private, writable memory map of the whole file ``f`` (pages read ahead where
+    the platform allows)."""
+    flags = getattr(mmap, "MAP_PRIVATE", None)
+    if flags is None:
+        return mmap.mmap(f.fileno(), size, access=mmap.ACCESS_COPY)
+    return mmap.mmap(f.fileno(), size, flags | getattr(mmap, "MAP_POPULATE", 0),
+                     mmap.PROT_READ | mmap.PROT_WRITE)
+
+
+def _read(f, kind: str, key: str) -> dict:
+    """The arrays of the entry in the open file ``f``; ValueError (the reason) when it
+    fails verification."""
     n = len(MAGIC)
-    if len(data) < n + 32 or data[:n] != MAGIC:
+    prefix = f.read(_PREFIX)
+    if len(prefix) < _PREFIX or prefix[:n] != MAGIC:
         raise ValueError("is not a whitted cache file (bad header)")
-    payload = data[n + 32:]
-    if hashlib.sha256(payload).digest() != data[n:n + 32]:
-        raise ValueError("is corrupt (checksum mismatch)")
+    size = os.fstat(f.fileno()).st_size
+    length = int.from_bytes(prefix[n:n + 8], "little")
+    if _PREFIX + length > size:
+        raise ValueError("is truncated")
+    text = f.read(length)
+    if hashlib.sha256(text).digest() != prefix[n + 8:]:
+        raise ValueError("is corrupt (header checksum mismatch)")
     try:
-        with np.load(io.BytesIO(payload), allow_pickle=False) as z:
-            out = {k: z[k] for k in z.files}
-        meta = json.loads(out.pop("__meta__").tobytes().decode())
-    except Exception as e:             # a payload numpy cannot read
+        head = json.loads(text)
+        if head.get("kind") != kind or head.get("key") != key:
+            raise ValueError("belongs to another key (foreign entry)")
+        if head["size"] != size:
+            raise ValueError("is truncated" if size < head["size"] else "has trailing bytes")
+        start = _aligned(_PREFIX + length)
+        table = [(str(name), np.dtype(dt), tuple(int(s) for s in shape), int(off),
+                  int(nb), [int(c) for c in check])
+                 for name, dt, shape, off, nb, check in head["arrays"]]
+        meta = dict(head["meta"])
+    except ValueError:
+        raise
+    except (KeyError, TypeError, AttributeError) as e:
         raise ValueError(f"is unreadable ({type(e).__name__})") from None
-    if meta.get("kind") != kind or meta.get("key") != key:
-        raise ValueError("belongs to another key (foreign entry)")
+    mm = _map(f, size)
+    out = {}
+    for name, dt, shape, off, nb, check in table:
+        count = int(np.prod(shape, dtype=np.int64))
+        if (dt.hasobject or count * dt.itemsize != nb or off % ALIGN
+                or start + off + nb > size):
+            raise ValueError(f"is unreadable (array {name!r} out of place)")
+        a = (np.frombuffer(mm, dt, count, start + off) if count else np.zeros(0, dt))
+        a = a.reshape(shape)
+        if checksum(a) != check:
+            raise ValueError(f"is corrupt (checksum mismatch in {name!r})")
+        out[name] = a
     out["meta"] = meta
     return out

@@ -89,12 +89,18 @@ def _bisect(UInt32, code, bit, a, b):
 def triangle_boxes(m, Vn: np.ndarray, Fn: np.ndarray):
     """The float32 box ``(lo, hi)`` (3 ``m.Float`` each) of every face ``Fn`` (int (F, 3))
     of ``Vn`` (float32 (V, 3), contiguous), evaluated: one upload of each array as it lies
-    in memory (no per-column copies on the host; ``host_array``: aligned, so the LLVM
-    kernels do not depend on numpy's addresses), the kernel gathering corner k's axis a at
-    ``3 * face[3 f + k] + a``."""
+    in memory (no per-column copies on the host; on LLVM through ``host_array``: aligned,
+    so the LLVM kernels do not depend on numpy's addresses), the kernel gathering corner
+    k's axis a at ``3 * face[3 f + k] + a``."""
     Float, UInt32 = m.Float, m.UInt32
-    v_flat = Float(host_array(Vn.reshape(-1)))
-    f_flat = UInt32(host_array(Fn.reshape(-1), np.uint32))
+    f_h = np.ascontiguousarray(Fn).reshape(-1)
+    if m.__name__.endswith("cuda"):           # a copy to the device: alignment moot
+        v_flat = Float(Vn.reshape(-1))
+        f_flat = UInt32(f_h.view(np.uint32) if f_h.dtype in (np.int32, np.uint32) else
+                        f_h.astype(np.uint32))
+    else:
+        v_flat = Float(host_array(Vn.reshape(-1)))
+        f_flat = UInt32(host_array(f_h, np.uint32))
     i3 = dr.arange(UInt32, int(Fn.shape[0])) * 3
     fi = [dr.gather(UInt32, f_flat, i3 + k) * 3 for k in range(3)]
     lo, hi = [], []
@@ -123,24 +129,60 @@ def morton_codes(UInt32, lo, hi):
     return code, s_lo, s_hi
 
 
+def _read_back(parts):
+    """The host copies (numpy) of the evaluated 32-bit device arrays ``parts`` (Float or
+    UInt32 of one backend). On CUDA they travel as one buffer: one device-to-host copy and
+    one wait instead of one each; on LLVM each is read where it lies (no copy)."""
+    if dr.backend_v(parts[0]) != dr.JitBackend.CUDA:
+        return [x.numpy() for x in parts]
+    m = _module("cuda")
+    UInt32 = m.UInt32
+    widths = [dr.width(x) for x in parts]
+    buf = dr.empty(UInt32, sum(widths))
+    at = 0
+    for x, w in zip(parts, widths):
+        bits = x if isinstance(x, UInt32) else dr.reinterpret_array(UInt32, x)
+        dr.scatter(buf, bits, dr.opaque(UInt32, at) + dr.arange(UInt32, w))
+        at += w
+    host = buf.numpy()
+    out, at = [], 0
+    for x, w in zip(parts, widths):
+        out.append(host[at:at + w] if isinstance(x, UInt32) else host[at:at + w].view(
+            np.float32))
+        at += w
+    return out
+
+
 def host_arrays(boxes_d, refs_d, order_d, raw_d, scene_box, area, levels: int) -> BVHArrays:
     """The host ``BVHArrays`` of a tree built on the device: its padded node boxes
     (``boxes_d``, 12 Floats a node), child references (``refs_d``, 2 UInt32 a node),
     triangle order, unpadded boxes (``raw_d``, or None), the scene box ``(s_lo, s_hi)`` (3
     one-lane Floats each), the sum of the nodes' weighted half areas (``area``, one-lane
-    Float64) that gives the SAH cost, and the number of levels."""
+    Float64) that gives the SAH cost, and the number of levels. One read back
+    (``_read_back``) brings all of them."""
     n = dr.width(refs_d) // 2
-    boxes = np.asarray(boxes_d.numpy(), np.float32).reshape(n, 12)
-    ch = np.asarray(refs_d.numpy(), np.uint32).reshape(n, 2)
-    order = np.asarray(order_d.numpy(), np.int64)
-    b_lo = np.array([float(x.numpy()[0]) for x in scene_box[0]], np.float32)
-    b_hi = np.array([float(x.numpy()[0]) for x in scene_box[1]], np.float32)
+    m = _module("cuda" if dr.backend_v(boxes_d) == dr.JitBackend.CUDA else "llvm")
+    bits = dr.reinterpret_array(m.UInt64, area)
+    small = dr.zeros(m.UInt32, 8)                 # scene box lo, hi; the area's two words
+    for k, x in enumerate(list(scene_box[0]) + list(scene_box[1])):
+        dr.scatter(small, dr.reinterpret_array(m.UInt32, x), k)
+    dr.scatter(small, m.UInt32(bits & 0xFFFFFFFF), 6)
+    dr.scatter(small, m.UInt32(bits >> 32), 7)
+    dr.eval(small)
+    host = _read_back([boxes_d, refs_d, order_d, small]
+                      + ([raw_d] if raw_d is not None else []))
+    boxes = np.asarray(host[0], np.float32).reshape(n, 12)
+    ch = np.asarray(host[1], np.uint32).reshape(n, 2)
+    order = np.asarray(host[2], np.int64)
+    small_h = np.ascontiguousarray(host[3], np.uint32)
+    b_lo, b_hi = small_h[:3].view(np.float32), small_h[3:6].view(np.float32)
+    area_h = float(small_h[6:8].view(np.float64)[0])
     leaf_count = int(np.count_nonzero(ch & np.uint32(LEAF_BIT)))
     bounds = (b_lo.astype(np.float64), b_hi.astype(np.float64))
     dd = bounds[1] - bounds[0]
     root = float(dd[0] * dd[1] + dd[1] * dd[2] + dd[2] * dd[0])
-    sah = (C_TRAV * root + float(area.numpy()[0])) / root if root > 0 else 0.0
-    raw_h = np.asarray(raw_d.numpy(), np.float32).reshape(n, 12) if raw_d is not None else None
+    sah = (C_TRAV * root + area_h) / root if root > 0 else 0.0
+    raw_h = np.asarray(host[4], np.float32).reshape(n, 12) if raw_d is not None else None
     return BVHArrays(boxes, ch, order, levels, leaf_count, sah, 0.0, bounds, raw=raw_h)
 
 

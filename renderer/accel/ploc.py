@@ -12,17 +12,20 @@ Steps, each a few Dr.Jit kernels over all triangles, clusters or nodes:
    are large);
 2. clustering: the sorted triangles are the first clusters. Each iteration, every cluster
    finds its nearest neighbour among the ``radius`` clusters on either side of it in the
-   list: the one whose union box has the smallest surface area (ties ordered by a fixed
-   total order on pairs, so the nearest-neighbour graph has no cycles longer than two and
-   the closest pair is always mutual). Mutual pairs merge into a new node that takes the
-   lower one's place; the higher one leaves the list (``dr.compress``: one count read per
-   iteration, the only host round trips of this step), until one cluster is left, or
-   ``toplevel.TOP`` (0: off) are left and ``toplevel.build_top`` builds the tree above
-   them by a full-sweep SAH on the host. A node's box is its children's union, its count
-   the sum of theirs;
-3. triangle order, top down over the iterations' nodes, last iteration first: a node's
-   first child starts where the node starts, its second after the first's triangles, so
-   every subtree is a contiguous run of the triangle order;
+   list (one symbolic loop over the distance): the one whose union box has the smallest
+   surface area (ties ordered by a fixed total order on pairs, so the nearest-neighbour
+   graph has no cycles longer than two and the closest pair is always mutual). Mutual
+   pairs merge into a new node that takes the lower one's place; the higher one leaves the
+   list, until one cluster is left. A node's box is its children's union, its count the
+   sum of theirs. The count of nodes made stays on the device: one prefix sum numbers the
+   new nodes and compacts the list into arrays as wide as the last count the host read
+   (lanes past the count idle), and the host reads the counts every ``READ_EVERY``
+   iterations, one transfer for all of them (on the CPU after each, so its arrays shrink
+   each time). With ``FREEZE`` an iteration's two halves replay their recorded kernels
+   (``dr.freeze``) instead of being traced again;
+3. triangle order: a node's first child starts where the node starts, its second after
+   the first's triangles, so every subtree is a contiguous run of the triangle order; each
+   node's start and depth are sums over its ancestors, taken by pointer jumping;
 4. nodes of at most ``leaf_size`` triangles become leaves; the others are the inner nodes,
    numbered latest first (the root is node 0, every child after its parent), their child
    boxes padded on the device by ``pad_boxes``'s rule (the same float32 operations) and
@@ -46,16 +49,18 @@ from __future__ import annotations
 
 import math
 import time
+from dataclasses import dataclass
 
 import drjit as dr
 import numpy as np
 
-from . import presplit, toplevel
+from . import presplit
 from .bvh_build import LEAF_SIZE, MAX_LEVELS, BVHArrays, build_bvh
 from .device_build import (
     _levels_needed,
     _module,
     _phase,
+    _read_back,
     build_device,
     host_arrays,
     morton_codes,
@@ -73,11 +78,242 @@ HEIGHT_CHECK = 8
 TALL = 3
 NODE = 1 << 31                   # a cluster or child reference to a node (else a triangle)
 MASK = NODE - 1
+#: Iterations between two host reads of the cluster count, per backend (a divisor of
+#: ``HEIGHT_CHECK``): the CPU backend reads after every iteration, so its arrays shrink
+#: each time; the GPU runs several iterations ahead of the host.
+READ_EVERY = {"llvm": 1, "cuda": 4}
+#: Whether the iterations replay recorded kernels (``dr.freeze``: no tracing after the
+#: first) per backend. Off on the CPU, whose iteration costs its kernels, not its
+#: tracing; off on the GPU until measured there (the replay builds the same tree on the
+#: CPU backend: ``test_ploc_reference.py``).
+FREEZE = {"llvm": False, "cuda": False}
 
 
 def _half_area(lo, hi):
     d = [hi[a] - lo[a] for a in range(3)]
     return d[0] * d[1] + d[1] * d[2] + d[2] * d[0]
+
+
+@dataclass
+class Clusters:
+    """What the clustering made: the nodes' child references ``ch`` (2 UInt32), boxes
+    ``box`` (6 Floats: lo xyz, hi xyz) and triangle counts ``cnt`` (UInt32), numbered in
+    merge order; ``batches``: (first node, node count) of each iteration; ``iterations``;
+    ``fallback``: True when a cluster grew taller than ``TALL * MAX_LEVELS``."""
+
+    ch: list
+    box: list
+    cnt: object
+    batches: list
+    iterations: int
+    fallback: bool
+
+
+def _nearest(m, c_box, k, radius: int):
+    """Each cluster's nearest neighbour among the ``radius`` clusters on either side of it
+    (one symbolic loop over the distance; see the module docstring for the pair order):
+    UInt32 over the ``dr.width(c_box[0])`` lanes, the lane itself where no candidate lies
+    in ``[0, k)`` (``k``: UInt32, the clusters' count, lanes past it idle)."""
+    Float, UInt32 = m.Float, m.UInt32
+    w = dr.width(c_box[0])
+    i = dr.arange(UInt32, w)
+    active = i < k
+
+    def body(d, best, best_j, best_t):
+        for side in (0, 1):
+            if side == 0:
+                ok = active & (i >= d)
+                j = i - d
+                a = j
+            else:
+                ok = i + d < k
+                j = i + d
+                a = i
+            bl = [dr.minimum(c_box[x], dr.gather(Float, c_box[x], j, ok)) for x in range(3)]
+            bh = [dr.maximum(c_box[3 + x], dr.gather(Float, c_box[3 + x], j, ok))
+                  for x in range(3)]
+            area = _half_area(bl, bh)
+            # pairs ordered by (area, distance, parity of the lower index, lower index):
+            # for one cluster, candidates of equal area and distance differ in the parity
+            # (d odd) or else the lower index is the left one's
+            tie = (d << 1) | (a & 1)
+            better = ok & ((area < best) | ((area == best) & (tie < best_t)))
+            best = dr.select(better, area, best)
+            best_j = dr.select(better, j, best_j)
+            best_t = dr.select(better, tie, best_t)
+        return d + 1, best, best_j, best_t
+
+    state = (dr.full(UInt32, 1, w), dr.full(Float, dr.inf, w), UInt32(i),
+             dr.full(UInt32, 0xFFFFFFFF, w))
+    state = dr.while_loop(state=state, cond=lambda d, *_: d <= radius, body=body,
+                          label="ploc_nearest")
+    return state[2]
+
+
+def _pairs(m, radius: int, c_box, made_d, f_d):
+    """The first half of a clustering iteration over the clusters with boxes ``c_box`` (6
+    Floats), lanes past the count ``f_d - made_d`` idle (``made_d``: the nodes made so
+    far, ``f_d``: the triangles, one-lane UInt32 each): each cluster's nearest neighbour
+    ``best_j`` and the exclusive prefix sum ``ex`` (UInt64) of the lanes that merge (high
+    word: the lower lane of a mutual pair) and that leave (low word: the higher one);
+    answers them with the nodes made after the iteration (one lane)."""
+    UInt32, UInt64 = m.UInt32, m.UInt64
+    i = dr.arange(UInt32, dr.width(c_box[0]))
+    k = dr.gather(UInt32, f_d, i & 0) - dr.gather(UInt32, made_d, i & 0)
+    best_j = _nearest(m, c_box, k, radius)
+    dr.eval(best_j)
+    mutual = dr.gather(UInt32, best_j, best_j) == i
+    merge = mutual & (i < best_j)                   # idle lanes: best_j == i
+    gone = mutual & (i > best_j)
+    flags = (UInt64(dr.select(merge, UInt32(1), 0)) << 32) | UInt64(dr.select(gone,
+                                                                             UInt32(1), 0))
+    ex = dr.prefix_reduce(dr.ReduceOp.Add, flags, exclusive=True)
+    made_new = made_d + dr.sum(dr.select(merge, UInt32(1), 0))
+    dr.eval(best_j, ex, made_new)
+    return best_j, ex, made_new
+
+
+def _merge(m, c, pair, made_d, f_d, n, t):
+    """The second half of a clustering iteration: the mutual pairs of ``pair`` = (best_j,
+    ex) (``_pairs``) among the clusters ``c`` = (references, 6 boxes, counts, heights)
+    merge into new nodes, scattered into ``n`` = (2 child references, 6 boxes, counts)
+    from node ``made_d`` on, and the clusters that stay (the merged ones at the lower lane
+    of their pair) are compacted into ``t`` (arrays like ``c``, at least as wide as the
+    clusters left), one kernel for both."""
+    Float, UInt32 = m.Float, m.UInt32
+    c_ref, c_box, c_cnt, c_h = c
+    n_ch, n_box, n_cnt = n
+    best_j, ex = pair
+    i = dr.arange(UInt32, dr.width(c_ref))
+    made_l = dr.gather(UInt32, made_d, i & 0)
+    k = dr.gather(UInt32, f_d, i & 0) - made_l
+    mutual = dr.gather(UInt32, best_j, best_j) == i
+    merge = mutual & (i < best_j)
+    gone = mutual & (i > best_j)
+    node = made_l + UInt32(ex >> 32)
+    o_ref = dr.gather(UInt32, c_ref, best_j, merge)
+    o_cnt = dr.gather(UInt32, c_cnt, best_j, merge)
+    o_h = dr.gather(UInt32, c_h, best_j, merge)
+    u_box = [dr.minimum(c_box[x], dr.gather(Float, c_box[x], best_j, merge)) for x in range(3)]
+    u_box += [dr.maximum(c_box[3 + x], dr.gather(Float, c_box[3 + x], best_j, merge))
+              for x in range(3)]
+    u_cnt = c_cnt + o_cnt
+    dr.scatter(n_ch[0], c_ref, node, merge)
+    dr.scatter(n_ch[1], o_ref, node, merge)
+    dr.scatter(n_cnt, u_cnt, node, merge)
+    for x in range(6):
+        dr.scatter(n_box[x], u_box[x], node, merge)
+    keep = (i < k) & ~gone
+    pos = i - UInt32(ex & 0xFFFFFFFF)
+    t_ref, t_box, t_cnt, t_h = t
+    dr.scatter(t_ref, dr.select(merge, node | NODE, c_ref), pos, keep)
+    for x in range(6):
+        dr.scatter(t_box[x], dr.select(merge, u_box[x], c_box[x]), pos, keep)
+    dr.scatter(t_cnt, dr.select(merge, u_cnt, c_cnt), pos, keep)
+    dr.scatter(t_h, dr.select(merge, dr.maximum(c_h, o_h) + 1, c_h), pos, keep)
+    dr.eval(n_ch, n_box, n_cnt, t)
+
+
+#: The two halves of an iteration, traced once per input layout (``dr.freeze``: the
+#: iterations after the first replay the recorded kernels, widths may change).
+_PAIRS, _MERGE = dr.freeze(_pairs), dr.freeze(_merge)
+
+def _cluster(m, slo, shi, radius: int, every: int, freeze: bool, progress) -> Clusters:
+    """Cluster the sorted triangles (boxes ``slo``, ``shi``: 3 Floats each) until one
+    cluster is left (see the module docstring). The cluster count lives on the device (the
+    nodes made so far, a one-lane array): each iteration compacts the clusters by a prefix
+    sum into arrays as wide as the last count read, lanes past the count idle, and the
+    host reads the nodes made every ``every`` iterations (a divisor of ``HEIGHT_CHECK``),
+    with the tallest cluster's height every ``HEIGHT_CHECK``. ``progress`` as
+    ``build_ploc``'s, called for each iteration at the next read."""
+    Float, UInt32 = m.Float, m.UInt32
+    F = dr.width(slo[0])
+    n_in = F - 1                                          # inner nodes of the full tree
+    n_ch = [dr.zeros(UInt32, n_in) for _ in range(2)]    # child references
+    n_box = [dr.zeros(Float, n_in) for _ in range(6)]    # node boxes: lo xyz, hi xyz
+    n_cnt = dr.zeros(UInt32, n_in)                        # triangles under each node
+    c_ref = dr.arange(UInt32, F)                          # the clusters: references,
+    c_box = [dr.gather(Float, x, dr.arange(UInt32, F)) for x in slo + shi]   # boxes,
+    c_cnt = dr.full(UInt32, 1, F)                         # triangle counts and heights
+    c_h = dr.zeros(UInt32, F)
+    made_d = dr.zeros(UInt32, 1)                          # nodes made so far (device)
+    dr.eval(c_ref, c_box, c_cnt, c_h, made_d, n_ch, n_box, n_cnt)
+    batches = []                                          # (first node, node count)
+    pending = []                                          # nodes made after each iteration
+    w, made, it = F, 0, 0
+    bail = TALL * MAX_LEVELS
+    log_f = math.log(F)
+    f_d = dr.opaque(UInt32, F, 1)
+    pairs, merge = (_PAIRS, _MERGE) if freeze else (_pairs, _merge)
+    while True:
+        best_j, ex, made_new = pairs(m, radius, tuple(c_box), made_d, f_d)
+        pending.append(made_new)
+        it_next = it + len(pending)
+        done = False
+        w_next = w
+        if it_next % every == 0:
+            host = _read_back(pending)
+            for x in range(len(pending)):
+                it += 1
+                now = int(host[x][0])
+                batches.append((made, now - made))
+                made = now
+                kk = F - made
+                if progress is not None:
+                    progress(round(MAX_LEVELS * (1.0 - math.log(max(kk, 1)) / log_f)))
+                if kk <= 1:
+                    done = True
+                    break
+            pending, w_next = [], max(F - made, 1)
+        new = dr.zeros if freeze else dr.empty     # (frozen: an empty input re-records)
+        t = (new(UInt32, w_next), tuple(new(Float, w_next) for _ in range(6)),
+             new(UInt32, w_next), new(UInt32, w_next))
+        # (a compaction into narrower arrays, after a read, is traced: a frozen one would
+        # be recorded anew for each pair of widths)
+        (merge if w_next == w else _merge)(m, (c_ref, tuple(c_box), c_cnt, c_h),
+                                           (best_j, ex), made_d, f_d,
+                                           (tuple(n_ch), tuple(n_box), n_cnt), t)
+        if done:
+            return Clusters(n_ch, n_box, n_cnt, batches, it, False)
+        if (it_next % HEIGHT_CHECK == 0 and it_next % every == 0
+                and int(dr.max(t[3])[0]) > bail):
+            return Clusters(n_ch, n_box, n_cnt, batches, it, True)
+        c_ref, c_box, c_cnt, c_h = t[0], list(t[1]), t[2], t[3]
+        made_d, w = made_new, w_next
+
+
+def _positions(m, cl: Clusters):
+    """Where each node's triangles start in the triangle order and its depth (UInt32 over
+    the nodes; the root, the last node made, at 0), and each sorted triangle's position
+    (UInt32 over the triangles): a node's first child starts where the node starts, its
+    second after the first's triangles. Each node's offset from its parent's start, and
+    its depth, are summed over its ancestors by pointer jumping (every node adds its
+    ancestor's sum and jumps to that ancestor's ancestor): ``ceil(log2(iterations)) + 1``
+    rounds, since a node lies at most ``iterations - 1`` levels deep."""
+    UInt32 = m.UInt32
+    n_in = dr.width(cl.cnt)
+    root = n_in - 1
+    n = dr.arange(UInt32, n_in)
+    ch = cl.ch
+    is_node = [(r & NODE) != 0 for r in ch]
+    left = dr.select(is_node[0], dr.gather(UInt32, cl.cnt, ch[0] & MASK, is_node[0]), 1)
+    up = dr.full(UInt32, root, n_in)          # the jump target: the parent, then further
+    acc = dr.zeros(UInt32, n_in)              # offset from the jump target's start
+    dep = dr.full(UInt32, 1, n_in)            # levels below the jump target
+    for s in range(2):
+        dr.scatter(up, n, ch[s] & MASK, is_node[s])
+    dr.scatter(acc, left, ch[1] & MASK, is_node[1])
+    dr.scatter(dep, UInt32(0), dr.opaque(UInt32, root, 1))
+    dr.eval(up, acc, dep, left)
+    for _ in range(math.ceil(math.log2(max(cl.iterations, 1))) + 1):
+        acc, dep, up = (acc + dr.gather(UInt32, acc, up), dep + dr.gather(UInt32, dep, up),
+                        dr.gather(UInt32, up, up))
+        dr.eval(acc, dep, up)
+    t_pos = dr.zeros(UInt32, n_in + 1)
+    for s, start in ((0, acc), (1, acc + left)):
+        dr.scatter(t_pos, start, ch[s] & MASK, ~is_node[s])
+    dr.eval(t_pos)
+    return acc, dep, t_pos
 
 
 def build_ploc(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm", *,
@@ -91,9 +327,8 @@ def build_ploc(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm", *
     ``phases``: None, or a dict that gets the seconds of each phase (the build then waits
     for the device at each phase's end). ``stats``: None, or a dict that gets
     ``iterations``, ``levels`` (the clustered tree's, before any rebuild), ``rebuilt``
-    (subtrees rebuilt balanced), ``fallback`` (True when the radix tree was returned),
-    ``top`` (clusters under the top tree, 0 for none) and ``cut`` (True when the tree holds
-    cut triangles' references).
+    (subtrees rebuilt balanced), ``fallback`` (True when the radix tree was returned) and
+    ``cut`` (True when the tree holds cut triangles' references).
     A scene of at most ``leaf_size`` triangles gets ``build_bvh``'s single-leaf tree.
     The tree carries its unpadded child boxes too (``BVHArrays.raw``, what
     ``bvh_build.raw_boxes`` computes on the host), so the traversal pads them for its ray
@@ -105,12 +340,13 @@ def build_ploc(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm", *
     m = _module(backend)
     t_start = time.perf_counter()
     Vn = np.ascontiguousarray(np.asarray(vertices, np.float32))
-    Fn = np.asarray(faces, np.int64)
+    Fn = np.asarray(faces)
     F = int(Fn.shape[0])
     if F >= 1 << COUNT_SHIFT:
         raise ValueError(f"faces: at most {1 << COUNT_SHIFT} triangles, got {F}")
     if F <= leaf_size:
-        return build_bvh(Vn, Fn, leaf_size=leaf_size, spatial=0.0, optimize=0)
+        return build_bvh(Vn, Fn.astype(np.int64), leaf_size=leaf_size, spatial=0.0,
+                         optimize=0)
     if MAX_LEVELS < math.ceil(math.log2(math.ceil(F / leaf_size))) + 1:
         raise ValueError(f"faces: {F} triangles need more than {MAX_LEVELS} BVH levels")
     Float, UInt32 = m.Float, m.UInt32
@@ -133,117 +369,18 @@ def build_ploc(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm", *
         _phase(phases, "boxes, Morton codes and sort", t_phase)
 
     # ---- 2. clustering -----------------------------------------------------------------------
-    n_in = F - 1                                          # inner nodes of the full tree
-    n_ch = [dr.zeros(UInt32, n_in) for _ in range(2)]    # child references
-    n_box = [dr.zeros(Float, n_in) for _ in range(6)]    # node boxes: lo xyz, hi xyz
-    n_cnt = dr.zeros(UInt32, n_in)                        # triangles under each node
-    c_ref = dr.arange(UInt32, F)                          # the clusters: references,
-    c_box = [dr.gather(Float, x, dr.arange(UInt32, F)) for x in slo + shi]   # boxes,
-    c_cnt = dr.full(UInt32, 1, F)                         # triangle counts and heights
-    c_h = dr.zeros(UInt32, F)
-    dr.eval(c_box)
-    batches = []                                          # (first node, node count)
-    k, made, it = F, 0, 0
-    bail = TALL * MAX_LEVELS
-    fallback = False
-    top = toplevel.TOP                                    # clusters left for the top tree
-    while k > max(top, 1):
-        i = dr.arange(UInt32, k)
-        best = dr.full(Float, dr.inf, k)
-        best_j = UInt32(i)
-        best_t = dr.full(UInt32, 0xFFFFFFFF, k)
-        for d in range(1, min(radius, k - 1) + 1):
-            for side in (0, 1):
-                if side == 0:
-                    ok = i >= d
-                    j = i - d
-                    a = j
-                else:
-                    ok = i + d < k
-                    j = i + d
-                    a = i
-                bl = [dr.minimum(c_box[x], dr.gather(Float, c_box[x], j, ok))
-                      for x in range(3)]
-                bh = [dr.maximum(c_box[3 + x], dr.gather(Float, c_box[3 + x], j, ok))
-                      for x in range(3)]
-                area = _half_area(bl, bh)
-                # pairs ordered by (area, distance, parity of the lower index, lower index):
-                # for one cluster, candidates of equal area and distance differ in the
-                # parity (d odd) or else the lower index is the left one's
-                tie = UInt32(2 * d) | (a & 1)
-                better = ok & ((area < best) | ((area == best) & (tie < best_t)))
-                best = dr.select(better, area, best)
-                best_j = dr.select(better, j, best_j)
-                best_t = dr.select(better, tie, best_t)
-        dr.eval(best_j)
-        mutual = dr.gather(UInt32, best_j, best_j) == i
-        merge = mutual & (i < best_j)
-        slot = dr.prefix_sum(dr.select(merge, UInt32(1), UInt32(0)))
-        node = dr.opaque(UInt32, made) + slot
-        o_ref = dr.gather(UInt32, c_ref, best_j, merge)
-        o_cnt = dr.gather(UInt32, c_cnt, best_j, merge)
-        o_h = dr.gather(UInt32, c_h, best_j, merge)
-        u_box = [dr.minimum(c_box[x], dr.gather(Float, c_box[x], best_j, merge))
-                 for x in range(3)]
-        u_box += [dr.maximum(c_box[3 + x], dr.gather(Float, c_box[3 + x], best_j, merge))
-                  for x in range(3)]
-        u_cnt = c_cnt + o_cnt
-        dr.scatter(n_ch[0], c_ref, node, merge)
-        dr.scatter(n_ch[1], o_ref, node, merge)
-        dr.scatter(n_cnt, u_cnt, node, merge)
-        for x in range(6):
-            dr.scatter(n_box[x], u_box[x], node, merge)
-        new_ref = dr.select(merge, node | NODE, c_ref)
-        new_box = [dr.select(merge, u_box[x], c_box[x]) for x in range(6)]
-        new_cnt = dr.select(merge, u_cnt, c_cnt)
-        new_h = dr.select(merge, dr.maximum(c_h, o_h) + 1, c_h)
-        dr.eval(n_ch, n_cnt, n_box, new_ref, new_box, new_cnt, new_h)
-        keep = dr.compress(~(mutual & (i > best_j)))
-        k_new = dr.width(keep)
-        c_ref = dr.gather(UInt32, new_ref, keep)
-        c_box = [dr.gather(Float, x, keep) for x in new_box]
-        c_cnt = dr.gather(UInt32, new_cnt, keep)
-        c_h = dr.gather(UInt32, new_h, keep)
-        dr.eval(c_ref, c_box, c_cnt, c_h)
-        batches.append((made, k - k_new))
-        made += k - k_new
-        k = k_new
-        it += 1
-        if progress is not None:
-            progress(round(MAX_LEVELS * (1.0 - math.log(max(k, 1)) / math.log(F))))
-        if it % HEIGHT_CHECK == 0 and k > 1 and dr.max(c_h)[0] > bail:
-            fallback = True
-            break
-    info["iterations"] = it
+    cl = _cluster(m, slo, shi, radius, READ_EVERY[backend], FREEZE[backend], progress)
+    n_ch, n_box, n_cnt, batches = cl.ch, cl.box, cl.cnt, cl.batches
+    info["iterations"] = cl.iterations
     if phases is not None:
         _phase(phases, "clustering", t_phase)
-    info["top"] = k if k > 1 and not fallback else 0
-    if info["top"]:
-        batches += toplevel.build_top(m, (c_ref, c_box, c_cnt), (n_ch, n_box, n_cnt), made)
-        if phases is not None:
-            _phase(phases, "top tree", t_phase)
-    if fallback:
+    if cl.fallback:
         info["levels"], info["rebuilt"], info["fallback"], info["cut"] = None, 0, True, False
         return build_device(Vn, Fn, backend, leaf_size=leaf_size, raw=True)
 
     # ---- 3. triangle order, top down ---------------------------------------------------------
-    n_first = dr.zeros(UInt32, n_in)          # first position of each node's triangles
-    n_depth = dr.zeros(UInt32, n_in)
-    t_pos = dr.zeros(UInt32, F)               # position of each (sorted) triangle
-    for b0, cnt in reversed(batches):
-        c = dr.opaque(UInt32, b0) + dr.arange(UInt32, cnt)
-        first = dr.gather(UInt32, n_first, c)
-        depth = dr.gather(UInt32, n_depth, c)
-        ch = [dr.gather(UInt32, n_ch[s], c) for s in range(2)]
-        is_node = [(r & NODE) != 0 for r in ch]
-        left = dr.select(is_node[0], dr.gather(UInt32, n_cnt, ch[0] & MASK, is_node[0]), 1)
-        dr.eval(first, depth, ch, left)
-        for s, start in ((0, first), (1, first + left)):
-            idx = ch[s] & MASK
-            dr.scatter(n_first, start, idx, is_node[s])
-            dr.scatter(n_depth, depth + 1, idx, is_node[s])
-            dr.scatter(t_pos, start, idx, ~is_node[s])
-        dr.eval(n_first, n_depth, t_pos)
+    n_in = F - 1
+    n_first, n_depth, t_pos = _positions(m, cl)
     order_d = dr.zeros(UInt32, F)
     dr.scatter(order_d, perm, t_pos)
     kept = n_cnt > leaf_size
@@ -320,6 +457,8 @@ def build_ploc(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm", *
         refs_d = dr.gather(UInt32, refs_d, dr.arange(UInt32, 2 * N))
         levels = max(levels, int(dr.max(dr.gather(UInt32, n_depth, src))[0]) + 1)
     info["fallback"] = False
+    if phases is not None:
+        _phase(phases, "inner nodes", t_phase)
 
     # ---- the host arrays ---------------------------------------------------------------------
     arrays = host_arrays(boxes_d, refs_d, order_d, raw_d, (s_lo, s_hi), total, levels)
@@ -337,7 +476,7 @@ def build_ploc(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm", *
         arrays.order = refs.face[arrays.order]
     arrays.build_seconds = time.perf_counter() - t_start
     if phases is not None:
-        _phase(phases, "inner nodes and host copy", t_phase)
+        _phase(phases, "host copy", t_phase)
     return arrays
 
 

@@ -26,7 +26,7 @@ from __future__ import annotations
 import drjit as dr
 import numpy as np
 
-from ..device import Types, host_array, rcp
+from ..device import Types, host_array, host_view, rcp
 from ..device import unit_roundoff as unit_roundoff
 from .base import DeviceTriangles, gather_floats
 
@@ -324,36 +324,80 @@ def load(t, data, i, active=True, layout: str = "edges"):
     return tuple(t.Array3f(f[3 * j], f[3 * j + 1], f[3 * j + 2]) for j in range(k))
 
 
-def upload_triangles(scene, t: Types, order: np.ndarray | None = None,
-                     with_normals: bool | None = None, *, routine: str):
-    """Upload ``scene``'s triangles, optionally permuted by ``order`` (int (F,)): returns
-    ``(tri_data, tris)``, the packed geometry of ``pack`` (in the layout ``routine``
-    reads) as a Float and the ``DeviceTriangles``. Normals are uploaded when
-    ``with_normals`` (default: when any object is smooth). The vertices are those of the
-    precision in use (``Scene.positions``); corners, cross products and their lengths are
-    computed once for the packed rows and the unit geometric normals."""
+def triangle_arrays(scene, double: bool, order: np.ndarray | None = None,
+                    with_normals: bool | None = None, *, routine: str) -> dict:
+    """The host arrays ``upload_triangles`` uploads, in their device dtypes (float64 for a
+    ``double`` render, else float32): ``tri_data`` (F, STRIDE) the packed geometry of
+    ``pack`` in the layout ``routine`` reads, ``ng`` (3, F) the unit geometric normals,
+    ``n0``/``n1``/``n2`` (3, F) the vertex normals at the corners (only ``with_normals``,
+    default: when any object is smooth), ``material`` uint32 (F,), ``smooth`` bool (F,) and
+    ``order`` uint32 (F,), all permuted by ``order`` (int (F,); None: face order). The
+    vertices are those of the precision (``Scene.positions``); corners, cross products and
+    their lengths are computed once for the packed rows and the unit geometric normals."""
     F = scene.face_count
     order = np.arange(F, dtype=np.int64) if order is None else np.asarray(order, np.int64)
     faces = scene.faces[order]
-    fdt = np.float64 if t.is_double else np.float32
-    corners = _corners(scene.positions(t.is_double), faces)
-    packed = _pack_rows(corners, layout_of(routine), fdt)
+    fdt = np.float64 if double else np.float32
+    corners = _corners(scene.positions(double), faces)
+    out = {"tri_data": _pack_rows(corners, layout_of(routine), fdt)}
     n, length = corners[3], corners[4]
-    ng = n / np.maximum(length, 1e-300)
+    out["ng"] = np.ascontiguousarray((n / np.maximum(length, 1e-300)).T, fdt)
     smooth = scene.face_smooth[order]
     if with_normals is None:
         with_normals = bool(smooth.any())
     if with_normals:
-        N = scene.normals_of(t.is_double)
-        n0, n1, n2 = (columns3(t, N[faces[:, k]]) for k in range(3))
+        N = scene.normals_of(double)
+        for k in range(3):
+            out[f"n{k}"] = np.ascontiguousarray(N[faces[:, k]].T, fdt)
+    out["material"] = np.asarray(scene.face_material[order], np.uint32)
+    out["smooth"] = np.asarray(smooth, bool)
+    out["order"] = order.astype(np.uint32)
+    return out
+
+
+def permuted(arrays: dict, order: np.ndarray) -> dict:
+    """``triangle_arrays`` made in face order, permuted by ``order`` (int (F,)): the
+    arrays ``triangle_arrays`` gives for ``order`` (each row's values depend on its face
+    only), by gathers."""
+    order = np.asarray(order, np.int64)
+    out = {k: np.ascontiguousarray(v[:, order]) for k, v in arrays.items()
+           if k in ("ng", "n0", "n1", "n2")}
+    out.update(tri_data=arrays["tri_data"][order], material=arrays["material"][order],
+               smooth=arrays["smooth"][order], order=arrays["order"][order])
+    return out
+
+
+def device_triangles(t: Types, arrays: dict, own: bool = False):
+    """``(tri_data, tris)`` on the device from ``triangle_arrays``'s ``arrays`` (of the
+    precision of ``t``): the packed geometry as a Float and the ``DeviceTriangles``
+    (width-1 zero vertex normals where ``arrays`` has none). ``own``: the arrays are
+    this call's to hand over (a cache hit's views): aligned ones become the device
+    arrays' memory on LLVM (``device.host_view``) instead of being copied."""
+    fdt = np.float64 if t.is_double else np.float32
+    put = host_view if own else host_array
+    cols = lambda a: t.Array3f(*(t.Float(put(a[k], fdt)) for k in range(3)))  # noqa: E731
+    if "n0" in arrays:
+        n0, n1, n2 = (cols(arrays[f"n{k}"]) for k in range(3))
     else:
         n0 = n1 = n2 = t.Array3f(0, 0, 0)
-    tri_data = t.Float(host_array(packed.reshape(-1), fdt))
+    tri_data = t.Float(put(arrays["tri_data"].reshape(-1), fdt))
     tris = DeviceTriangles(
-        ng=columns3(t, ng), n0=n0, n1=n1, n2=n2,
-        material=t.UInt32(host_array(scene.face_material[order], np.uint32)),
-        smooth=t.Bool(host_array(smooth, bool)), order=t.UInt32(host_array(order, np.uint32)))
+        ng=cols(arrays["ng"]), n0=n0, n1=n1, n2=n2,
+        material=t.UInt32(put(arrays["material"], np.uint32)),
+        smooth=t.Bool(put(arrays["smooth"], bool)),
+        order=t.UInt32(put(arrays["order"], np.uint32)))
     return tri_data, tris
+
+
+def upload_triangles(scene, t: Types, order: np.ndarray | None = None,
+                     with_normals: bool | None = None, *, routine: str):
+    """Upload ``scene``'s triangles, optionally permuted by ``order`` (int (F,)): returns
+    ``(tri_data, tris)``, the packed geometry of ``pack`` (in the layout ``routine``
+    reads) as a Float and the ``DeviceTriangles`` (``triangle_arrays``, then
+    ``device_triangles``). Normals are uploaded when ``with_normals`` (default: when any
+    object is smooth)."""
+    return device_triangles(t, triangle_arrays(scene, t.is_double, order, with_normals,
+                                               routine=routine))
 
 
 def columns3(t: Types, rows: np.ndarray):

@@ -43,7 +43,7 @@ from dataclasses import dataclass, field, replace
 import drjit as dr
 import numpy as np
 
-from ..device import Types, host_array
+from ..device import Types, host_array, host_view
 from .base import (
     Accelerator,
     DeviceTriangles,
@@ -78,9 +78,11 @@ from .triangle import (
     DEFAULT_ROUTINE,
     STRIDE,
     bind_routine,
+    device_triangles,
     origin_reach,
+    pad_extent,
+    triangle_arrays,
     triangle_routine,
-    upload_triangles,
 )
 
 WIDTHS = (4, 8)
@@ -245,18 +247,25 @@ def _decoded(q, o, s):
 
 def _outward(q, o, s, bound, real, step: int):
     """``q`` moved by ``step`` (-1 for lo, +1 for hi) where the decoded value does not yet
-    lie outside ``bound`` (both decodings); raises if one is left inside after 4 moves."""
+    lie outside ``bound`` (both decodings) for ``real`` entries; raises if one is left
+    inside after 4 moves. The first test runs over the whole arrays, the later ones over
+    the entries moved."""
     q = q.copy()
-    idx = np.nonzero(real)
-    for _ in range(5):
+    ex, f = _decoded(q, o, s)
+    with np.errstate(invalid="ignore"):
+        bad = real & (((ex > bound) | (f > bound)) if step < 0 else
+                      ((ex < bound) | (f < bound)))
+    idx = np.nonzero(bad)
+    for k in range(5):
+        if not idx[0].size:
+            return q
+        q[idx] = np.clip(q[idx] + step, 0, 255)
+        if k == 4:
+            break
         ex, f = _decoded(q[idx], o[idx], s[idx])
         b = bound[idx]
         bad = (ex > b) | (f > b) if step < 0 else (ex < b) | (f < b)
-        if not bad.any():
-            return q
-        sel = tuple(i[bad] for i in idx)
-        q[sel] = np.clip(q[sel] + step, 0, 255)
-        idx = sel
+        idx = tuple(i[bad] for i in idx)
     raise AssertionError("quantize: a decoded box does not contain its float box")
 
 
@@ -406,31 +415,44 @@ class WideBVH(Accelerator):
         """``binary``: a binary build of ``scene`` to convert (else one is built with
         ``build_options``, ``build_bvh``'s keywords); ``quantized``: 8-bit child boxes
         (``quantize``; default for float32), else SoA boxes of the precision (default for
-        float64)."""
+        float64). The host arrays of ``host_layout``, uploaded by ``from_layout``."""
         triangle_routine(intersection)
-        if quantized is None:  # 8-bit boxes are fitted to float32 boxes: float64 keeps floats
-            quantized = not t.is_double
-        leaf_size = build_options.get("leaf_size", LEAF_SIZE)
-        bins = build_options.get("bins", BINS)
         a = binary if binary is not None else build_bvh(
             scene.vertices, scene.faces, **build_options)
-        a = replace(a, boxes=traversal_boxes(a, scene, t, intersection))
+        arrays, info = cls.host_layout(scene, t, a, width=width, quantized=quantized,
+                                       intersection=intersection)
+        info.update(leaf_size=build_options.get("leaf_size", LEAF_SIZE),
+                    bins=build_options.get("bins", BINS))
+        t0 = time.perf_counter()
+        acc = cls.from_layout(t, arrays, info)
+        acc.info["upload_seconds"] += time.perf_counter() - t0
+        return acc
+
+    @classmethod
+    def host_layout(cls, scene, t: Types, a: BVHArrays, *, width: int = 4,
+                    quantized: bool | None = None, intersection: str = DEFAULT_ROUTINE,
+                    extent: float | None = None, triangles: dict | None = None
+                    ) -> tuple[dict, dict]:
+        """Everything the ``width``-wide accelerator of the binary tree ``a`` uploads, as
+        host arrays in their device dtypes (``triangle_arrays``' and ``nodes``: uint32
+        (N, ``record_words(width)``) quantised records, or (N, 6, width) SoA boxes of the
+        precision; ``refs`` uint32 (N, width)), and its ``info`` (JSON-able; ``reach`` and
+        ``width`` included). ``extent``, ``triangles``: as ``BVH.host_layout``."""
+        triangle_routine(intersection)
+        extent = pad_extent(scene, intersection) if extent is None else extent
+        if quantized is None:  # 8-bit boxes are fitted to float32 boxes: float64 keeps floats
+            quantized = not t.is_double
+        a = replace(a, boxes=traversal_boxes(a, scene, t, intersection, extent))
         w = collapse(a, width)
         tq = time.perf_counter()
-        if quantized:
-            qwords = quantize(w)
+        fdt = np.float64 if t.is_double else np.float32
+        nodes = quantize(w) if quantized else np.ascontiguousarray(w.boxes, fdt)
         quantize_seconds = time.perf_counter() - tq if quantized else 0.0
         t0 = time.perf_counter()
-        tri_data, tris = upload_triangles(scene, t, order=a.order, routine=intersection)
-        fdt = np.float64 if t.is_double else np.float32
-        pairs = uses_pairs(t)
-        if quantized:
-            nodes = as_pairs(t, qwords) if pairs else t.UInt32(host_array(qwords.reshape(-1)))
-        else:
-            nodes = t.Float(host_array(w.boxes.reshape(-1), fdt))
-        refs = as_pairs(t, w.refs) if pairs else t.UInt32(host_array(w.refs.reshape(-1)))
-        tri_trav = traversal_triangles(t, tri_data)
-        dr.eval(nodes, refs, tri_data, tri_trav, tris)
+        arrays = dict(triangles or triangle_arrays(scene, t.is_double, a.order,
+                                                   routine=intersection))
+        arrays["nodes"] = nodes
+        arrays["refs"] = np.ascontiguousarray(w.refs, np.uint32)
         fsize = 8 if t.is_double else 4
         F = max(scene.face_count, 1)
         info = {
@@ -441,16 +463,40 @@ class WideBVH(Accelerator):
             "upload_seconds": time.perf_counter() - t0, "triangles": scene.face_count,
             "nodes": w.node_count, "binary_nodes": a.node_count, "leaves": a.leaf_count,
             "levels": w.levels, "binary_levels": a.levels, "max_stack": w.max_stack,
-            "sah_cost": a.sah_cost, "leaf_size": leaf_size, "bins": bins, "width": width,
+            "sah_cost": a.sah_cost, "leaf_size": LEAF_SIZE, "bins": BINS, "width": width,
             "fill": float(np.mean(w.refs != DONE)),
             "node_bytes_per_triangle": w.node_count * (
                 (4 * record_words(width) if quantized else 6 * fsize * width)
                 + 4 * width) / F,
             "traversal_triangle_bytes_per_triangle": STRIDE * fsize,
+            "reach": origin_reach(scene, intersection),
         }
-        return cls(nodes, refs, tri_data, tris, width=width, backend=t.backend,
-                   precision=t.precision, intersection=intersection, info=info,
-                   tri_trav=tri_trav, reach=origin_reach(scene, intersection))
+        return arrays, info
+
+    @classmethod
+    def from_layout(cls, t: Types, arrays: dict, info: dict, own: bool = False
+                    ) -> "WideBVH":
+        """The accelerator on the device from ``host_layout``'s ``arrays`` and ``info``
+        (uploads only: no host work beyond aligned copies; ``own``: the arrays are this
+        call's to hand over, as ``device_triangles``)."""
+        tri_data, tris = device_triangles(t, arrays, own)
+        qwords, wrefs = arrays["nodes"], arrays["refs"]
+        pairs = uses_pairs(t)
+        put = host_view if own else host_array
+        if info["quantized"]:
+            nodes = (as_pairs(t, qwords, copy=not own) if pairs
+                     else t.UInt32(put(qwords.reshape(-1))))
+        else:
+            fdt = np.float64 if t.is_double else np.float32
+            nodes = t.Float(put(qwords.reshape(-1), fdt))
+        refs = (as_pairs(t, wrefs, copy=not own) if pairs
+                else t.UInt32(put(wrefs.reshape(-1))))
+        tri_trav = traversal_triangles(t, tri_data)
+        dr.eval(nodes, refs, tri_data, tri_trav, tris)
+        info = dict(info)
+        return cls(nodes, refs, tri_data, tris, width=int(info["width"]), backend=t.backend,
+                   precision=t.precision, intersection=info["intersection"], info=info,
+                   tri_trav=tri_trav, reach=float(info["reach"]))
 
     def counts(self, ray: Ray, active=True, any_hit: bool = False):
         """The instrumented traversal (profiling): ``(node_steps, triangle_steps,

@@ -1,0 +1,478 @@
+"""Main's PLOC build at cd4f323 (``renderer/accel/ploc.py`` before the device-side cluster
+count), frozen as the baseline of ``ploc_fast.py``, with main's ``device_build.triangle_boxes``
+and ``host_arrays`` (one read back per array); absolute imports, otherwise unchanged.
+
+BVH build on the device by locally-ordered clustering (PLOC, Meister & Bittner 2018), in
+Dr.Jit: the same code on CUDA and LLVM.
+
+Steps, each a few Dr.Jit kernels over all triangles, clusters or nodes:
+
+1. triangle boxes, the scene box and 30-bit Morton codes of the box centres, sorted by
+   ``dr.argsort``, as ``device_build`` makes them but without its large-triangle key
+   (clustering merges a large triangle late by itself: its union boxes are large);
+2. clustering: the sorted triangles are the first clusters. Each iteration, every cluster
+   finds its nearest neighbour among the ``radius`` clusters on either side of it in the
+   list: the one whose union box has the smallest surface area (ties ordered by a fixed
+   total order on pairs, so the nearest-neighbour graph has no cycles longer than two and
+   the closest pair is always mutual). Mutual pairs merge into a new node that takes the
+   lower one's place; the higher one leaves the list (``dr.compress``: one count read per
+   iteration, the only host round trips of this step), until one cluster is left. A node's
+   box is its children's union, its count the sum of theirs;
+3. triangle order, top down over the iterations' nodes, last iteration first: a node's
+   first child starts where the node starts, its second after the first's triangles, so
+   every subtree is a contiguous run of the triangle order;
+4. nodes of at most ``leaf_size`` triangles become leaves; the others are the inner nodes,
+   numbered latest first (the root is node 0, every child after its parent), their child
+   boxes padded on the device by ``pad_boxes``'s rule (the same float32 operations) and
+   their SAH cost summed there.
+
+Clustering has no level bound, and the traversal's stack allows ``MAX_LEVELS`` inner
+levels. When the clustered tree is deeper, step 4 rebuilds the fewest, deepest subtrees
+that make it fit (bottom up: a node whose subtree still reaches too deep is rebuilt when a
+balanced tree over its triangles fits below its level, else left to an ancestor): each
+such subtree becomes a balanced tree over its contiguous run of triangles (middle splits,
+boxes reduced over the run), built top down one level at a time. A clustering that grows a
+cluster taller than ``TALL * MAX_LEVELS`` (chains of one-by-one merges, which need one
+iteration per merge) stops, and the build returns ``device_build.build_device``'s radix
+tree instead.
+
+The output is a ``BVHArrays`` like ``device_build.build_device``'s, so the traversal, the
+wide conversion and the refit read it as they read the SAH tree and the hits are the same
+bit for bit.
+"""
+from __future__ import annotations
+
+import math
+import time
+
+import drjit as dr
+import numpy as np
+
+from renderer.accel.bvh_build import C_TRAV, LEAF_SIZE, MAX_LEVELS, BVHArrays, build_bvh
+from renderer.accel.device_build import (
+    _levels_needed,
+    _module,
+    _phase,
+    build_device,
+    morton_codes,
+)
+from renderer.accel.traverse import COUNT_SHIFT, LEAF_BIT, MAX_LEAF
+from renderer.accel.triangle import unit_roundoff
+from renderer.device import host_array
+
+#: Clusters searched on either side of each cluster for its nearest neighbour.
+RADIUS = 8
+#: Every this many iterations the build reads the tallest cluster's height: one taller than
+#: ``TALL * MAX_LEVELS`` (a chain of one-by-one merges, which also costs an iteration per
+#: merge) ends the clustering, and the radix tree is returned.
+HEIGHT_CHECK = 8
+TALL = 3
+NODE = 1 << 31                   # a cluster or child reference to a node (else a triangle)
+MASK = NODE - 1
+
+
+def triangle_boxes(m, Vn: np.ndarray, Fn: np.ndarray):
+    """The float32 box ``(lo, hi)`` (3 ``m.Float`` each) of every face ``Fn`` (int (F, 3))
+    of ``Vn`` (float32 (V, 3), contiguous), evaluated: one upload of each array as it lies
+    in memory (no per-column copies on the host; ``host_array``: aligned, so the LLVM
+    kernels do not depend on numpy's addresses), the kernel gathering corner k's axis a at
+    ``3 * face[3 f + k] + a``."""
+    Float, UInt32 = m.Float, m.UInt32
+    v_flat = Float(host_array(Vn.reshape(-1)))
+    f_flat = UInt32(host_array(Fn.reshape(-1), np.uint32))
+    i3 = dr.arange(UInt32, int(Fn.shape[0])) * 3
+    fi = [dr.gather(UInt32, f_flat, i3 + k) * 3 for k in range(3)]
+    lo, hi = [], []
+    for a in range(3):
+        p = [dr.gather(Float, v_flat, fi[k] + a) for k in range(3)]
+        lo.append(dr.minimum(dr.minimum(p[0], p[1]), p[2]))
+        hi.append(dr.maximum(dr.maximum(p[0], p[1]), p[2]))
+    dr.eval(lo, hi)
+    return lo, hi
+
+
+def host_arrays(boxes_d, refs_d, order_d, raw_d, scene_box, area, levels: int) -> BVHArrays:
+    """The host ``BVHArrays`` of a tree built on the device: its padded node boxes
+    (``boxes_d``, 12 Floats a node), child references (``refs_d``, 2 UInt32 a node),
+    triangle order, unpadded boxes (``raw_d``, or None), the scene box ``(s_lo, s_hi)`` (3
+    one-lane Floats each), the sum of the nodes' weighted half areas (``area``, one-lane
+    Float64) that gives the SAH cost, and the number of levels."""
+    n = dr.width(refs_d) // 2
+    boxes = np.asarray(boxes_d.numpy(), np.float32).reshape(n, 12)
+    ch = np.asarray(refs_d.numpy(), np.uint32).reshape(n, 2)
+    order = np.asarray(order_d.numpy(), np.int64)
+    b_lo = np.array([float(x.numpy()[0]) for x in scene_box[0]], np.float32)
+    b_hi = np.array([float(x.numpy()[0]) for x in scene_box[1]], np.float32)
+    leaf_count = int(np.count_nonzero(ch & np.uint32(LEAF_BIT)))
+    bounds = (b_lo.astype(np.float64), b_hi.astype(np.float64))
+    dd = bounds[1] - bounds[0]
+    root = float(dd[0] * dd[1] + dd[1] * dd[2] + dd[2] * dd[0])
+    sah = (C_TRAV * root + float(area.numpy()[0])) / root if root > 0 else 0.0
+    raw_h = np.asarray(raw_d.numpy(), np.float32).reshape(n, 12) if raw_d is not None else None
+    return BVHArrays(boxes, ch, order, levels, leaf_count, sah, 0.0, bounds, raw=raw_h)
+
+
+def _half_area(lo, hi):
+    d = [hi[a] - lo[a] for a in range(3)]
+    return d[0] * d[1] + d[1] * d[2] + d[2] * d[0]
+
+
+def build_ploc(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm", *,
+               leaf_size: int = LEAF_SIZE, radius: int = RADIUS, progress=None,
+               phases: dict | None = None, stats: dict | None = None) -> BVHArrays:
+    """Build a BVH over ``faces`` (int (F, 3)) of ``vertices`` (float (V, 3)) on ``backend``
+    ("cuda" or "llvm"; see the module docstring). ``leaf_size``: most triangles per leaf
+    (1..16); ``radius``: the nearest-neighbour search radius (1..64). ``progress``: called
+    after each clustering iteration as ``progress(done)``, ``done`` the clusters merged so
+    far on the level-wise builders' scale of ``MAX_LEVELS`` (log of the clusters left).
+    ``phases``: None, or a dict that gets the seconds of each phase (the build then waits
+    for the device at each phase's end). ``stats``: None, or a dict that gets
+    ``iterations``, ``levels`` (the clustered tree's, before any rebuild), ``rebuilt``
+    (subtrees rebuilt balanced) and ``fallback`` (True when the radix tree was returned).
+    A scene of at most ``leaf_size`` triangles gets ``build_bvh``'s single-leaf tree.
+    The tree carries its unpadded child boxes too (``BVHArrays.raw``, what
+    ``bvh_build.raw_boxes`` computes on the host), so the traversal pads them for its ray
+    origins without a host refit."""
+    if not 1 <= leaf_size <= MAX_LEAF:
+        raise ValueError(f"leaf_size: expected 1..{MAX_LEAF}, got {leaf_size}")
+    if not 1 <= radius <= 64:
+        raise ValueError(f"radius: expected 1..64, got {radius}")
+    m = _module(backend)
+    t_start = time.perf_counter()
+    Vn = np.ascontiguousarray(np.asarray(vertices, np.float32))
+    Fn = np.asarray(faces, np.int64)
+    F = int(Fn.shape[0])
+    if F >= 1 << COUNT_SHIFT:
+        raise ValueError(f"faces: at most {1 << COUNT_SHIFT} triangles, got {F}")
+    if F <= leaf_size:
+        return build_bvh(Vn, Fn, leaf_size=leaf_size, spatial=0.0, optimize=0)
+    if MAX_LEVELS < math.ceil(math.log2(math.ceil(F / leaf_size))) + 1:
+        raise ValueError(f"faces: {F} triangles need more than {MAX_LEVELS} BVH levels")
+    Float, UInt32 = m.Float, m.UInt32
+    t_phase = [t_start]
+    info = stats if stats is not None else {}
+
+    # ---- 1. triangle boxes, Morton codes, sorted -------------------------------------------
+    lo, hi = triangle_boxes(m, Vn, Fn)
+    code, s_lo, s_hi = morton_codes(UInt32, lo, hi)
+    perm = dr.argsort(code)
+    slo = [dr.gather(Float, x, perm) for x in lo]        # triangle boxes in sorted order
+    shi = [dr.gather(Float, x, perm) for x in hi]
+    dr.eval(perm, slo, shi)
+    del lo, hi, code
+    if phases is not None:
+        _phase(phases, "boxes, Morton codes and sort", t_phase)
+
+    # ---- 2. clustering -----------------------------------------------------------------------
+    n_in = F - 1                                          # inner nodes of the full tree
+    n_ch = [dr.zeros(UInt32, n_in) for _ in range(2)]    # child references
+    n_box = [dr.zeros(Float, n_in) for _ in range(6)]    # node boxes: lo xyz, hi xyz
+    n_cnt = dr.zeros(UInt32, n_in)                        # triangles under each node
+    c_ref = dr.arange(UInt32, F)                          # the clusters: references,
+    c_box = [dr.gather(Float, x, dr.arange(UInt32, F)) for x in slo + shi]   # boxes,
+    c_cnt = dr.full(UInt32, 1, F)                         # triangle counts and heights
+    c_h = dr.zeros(UInt32, F)
+    dr.eval(c_box)
+    batches = []                                          # (first node, node count)
+    k, made, it = F, 0, 0
+    bail = TALL * MAX_LEVELS
+    fallback = False
+    while k > 1:
+        i = dr.arange(UInt32, k)
+        best = dr.full(Float, dr.inf, k)
+        best_j = UInt32(i)
+        best_t = dr.full(UInt32, 0xFFFFFFFF, k)
+        for d in range(1, min(radius, k - 1) + 1):
+            for side in (0, 1):
+                if side == 0:
+                    ok = i >= d
+                    j = i - d
+                    a = j
+                else:
+                    ok = i + d < k
+                    j = i + d
+                    a = i
+                bl = [dr.minimum(c_box[x], dr.gather(Float, c_box[x], j, ok))
+                      for x in range(3)]
+                bh = [dr.maximum(c_box[3 + x], dr.gather(Float, c_box[3 + x], j, ok))
+                      for x in range(3)]
+                area = _half_area(bl, bh)
+                # pairs ordered by (area, distance, parity of the lower index, lower index):
+                # for one cluster, candidates of equal area and distance differ in the
+                # parity (d odd) or else the lower index is the left one's
+                tie = UInt32(2 * d) | (a & 1)
+                better = ok & ((area < best) | ((area == best) & (tie < best_t)))
+                best = dr.select(better, area, best)
+                best_j = dr.select(better, j, best_j)
+                best_t = dr.select(better, tie, best_t)
+        dr.eval(best_j)
+        mutual = dr.gather(UInt32, best_j, best_j) == i
+        merge = mutual & (i < best_j)
+        slot = dr.prefix_sum(dr.select(merge, UInt32(1), UInt32(0)))
+        node = dr.opaque(UInt32, made) + slot
+        o_ref = dr.gather(UInt32, c_ref, best_j, merge)
+        o_cnt = dr.gather(UInt32, c_cnt, best_j, merge)
+        o_h = dr.gather(UInt32, c_h, best_j, merge)
+        u_box = [dr.minimum(c_box[x], dr.gather(Float, c_box[x], best_j, merge))
+                 for x in range(3)]
+        u_box += [dr.maximum(c_box[3 + x], dr.gather(Float, c_box[3 + x], best_j, merge))
+                  for x in range(3)]
+        u_cnt = c_cnt + o_cnt
+        dr.scatter(n_ch[0], c_ref, node, merge)
+        dr.scatter(n_ch[1], o_ref, node, merge)
+        dr.scatter(n_cnt, u_cnt, node, merge)
+        for x in range(6):
+            dr.scatter(n_box[x], u_box[x], node, merge)
+        new_ref = dr.select(merge, node | NODE, c_ref)
+        new_box = [dr.select(merge, u_box[x], c_box[x]) for x in range(6)]
+        new_cnt = dr.select(merge, u_cnt, c_cnt)
+        new_h = dr.select(merge, dr.maximum(c_h, o_h) + 1, c_h)
+        dr.eval(n_ch, n_cnt, n_box, new_ref, new_box, new_cnt, new_h)
+        keep = dr.compress(~(mutual & (i > best_j)))
+        k_new = dr.width(keep)
+        c_ref = dr.gather(UInt32, new_ref, keep)
+        c_box = [dr.gather(Float, x, keep) for x in new_box]
+        c_cnt = dr.gather(UInt32, new_cnt, keep)
+        c_h = dr.gather(UInt32, new_h, keep)
+        dr.eval(c_ref, c_box, c_cnt, c_h)
+        batches.append((made, k - k_new))
+        made += k - k_new
+        k = k_new
+        it += 1
+        if progress is not None:
+            progress(round(MAX_LEVELS * (1.0 - math.log(max(k, 1)) / math.log(F))))
+        if it % HEIGHT_CHECK == 0 and k > 1 and dr.max(c_h)[0] > bail:
+            fallback = True
+            break
+    info["iterations"] = it
+    if phases is not None:
+        _phase(phases, "clustering", t_phase)
+    if fallback:
+        info["levels"], info["rebuilt"], info["fallback"] = None, 0, True
+        return build_device(Vn, Fn, backend, leaf_size=leaf_size, raw=True)
+
+    # ---- 3. triangle order, top down ---------------------------------------------------------
+    n_first = dr.zeros(UInt32, n_in)          # first position of each node's triangles
+    n_depth = dr.zeros(UInt32, n_in)
+    t_pos = dr.zeros(UInt32, F)               # position of each (sorted) triangle
+    for b0, cnt in reversed(batches):
+        c = dr.opaque(UInt32, b0) + dr.arange(UInt32, cnt)
+        first = dr.gather(UInt32, n_first, c)
+        depth = dr.gather(UInt32, n_depth, c)
+        ch = [dr.gather(UInt32, n_ch[s], c) for s in range(2)]
+        is_node = [(r & NODE) != 0 for r in ch]
+        left = dr.select(is_node[0], dr.gather(UInt32, n_cnt, ch[0] & MASK, is_node[0]), 1)
+        dr.eval(first, depth, ch, left)
+        for s, start in ((0, first), (1, first + left)):
+            idx = ch[s] & MASK
+            dr.scatter(n_first, start, idx, is_node[s])
+            dr.scatter(n_depth, depth + 1, idx, is_node[s])
+            dr.scatter(t_pos, start, idx, ~is_node[s])
+        dr.eval(n_first, n_depth, t_pos)
+    order_d = dr.zeros(UInt32, F)
+    dr.scatter(order_d, perm, t_pos)
+    kept = n_cnt > leaf_size
+    levels = int(dr.max(dr.select(kept, n_depth, 0))[0]) + 1
+    info["levels"] = levels
+    if phases is not None:
+        _phase(phases, "triangle order", t_phase)
+
+    # ---- 4. subtrees too deep for the traversal, rebuilt balanced ---------------------------
+    roots = None
+    info["rebuilt"] = 0
+    if levels > MAX_LEVELS:
+        roots, inside = _deep_subtrees(m, batches, n_ch, n_cnt, n_depth, leaf_size)
+        info["rebuilt"] = int(dr.sum(dr.select(roots, UInt32(1), UInt32(0)))[0])
+        kept &= ~inside
+        if phases is not None:
+            _phase(phases, "deep subtrees", t_phase)
+
+    # ---- 5. inner nodes, padded child boxes, SAH cost -----------------------------------------
+    new_id = dr.prefix_sum(dr.select(kept, UInt32(1), UInt32(0)), reverse=True)
+    dr.eval(new_id)
+    last = dr.opaque(UInt32, n_in - 1)
+    src = last - dr.compress(dr.gather(m.Bool, kept, last - dr.arange(UInt32, n_in)))
+    N = dr.width(src)
+    extent = dr.maximum(dr.maximum(s_hi[0] - s_lo[0], s_hi[1] - s_lo[1]), s_hi[2] - s_lo[2])
+    # (``pad``: the padding rule's factor and extent, and where the unpadded boxes go)
+    rb_rows, rb_first, rb_count, rb_depth = None, None, None, None
+    extra = 0
+    if roots is not None:
+        is_root = dr.gather(m.Bool, roots, src)
+        rb_rows = dr.compress(is_root)
+        rb_src = dr.gather(UInt32, src, rb_rows)
+        rb_first = dr.gather(UInt32, n_first, rb_src)
+        rb_count = dr.gather(UInt32, n_cnt, rb_src)
+        rb_depth = dr.gather(UInt32, n_depth, rb_src)
+        extra = int(dr.sum(rb_count)[0])
+    boxes_d = dr.zeros(Float, 12 * (N + extra))
+    raw_d = dr.zeros(Float, 12 * (N + extra))
+    pad = float(32 * unit_roundoff(False)), extent, raw_d
+    refs_d = dr.zeros(UInt32, 2 * (N + extra))
+    n = dr.arange(UInt32, N)
+    area = dr.zeros(m.Float64, N)
+    for s in range(2):
+        r = dr.gather(UInt32, n_ch[s], src)
+        is_node = (r & NODE) != 0
+        idx = r & MASK
+        cnt = dr.select(is_node, dr.gather(UInt32, n_cnt, idx, is_node), 1)
+        first = dr.select(is_node, dr.gather(UInt32, n_first, idx, is_node),
+                          dr.gather(UInt32, t_pos, idx, ~is_node))
+        inner = is_node & (cnt > leaf_size)
+        ref = dr.select(inner, dr.gather(UInt32, new_id, idx, inner),
+                        LEAF_BIT | ((cnt - 1) << COUNT_SHIFT) | first)
+        dr.scatter(refs_d, ref, 2 * n + s)
+        lo_c = [dr.select(is_node, dr.gather(Float, n_box[a], idx, is_node),
+                          dr.gather(Float, slo[a], idx, ~is_node)) for a in range(3)]
+        hi_c = [dr.select(is_node, dr.gather(Float, n_box[3 + a], idx, is_node),
+                          dr.gather(Float, shi[a], idx, ~is_node)) for a in range(3)]
+        half = _write_box(m, boxes_d, 12 * n + 6 * s, lo_c, hi_c, pad)
+        area += half * dr.select(inner, 1.0, m.Float64(cnt))
+    if roots is not None:                 # their rows are rewritten by the rebuild
+        area = dr.select(is_root, 0.0, area)
+    total = dr.sum(area)
+    dr.eval(boxes_d, refs_d, total, order_d, raw_d)
+    if roots is not None:
+        p_box = [dr.zeros(Float, F) for _ in range(6)]   # triangle boxes in the final order
+        for a in range(6):
+            dr.scatter(p_box[a], (slo + shi)[a], t_pos)
+        dr.eval(p_box)
+        N, levels, rb_area = _rebuild(m, (rb_rows, rb_first, rb_count, rb_depth), p_box,
+                                      boxes_d, refs_d, N, leaf_size, pad)
+        total += rb_area
+        boxes_d = dr.gather(Float, boxes_d, dr.arange(UInt32, 12 * N))
+        raw_d = dr.gather(Float, raw_d, dr.arange(UInt32, 12 * N))
+        refs_d = dr.gather(UInt32, refs_d, dr.arange(UInt32, 2 * N))
+        levels = max(levels, int(dr.max(dr.gather(UInt32, n_depth, src))[0]) + 1)
+    info["fallback"] = False
+
+    # ---- the host arrays ---------------------------------------------------------------------
+    arrays = host_arrays(boxes_d, refs_d, order_d, raw_d, (s_lo, s_hi), total, levels)
+    arrays.build_seconds = time.perf_counter() - t_start
+    if phases is not None:
+        _phase(phases, "inner nodes and host copy", t_phase)
+    return arrays
+
+
+def _write_box(m, boxes_d, at, lo, hi, pad):
+    """Scatter the box ``(lo, hi)`` (3 Floats each) padded by ``pad_boxes``'s rule (``pad``:
+    32 units of roundoff, the scene extent, and None or the Float that gets the unpadded
+    box at the same place) to ``boxes_d[at .. at + 5]``; answers its half surface area
+    (Float64)."""
+    u32, extent, raw_d = pad
+    d = []
+    for a in range(3):                    # pad_boxes: 32 roundoff x (magnitude + extent)
+        e = (dr.maximum(abs(lo[a]), abs(hi[a])) + extent) * u32
+        lo_a, hi_a = lo[a] - e, hi[a] + e
+        dr.scatter(boxes_d, lo_a, at + a)
+        dr.scatter(boxes_d, hi_a, at + 3 + a)
+        if raw_d is not None:
+            dr.scatter(raw_d, lo[a], at + a)
+            dr.scatter(raw_d, hi[a], at + 3 + a)
+        d.append(m.Float64(hi_a - lo_a))
+    return d[0] * d[1] + d[1] * d[2] + d[2] * d[0]
+
+
+def _deep_subtrees(m, batches, n_ch, n_cnt, n_depth, leaf_size):
+    """The nodes whose subtrees are rebuilt balanced so that no inner node lies deeper than
+    ``MAX_LEVELS`` levels: bottom up (first iteration's nodes first), a node whose subtree,
+    with the rebuilds below it, still reaches too deep is rebuilt when a balanced tree over
+    its triangles fits below its level (else an ancestor is). Answers the Bool arrays
+    (over the nodes) ``roots`` (rebuilt nodes) and ``inside`` (nodes below a root, which
+    leave the tree)."""
+    UInt32, Bool = m.UInt32, m.Bool
+    n_in = dr.width(n_cnt)
+    height = dr.zeros(UInt32, n_in)       # inner levels from the node down, rebuilds done
+    roots = dr.zeros(Bool, n_in)
+    for b0, cnt in batches:
+        c = dr.opaque(UInt32, b0) + dr.arange(UInt32, cnt)
+        h = []
+        for s in range(2):
+            r = dr.gather(UInt32, n_ch[s], c)
+            idx = r & MASK
+            is_node = (r & NODE) != 0
+            cc = dr.gather(UInt32, n_cnt, idx, is_node)
+            inner = is_node & (cc > leaf_size)
+            h.append(dr.select(inner, dr.select(dr.gather(Bool, roots, idx, inner),
+                                                _levels_needed(cc, leaf_size),
+                                                dr.gather(UInt32, height, idx, inner)), 0))
+        n = dr.gather(UInt32, n_cnt, c)
+        d = dr.gather(UInt32, n_depth, c)
+        hc = dr.maximum(h[0], h[1]) + 1
+        dr.eval(hc, n, d)
+        big = n > leaf_size
+        rebuild = big & (d + hc > MAX_LEVELS) & (d + _levels_needed(n, leaf_size) <= MAX_LEVELS)
+        dr.scatter(height, dr.select(big, hc, 0), c)
+        dr.scatter(roots, rebuild, c)
+        dr.eval(height, roots)
+    inside = dr.zeros(Bool, n_in)
+    for b0, cnt in reversed(batches):
+        c = dr.opaque(UInt32, b0) + dr.arange(UInt32, cnt)
+        below = dr.gather(Bool, inside, c) | dr.gather(Bool, roots, c)
+        ch = [dr.gather(UInt32, n_ch[s], c) for s in range(2)]
+        dr.eval(below, ch)
+        for s in range(2):
+            dr.scatter(inside, below, ch[s] & MASK, (ch[s] & NODE) != 0)
+        dr.eval(inside)
+    roots &= ~inside
+    dr.eval(roots)
+    return roots, inside
+
+
+def _rebuild(m, rb, p_box, boxes_d, refs_d, n_next, leaf_size, pad):
+    """Rebuild the subtrees ``rb`` = (rows, first, count, depth) (UInt32 each: the root's
+    output row, its triangles' first position and count, its depth) balanced, top down one
+    level at a time: a node over ``n`` triangles splits at ``n // 2``, its child boxes
+    reduced over their triangles' boxes ``p_box`` (6 Floats over positions). Rows and child
+    references go to ``boxes_d`` and ``refs_d``, new nodes from row ``n_next`` on. Answers
+    the row count, the deepest node's level and the rows' SAH area (Float64, 1 lane)."""
+    Float, UInt32 = m.Float, m.UInt32
+    row, first, count, depth = rb
+    area = dr.zeros(m.Float64, 1)
+    level_max = []
+    while dr.width(row):
+        k = dr.width(row)
+        level_max.append(dr.max(depth))
+        lane = dr.arange(UInt32, 2 * k)
+        node, side = lane >> 1, lane & 1
+        n_row = dr.gather(UInt32, row, node)
+        n_first = dr.gather(UInt32, first, node)
+        n_count = dr.gather(UInt32, count, node)
+        half = n_count >> 1
+        c_first = dr.select(side == 0, n_first, n_first + half)
+        c_count = dr.select(side == 0, half, n_count - half)
+        end = c_first + c_count
+
+        def body(j, lo0, lo1, lo2, hi0, hi1, hi2):
+            lo = [dr.minimum(x, dr.gather(Float, p_box[a], j)) for a, x in
+                  enumerate((lo0, lo1, lo2))]
+            hi = [dr.maximum(x, dr.gather(Float, p_box[3 + a], j)) for a, x in
+                  enumerate((hi0, hi1, hi2))]
+            return (j + 1, *lo, *hi)
+
+        inf = dr.full(Float, dr.inf, 2 * k)
+        state = dr.while_loop(state=(UInt32(c_first), inf, inf, inf, -inf, -inf, -inf),
+                              cond=lambda j, *_, end=end: j < end, body=body,
+                              label="ploc_rebuild_box")
+        leaf = c_count <= leaf_size
+        half_area = _write_box(m, boxes_d, 12 * n_row + 6 * side, list(state[1:4]),
+                               list(state[4:7]), pad)
+        area += dr.sum(half_area * dr.select(leaf, m.Float64(c_count), 1.0))
+        ref = dr.select(leaf, LEAF_BIT | ((c_count - 1) << COUNT_SHIFT) | c_first, 0)
+        dr.eval(ref, c_first, c_count, leaf, boxes_d, area, pad[2])
+        pend = dr.compress(~leaf)
+        w = dr.width(pend)
+        if w:
+            dr.scatter(ref, dr.opaque(UInt32, n_next) + dr.arange(UInt32, w), pend)
+        dr.scatter(refs_d, ref, 2 * n_row + side)
+        if not w:
+            dr.eval(refs_d)
+            break
+        row = dr.opaque(UInt32, n_next) + dr.arange(UInt32, w)
+        first = dr.gather(UInt32, c_first, pend)
+        count = dr.gather(UInt32, c_count, pend)
+        depth = dr.gather(UInt32, dr.gather(UInt32, depth, node) + 1, pend)
+        n_next += w
+        dr.eval(refs_d, row, first, count, depth)
+    levels = max(int(x[0]) for x in level_max) + 1
+    return n_next, levels, area
