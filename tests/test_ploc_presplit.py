@@ -122,3 +122,23 @@ def test_a_floor_under_an_object_is_left_whole(monkeypatch):
     kept = build_ploc(V, faces, "llvm")
     assert cut.cells is not None and cut.sah_cost > a.sah_cost
     assert kept.cells is None and np.array_equal(kept.children, a.children)
+
+
+def test_auto_first_image_tree_is_uncut_and_keyed_apart(tmp_path, monkeypatch):
+    """"auto" for one frame builds PLOC without the cuts (``cuts=False``: its fastest
+    build), "device" with them; the two trees have their own cache entries, so neither
+    answers for the other."""
+    import renderer.accel.builders as builders
+    from renderer.accel.cache import TreeCache
+    monkeypatch.setattr(builders, "AUTO_MIN_TRIANGLES", 100)
+    V, faces = floors_and_soup()
+    scene = scene_from_arrays(V, faces)
+    cache = TreeCache(tmp_path)
+    a, info = builders.binary_tree(scene, "llvm", build="auto", cache=cache, frames=1)
+    assert info.build == "device" and not info.cached
+    assert a.cells is None and a.order.size == len(faces)
+    d, info = builders.binary_tree(scene, "llvm", build="device", cache=cache)
+    assert not info.cached and d.cells is not None and d.order.size > len(faces)
+    a2, info = builders.binary_tree(scene, "llvm", build="auto", cache=cache, frames=1)
+    assert info.cached and a2.cells is None
+    assert np.array_equal(a2.order, a.order) and np.array_equal(a2.boxes, a.boxes)

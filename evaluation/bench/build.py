@@ -6,8 +6,10 @@ Per scene (``SCENES``; quick: ``QUICK_SCENES``), in one process on the same tria
 - the device builds, each after one warm-up build (kernel compilation), median of
   ``REPEATS``: seconds, M triangles/s: the radix tree (``renderer.accel.device_build``,
   the ``device_*`` columns) and PLOC (``renderer.accel.ploc``, ``ploc_*``; what
-  ``--build device`` runs), both the backend's Dr.Jit, from the host's vertex and face
-  arrays to the host's ``BVHArrays`` (the triangles' upload and the tree's copy back
+  ``--build device`` runs, with whether it cut large triangles, and without the cuts,
+  ``ploc_nocut_*``: "auto"'s tree for a first image), all on the backend's Dr.Jit, from
+  the host's vertex and face arrays to the host's ``BVHArrays`` (the triangles' upload
+  and the tree's copy back
   included, as Mitsuba's build below includes its mesh upload); the radix tree also with
   ``raw=True`` (also copying back the unpadded boxes, what ``whitted render`` asks for so
   the traversal pads them without a host refit);
@@ -138,9 +140,10 @@ def build_row(ctx: Context, name: str) -> dict:
     row["device_phases_s"] = phases          # one more build, waiting at each phase's end
     build_ploc(scene.vertices, scene.faces, ctx.backend)            # warm-up: compilation
     times = []
+    pl_stats = {}
     for _ in range(REPEATS):
         dr.sync_thread()
-        pl = build_ploc(scene.vertices, scene.faces, ctx.backend)
+        pl = build_ploc(scene.vertices, scene.faces, ctx.backend, stats=pl_stats)
         times.append(pl.build_seconds)
     row["ploc_s"] = statistics.median(times)
     row["ploc_mtris_s"] = F / row["ploc_s"] / 1e6
@@ -148,6 +151,16 @@ def build_row(ctx: Context, name: str) -> dict:
     phases = {}
     build_ploc(scene.vertices, scene.faces, ctx.backend, phases=phases)
     row["ploc_phases_s"] = phases
+    build_ploc(scene.vertices, scene.faces, ctx.backend, cuts=False)             # warm-up
+    row["ploc_cut"] = bool(pl_stats.get("cut"))
+    times = []
+    for _ in range(REPEATS):
+        dr.sync_thread()
+        whole = build_ploc(scene.vertices, scene.faces, ctx.backend, cuts=False)
+        times.append(whole.build_seconds)
+    row["ploc_nocut_s"] = statistics.median(times)
+    row["ploc_nocut_mtris_s"] = F / row["ploc_nocut_s"] / 1e6
+    row["ploc_nocut_sah_cost"] = whole.sah_cost
     sah = build_bvh(scene.vertices, scene.faces)
     row["sah_s"] = sah.build_seconds
     row["sah_mtris_s"] = F / sah.build_seconds / 1e6
@@ -206,15 +219,18 @@ def markdown(rows: list[dict]) -> list[str]:
               f"{r['device_mtris_s']:.2f}",
               f"{r['device_raw_s']:.3f}" if "device_raw_s" in r else "",
               _get(r, "ploc_s", ".3f"),
-              _get(r, "ploc_mtris_s", ".2f"), f"{r['sah_s']:.2f}", f"{r['sah_mtris_s']:.3f}",
+              _get(r, "ploc_mtris_s", ".2f"),
+              ("yes" if r["ploc_cut"] else "no") if "ploc_cut" in r else "-",
+              _get(r, "ploc_nocut_s", ".3f"), _get(r, "ploc_nocut_mtris_s", ".2f"),
+              f"{r['sah_s']:.2f}", f"{r['sah_mtris_s']:.3f}",
               f"{r['mitsuba_build_s']:.3f} / {r['mitsuba_build_again_s']:.3f}",
               f"{r['mitsuba_mtris_s']:.2f}", f"{r['load_avg_1min']:.1f}"] for r in rows]
     out = table("Build: device (Dr.Jit: radix, PLOC) vs host SAH vs Mitsuba's scene build, "
                 "one process",
                 ["scene", "triangles", "radix s", "radix M/s", "radix + raw boxes s", "PLOC s",
-                 "PLOC M/s", "SAH s", "SAH M/s", "Mitsuba s (1st / 2nd)", "Mitsuba M/s",
-                 "load avg"],
-                "lrrrrrrrrrrr", cells)
+                 "PLOC M/s", "PLOC cut", "PLOC no cuts s", "PLOC no cuts M/s", "SAH s",
+                 "SAH M/s", "Mitsuba s (1st / 2nd)", "Mitsuba M/s", "load avg"],
+                "lrrrrrrlrrrrrrr", cells)
     names = list(rows[0].get("device_phases_s", {})) if rows else []
     cells = [[r["scene"]] + [f"{1e3 * r['device_phases_s'].get(n, 0.0):.1f}" for n in names]
              for r in rows if r.get("device_phases_s")]

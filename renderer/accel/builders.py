@@ -14,8 +14,10 @@ stored. The "auto" rule, measured (``lab/notes/device-build.md``): an SAH tree a
 the cache is taken (it costs nothing and traces fastest); otherwise a caller that renders
 at most ``AUTO_MAX_FRAMES`` frames of a scene of at least ``AUTO_MIN_TRIANGLES`` triangles
 gets the device tree (its much faster build outweighs its slower traversal
-over so few frames), every other caller (a study, a bench, an unknown number of frames)
-the SAH tree.
+over so few frames), built without PLOC's cuts of large triangles (``ploc.build_ploc``'s
+``cuts``: they cost more build time than so few frames gain; "device" and "ploc" named
+by the user make them), every other caller (a study, a bench, an unknown number of
+frames) the SAH tree.
 
 ``tree_accelerator`` (``build_accelerator``'s way to a ``TREE_ACCELS`` accelerator) puts a
 second entry in front of the tree: the arrays the accelerator uploads (``host_layout`` of
@@ -94,13 +96,16 @@ def triangles_key(scene) -> str:
     return content_key(np.asarray(scene.vertices, np.float32), np.asarray(scene.faces))
 
 
-def tree_key(scene, build: str, leaf_size: int = LEAF_SIZE, triangles: str | None = None
-             ) -> str:
+def tree_key(scene, build: str, leaf_size: int = LEAF_SIZE, triangles: str | None = None,
+             cuts: bool = True) -> str:
     """The cache key of ``scene``'s tree from ``build`` (a value of ``BUILDS`` but "auto");
     ``triangles``: ``triangles_key(scene)`` when the caller has it (it hashes every
-    vertex and face)."""
-    return content_key(triangles or triangles_key(scene), builder(build),
-                       {"leaf_size": leaf_size}, code_version())
+    vertex and face); ``cuts``: PLOC's ``cuts`` (the other builders have none)."""
+    params = {"leaf_size": leaf_size}
+    if builder(build) == "ploc":
+        params["cuts"] = bool(cuts)
+    return content_key(triangles or triangles_key(scene), builder(build), params,
+                       code_version())
 
 
 def binary_tree(scene, backend: str, *, build: str = "sah", cache: TreeCache | None = None,
@@ -124,8 +129,9 @@ def binary_tree(scene, backend: str, *, build: str = "sah", cache: TreeCache | N
                 if a is not None:
                     return a, TreeInfo("sah", True, time.perf_counter() - t0)
     chosen = resolve_build(build, scene.face_count, frames, False)
+    cuts = build != "auto"        # "auto"'s device tree is for a first image: no cuts
     if cache is not None and not (build == "auto" and chosen == "sah"):
-        keys[chosen] = keys.get(chosen) or tree_key(scene, chosen, leaf_size, tri)
+        keys[chosen] = keys.get(chosen) or tree_key(scene, chosen, leaf_size, tri, cuts)
         got = cache.get("tree", keys[chosen])
         if got is not None:
             a = _from_entry(got, scene.face_count)
@@ -133,7 +139,7 @@ def binary_tree(scene, backend: str, *, build: str = "sah", cache: TreeCache | N
                 return a, TreeInfo(chosen, True, time.perf_counter() - t0)
     how = builder(chosen)
     if how == "ploc":
-        a = build_ploc(scene.vertices, scene.faces, backend, leaf_size=leaf_size,
+        a = build_ploc(scene.vertices, scene.faces, backend, leaf_size=leaf_size, cuts=cuts,
                        progress=progress and (lambda k: progress(chosen, k)))
     elif how == "radix":
         a = build_device(scene.vertices, scene.faces, backend, leaf_size=leaf_size,
@@ -144,7 +150,7 @@ def binary_tree(scene, backend: str, *, build: str = "sah", cache: TreeCache | N
     seconds = time.perf_counter() - t0
     if cache is not None:
         a = with_raw(a, scene)
-        cache.put("tree", keys.get(chosen) or tree_key(scene, chosen, leaf_size, tri),
+        cache.put("tree", keys.get(chosen) or tree_key(scene, chosen, leaf_size, tri, cuts),
                   *_to_entry(a))
     return a, TreeInfo(chosen, False, seconds)
 
@@ -321,7 +327,8 @@ def tree_accelerator(scene, t, req: LayoutRequest, build_request) -> object:
         extent = pad_extent(scene, req.intersection)
         chosen = resolve_build(build, scene.face_count, build_request.frames, False)
         for name in dict.fromkeys(["sah", chosen] if build == "auto" else [build]):
-            key = layout_key(scene, tree_key(scene, name, LEAF_SIZE, tri), req, t, extent)
+            key = layout_key(scene, tree_key(scene, name, LEAF_SIZE, tri, build != "auto"),
+                             req, t, extent)
             got = cache.get("layout", key)
             if got is None:
                 continue
@@ -346,7 +353,8 @@ def tree_accelerator(scene, t, req: LayoutRequest, build_request) -> object:
     arrays, info = req.cls.host_layout(scene, t, tree, intersection=req.intersection,
                                        extent=extent, triangles=tris, **kw)
     if cache is not None:
-        key = layout_key(scene, tree_key(scene, how.build, LEAF_SIZE, tri), req, t, extent)
+        key = layout_key(scene, tree_key(scene, how.build, LEAF_SIZE, tri, build != "auto"),
+                         req, t, extent)
         cache.put("layout", key, arrays, {"info": info})
     t2 = time.perf_counter()
     acc = req.cls.from_layout(t, arrays, info)

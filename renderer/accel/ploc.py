@@ -317,11 +317,14 @@ def _positions(m, cl: Clusters):
 
 
 def build_ploc(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm", *,
-               leaf_size: int = LEAF_SIZE, radius: int = RADIUS, progress=None,
-               phases: dict | None = None, stats: dict | None = None) -> BVHArrays:
+               leaf_size: int = LEAF_SIZE, radius: int = RADIUS, cuts: bool = True,
+               progress=None, phases: dict | None = None, stats: dict | None = None
+               ) -> BVHArrays:
     """Build a BVH over ``faces`` (int (F, 3)) of ``vertices`` (float (V, 3)) on ``backend``
     ("cuda" or "llvm"; see the module docstring). ``leaf_size``: most triangles per leaf
-    (1..16); ``radius``: the nearest-neighbour search radius (1..64). ``progress``: called
+    (1..16); ``radius``: the nearest-neighbour search radius (1..64); ``cuts``: False builds
+    over the whole triangles (no ``presplit`` step: the fastest build, for a first image
+    whose one frame gains less than the cuts cost). ``progress``: called
     after each clustering iteration as ``progress(done)``, ``done`` the clusters merged so
     far on the level-wise builders' scale of ``MAX_LEVELS`` (log of the clusters left).
     ``phases``: None, or a dict that gets the seconds of each phase (the build then waits
@@ -355,7 +358,7 @@ def build_ploc(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm", *
 
     # ---- 1. triangle boxes, Morton codes, sorted -------------------------------------------
     lo, hi = triangle_boxes(m, Vn, Fn)
-    refs = presplit.split_references(m, Vn, Fn, lo, hi)  # large triangles cut, or None
+    refs = presplit.split_references(m, Vn, Fn, lo, hi) if cuts else None   # cut, or None
     if refs is not None:
         lo, hi, refs = refs
         F = dr.width(lo[0])                               # references from here on
@@ -465,9 +468,8 @@ def build_ploc(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm", *
     info["cut"] = refs is not None
     if refs is not None and presplit.KEEP_BETTER:     # the uncut tree where it costs less
         w_info = {}
-        with presplit.no_cuts():
-            whole = build_ploc(Vn, Fn, backend, leaf_size=leaf_size, radius=radius,
-                               stats=w_info)
+        whole = build_ploc(Vn, Fn, backend, leaf_size=leaf_size, radius=radius, cuts=False,
+                           stats=w_info)
         if whole.sah_cost <= arrays.sah_cost:
             arrays, refs = whole, None
             info.update(w_info)

@@ -23,7 +23,6 @@ copied to the host and cut there (numpy); their references' boxes go back in one
 """
 from __future__ import annotations
 
-from contextlib import contextmanager
 from dataclasses import dataclass
 
 import drjit as dr
@@ -49,7 +48,6 @@ GAIN = 0.9
 #: (the bunny on its floor), so ``build_ploc`` also builds the uncut tree when it cut
 #: anything and keeps the one of lower SAH cost.
 KEEP_BETTER = True
-_off = [False]
 GRID_LEVELS = 2                  # cuts at the planes of the scene box halved and quartered
 
 
@@ -146,16 +144,6 @@ def cut(Vn, Fn, big, lo, hi, scene, budget: int):
     return face, c_lo, c_hi, lo, hi
 
 
-@contextmanager
-def no_cuts():
-    """Within this context ``split_references`` cuts nothing."""
-    _off.append(True)
-    try:
-        yield
-    finally:
-        _off.pop()
-
-
 def split_references(m, Vn, Fn, lo, hi):
     """PLOC's references (see the module docstring) of the faces ``Fn`` of ``Vn`` with
     triangle boxes ``lo``/``hi`` (3 ``m.Float`` each, on the device). Answers None when no
@@ -164,7 +152,7 @@ def split_references(m, Vn, Fn, lo, hi):
     Float, UInt32 = m.Float, m.UInt32
     F = dr.width(lo[0])
     budget = min(int(SPLIT_BUDGET * F), (1 << COUNT_SHIFT) - 1 - F)   # references' bound
-    if budget <= 0 or SPLIT_SIZE <= 0 or _off[-1]:
+    if budget <= 0 or SPLIT_SIZE <= 0:
         return None
     s_lo = [dr.min(x) for x in lo]
     s_hi = [dr.max(x) for x in hi]
