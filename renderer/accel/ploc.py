@@ -6,7 +6,8 @@ Steps, each a few Dr.Jit kernels over all triangles, clusters or nodes:
 1. triangle boxes, large triangles cut into references at coarse planes of the Morton
    grid (``presplit``: the tree then carries their cells, ``BVHArrays.cells``, and
    ``order`` holds a face once per reference; where anything is cut the uncut tree is built
-   too and the one of lower SAH cost kept), the scene box and 30-bit Morton codes of the
+   too, over the triangle boxes already made, their SAH costs compared from one small read
+   and only the kept tree copied back), the scene box and 30-bit Morton codes of the
    box centres, sorted by ``dr.argsort``, as ``device_build`` makes them but without its
    large-triangle key (clustering merges a large triangle late by itself: its union boxes
    are large);

@@ -18,8 +18,13 @@ over the references is brute force's (duplicates of a triangle tie at the same `
 face index): the tree carries the cells as ``BVHArrays.cells`` and ``order`` holds a face
 once per reference, as the host builder's tree with spatial splits does.
 
-The large triangles are found on the device (a compress: one count read) and only they are
-copied to the host and cut there (numpy); their references' boxes go back in one upload.
+The large triangles are found and cut on the device (``cut_device``, Dr.Jit: the same code
+on CUDA and LLVM): each round is a few kernels over the references to cut and three count
+reads, the two pieces' boxes clipped from the triangle in one pass of
+``clip_boxes_device``, which does ``spatial.clipped_boxes``'s float64 Sutherland-Hodgman in
+fixed corner slots, in the same order, so the references, their cells and boxes are bitwise
+the numpy ``cut``'s (which stays as the reference the tests compare with). Only the
+references' faces and cells come back to the host, for ``BVHArrays.cells``.
 """
 from __future__ import annotations
 
@@ -47,7 +52,7 @@ ROUNDS = 12
 GAIN = 0.9
 #: Cut pieces of a floor under a small object join that object's clusters and grow them
 #: (the bunny on its floor), so ``build_ploc`` also builds the uncut tree when it cut
-#: anything and keeps the one of lower SAH cost.
+#: anything (over the triangle boxes it already has) and keeps the one of lower SAH cost.
 KEEP_BETTER = True
 GRID_LEVELS = 2                  # cuts at the planes of the scene box halved and quartered
 
