@@ -12,6 +12,7 @@ existing file unless the caller passes ``overwrite=True`` (``OutputExistsError``
 """
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import drjit as dr
@@ -60,6 +61,8 @@ def write_exr(path, image, *, layers: dict | None = None, overwrite: bool = Fals
         header (values are written as ``str(value)``; ``read_exr_metadata`` reads them back).
     """
     import OpenEXR
+    if OpenEXR.global_thread_count() == 0:   # the library compresses its blocks on threads
+        OpenEXR.set_global_thread_count(os.cpu_count() or 1)     # (the same bytes)
     img = np.ascontiguousarray(_check_image(image, str(path)), dtype=np.float32)
     extra = {name: np.ascontiguousarray(_check_image(v, f"{path}: layer {name!r}"), np.float32)
              for name, v in (layers or {}).items()}
@@ -176,11 +179,81 @@ def read_png(path) -> np.ndarray:
     return srgb_decode(data.astype(np.float64) / top)
 
 
-def srgb_encode(image) -> np.ndarray:
-    """Linear RGB -> 8-bit sRGB (clamped to [0, 1]); uint8 (H, W, 3)."""
+def srgb_curve(image) -> np.ndarray:
+    """Linear RGB -> 8-bit sRGB (NaN as 0, clamped to [0, 1]) by the curve itself, in
+    float64: the definition ``srgb_encode`` answers (uint8, the input's shape)."""
     x = np.clip(np.nan_to_num(np.asarray(image, np.float64), nan=0.0), 0.0, 1.0)
     y = np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
     return np.round(y * 255.0).astype(np.uint8)
+
+
+_TABLES: dict = {}
+#: ``srgb_encode``'s key: the top bits of a value's bit pattern (sign, exponent and the
+#: first 7 / 8 mantissa bits), a bucket of values within 2^-7 / 2^-8 of each other, over
+#: which the curve's byte rises by less than one: at most one step per bucket.
+_KEY_BITS = {np.float32: 16, np.float64: 20}
+
+
+def _srgb_steps(dtype) -> np.ndarray:
+    """The 255 values of ``dtype`` (float32 or float64) where ``srgb_curve``'s byte steps
+    up: entry k - 1 is the least value whose byte is at least k, found by bisection over the
+    values' bit patterns in [0, 1] (ordered as the values are: no sign bit)."""
+    uint = np.uint32 if dtype == np.float32 else np.uint64
+    k = np.arange(1, 256)
+    lo = np.zeros(255, uint)
+    hi = np.full(255, np.array(1.0, dtype).view(uint))       # the byte of 1.0 is 255
+    while np.any(lo < hi):
+        mid = lo + (hi - lo) // 2
+        up = srgb_curve(mid.view(dtype)) >= k
+        hi = np.where(up, mid, hi)
+        lo = np.where(up, lo, mid + 1)
+    return hi.view(dtype)
+
+
+def _srgb_tables(dtype) -> tuple:
+    """Per key (``_KEY_BITS``): the byte of the bucket's least value (``srgb_curve``'s) and
+    the one step inside the bucket (the least value with the next byte; +inf where the byte
+    does not change in the bucket; NaN, which no value reaches, from 1.0's key on). Keys
+    of negative values (sign bit) give 0, keys from 1.0's on (infinities and NaN included;
+    NaN is set to 0 after) give 255."""
+    if dtype not in _TABLES:
+        uint = np.uint32 if dtype == np.float32 else np.uint64
+        bits = 8 * np.dtype(dtype).itemsize
+        shift = bits - _KEY_BITS[dtype]
+        n = 1 << _KEY_BITS[dtype]
+        top = int(np.array(1.0, dtype).view(uint)) >> shift        # the key of 1.0
+        base = np.zeros(n, np.uint8)
+        step = np.full(n, np.inf, dtype)
+        keys = np.arange(top + 1, dtype=uint)
+        first = (keys << uint(shift)).view(dtype)                   # each bucket's least
+        nxt = ((keys + uint(1)) << uint(shift)).view(dtype)
+        byte = srgb_curve(first)
+        base[:top + 1] = byte
+        base[top:n // 2] = 255                                     # 1.0 and above
+        steps = np.append(_srgb_steps(dtype), np.inf).astype(dtype)
+        s = steps[byte]                                            # next byte's least value
+        inside = s < nxt
+        step[:top + 1] = np.where(inside, s, np.inf)
+        step[top:] = np.nan                                        # never reached
+
+        _TABLES[dtype] = (base, step, shift, uint)
+    return _TABLES[dtype]
+
+
+def srgb_encode(image) -> np.ndarray:
+    """Linear RGB -> 8-bit sRGB (clamped to [0, 1], NaN as 0); uint8, the input's shape.
+    The bytes are ``srgb_curve``'s; a float32 or float64 image gets them from
+    ``_srgb_tables`` (a bucket's byte, plus one where the value reaches the bucket's step:
+    no float64 copy and power per value), any other dtype from the curve."""
+    img = np.asarray(image)
+    if img.dtype.type not in _KEY_BITS:
+        return srgb_curve(img)
+    base, step, shift, uint = _srgb_tables(img.dtype.type)
+    key = img.view(uint) >> uint(shift)
+    out = base[key]
+    out += img >= step[key]
+    out[np.isnan(img)] = 0           # (their keys lie above 1.0's)
+    return out
 
 
 def write_png(path, image, *, overwrite: bool = False) -> Path:

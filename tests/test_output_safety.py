@@ -80,3 +80,30 @@ def test_no_writer_replaces_a_pipe(tmp_path):
     with pytest.raises(OutputError, match="not a regular file"):
         write_text(fifo, "x", overwrite=True)
     assert fifo.is_fifo()
+
+
+def test_render_writes_run_together_and_errors_reach_the_command():
+    """``whitted.render.write_all``: every write runs (the first ones on threads), and an
+    error of any of them is raised in the command once all have ended."""
+    import threading
+
+    from whitted.render import write_all
+    done, names = [], []
+
+    def ok(name):
+        names.append(threading.current_thread().name)
+        done.append(name)
+
+    def bad():
+        raise OSError("disk full")
+
+    write_all([lambda: ok("exr"), lambda: ok("png")])
+    assert sorted(done) == ["exr", "png"] and len(set(names)) == 2
+    done.clear()
+    with pytest.raises(OSError, match="disk full"):
+        write_all([bad, lambda: ok("png")])
+    assert done == ["png"]
+    with pytest.raises(OSError, match="disk full"):
+        write_all([lambda: ok("exr"), bad])
+    assert done == ["png", "exr"]
+    write_all([])

@@ -14,7 +14,7 @@ from __future__ import annotations
 import argparse
 
 from evaluation import wxh
-from evaluation.gate.verdict import EXIT_CODES
+from evaluation.gate.exit_codes import EXIT_CODES
 from renderer.accel import ACCELERATORS, BUILDS, DEFAULT_ACCELS, DEFAULT_ROUTINE, ROUTINES
 from renderer.device import BACKENDS, PRECISIONS
 from renderer.effects import FLAGS, EffectSet

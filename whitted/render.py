@@ -11,7 +11,9 @@ from __future__ import annotations
 
 import argparse
 import sys
+import threading
 import time
+from functools import partial
 from pathlib import Path
 
 from renderer.device import start_backend
@@ -97,6 +99,29 @@ def output_files(scene, views: list[int], out: Path, orbit: bool) -> list[dict]:
     return [{suffix[1:]: out}]
 
 
+def write_all(writes: list) -> None:
+    """Run the file writes ``writes`` (callables), the first ones on threads beside the last
+    (the EXR's compression and the PNG's run in C without the GIL, so two files take about
+    as long as the slower one); the first error of any is raised once all have ended."""
+    errors = []
+
+    def run(w):
+        try:
+            w()
+        except BaseException as e:       # re-raised in the calling thread
+            errors.append(e)
+
+    threads = [threading.Thread(target=run, args=(w,)) for w in writes[:-1]]
+    for th in threads:
+        th.start()
+    if writes:
+        run(writes[-1])
+    for th in threads:
+        th.join()
+    if errors:
+        raise errors[0]
+
+
 def cmd_render(args: argparse.Namespace) -> int:
     from . import STARTED
     t_imports = time.perf_counter() - STARTED
@@ -137,15 +162,18 @@ def cmd_render(args: argparse.Namespace) -> int:
         cam = scene.cameras[v]
         ks = render_view(renderer, v, f"{scene.name}/{cam.name}")
         res = ks["result"]
+        writes = []
         if "exr" in f:
             # the metadata's scene key comes from the golden store's code: imported only
             # when an EXR is written, so a PNG render does not pay for the gate's imports
             from evaluation.gate.imagemeta import ours_metadata
-            write_exr(f["exr"], res.image, overwrite=args.overwrite,
-                      metadata=ours_metadata(scene, v, backend=renderer.t.backend,
-                                             precision=renderer.t.precision))
+            meta = ours_metadata(scene, v, backend=renderer.t.backend,
+                                 precision=renderer.t.precision)
+            writes.append(partial(write_exr, f["exr"], res.image, overwrite=args.overwrite,
+                                  metadata=meta))
         if "png" in f:
-            write_png(f["png"], res.image, overwrite=args.overwrite)
+            writes.append(partial(write_png, f["png"], res.image, overwrite=args.overwrite))
+        write_all(writes)
         bands = res.stats.get("bands", 1)
         print(f"  view {cam.name}: {cam.width}x{cam.height}, {res.seconds * 1e3:.1f} ms"
               f"{f' in {bands} bands' if bands > 1 else ''} → "

@@ -42,6 +42,7 @@ from reference import golden as golden_store
 from renderer.outputs import write_bytes
 from renderer.scene import SHADING_MODES, SceneError, load_scene
 
+from .exit_codes import EXIT_CODES
 from .rules import (
     OUR_SEED,
     RULES,
@@ -53,8 +54,6 @@ from .rules import (
     render_batches,
 )
 
-#: Exit code of each status (idiff's convention; the run exits with the largest).
-EXIT_CODES = {"PASS": 0, "WARN": 1, "FAIL": 2, "SIZE": 3, "MISSING": 4, "STALE": 4, "ERROR": 4}
 #: What ``check`` compares when neither the command line nor the scene's ``[check]`` says.
 DEFAULT_MODES = ("exact",)
 DEFAULT_SHADINGS = SHADING_MODES
