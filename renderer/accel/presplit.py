@@ -155,6 +155,14 @@ def cut(Vn, Fn, big, lo, hi, scene, budget: int):
 MAX_CORNERS = 9                  # a triangle clipped by six planes has at most 9 corners
 
 
+def _unfused(m, x):
+    """``x`` (a float64 product) through a select on an opaque true mask, so that the sum
+    it feeds keeps two roundings: on CUDA, ptxas may fuse an ``add.f64`` with the
+    ``mul.f64`` feeding it into an FMA (Dr.Jit emits neither with ``.rn``), which numpy's
+    ``a + b * c`` does not; it cannot fuse across the ``selp``."""
+    return dr.select(dr.opaque(m.Bool, True), x, 0.0)
+
+
 def _next_down(m, x):
     """The float32 just below ``x`` (``m.Float``), as ``np.nextafter(x, -inf)``."""
     UInt32 = m.UInt32
@@ -205,7 +213,8 @@ def _clip_plane(m, poly, n, plane, side):
         k += dr.select(keep, UInt32(1), UInt32(0))
         cross = live & (cin != nin)
         tt = (plane - c_a) / (x_a - c_a)
-        q = [dr.select(ax == c, plane, cur[c] + tt * (nxt[c] - cur[c])) for c in range(3)]
+        q = [dr.select(ax == c, plane, cur[c] + _unfused(m, tt * (nxt[c] - cur[c])))
+             for c in range(3)]
         _put(out, k, q, cross, 2 * i + 2)
         k += dr.select(cross, UInt32(1), UInt32(0))
     poly = [[dr.select(on, out[j][c], poly[j][c]) for c in range(3)]
@@ -262,7 +271,8 @@ def clip_boxes_device(m, tri, c_lo, c_hi):
 
 def _area_device(m, lo, hi):
     d = [m.Float64(hi[a] - lo[a]) for a in range(3)]
-    return d[0] * d[1] + d[1] * d[2] + d[2] * d[0]
+    u = [_unfused(m, d[0] * d[1]), _unfused(m, d[1] * d[2]), _unfused(m, d[2] * d[0])]
+    return u[0] + u[1] + u[2]
 
 
 def _grow(m, arrays, new):
@@ -324,7 +334,7 @@ def cut_device(m, geom, big, lo, hi, scene, budget: int):
         plane = dr.full(F64, np.nan, dr.width(todo))
         for level in range(1, GRID_LEVELS + 1):
             w = ext / float(1 << level)
-            p = base + dr.floor((a_hi - base) / w) * w
+            p = base + _unfused(m, dr.floor((a_hi - base) / w) * w)
             p = dr.select(p >= a_hi, p - w, p)
             ok = dr.isnan(plane) & (p > a_lo) & (p < a_hi)
             plane = dr.select(ok, p, plane)
