@@ -329,9 +329,10 @@ def build_ploc(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm", *
     after each clustering iteration as ``progress(done)``, ``done`` the clusters merged so
     far on the level-wise builders' scale of ``MAX_LEVELS`` (log of the clusters left).
     ``phases``: None, or a dict that gets the seconds of each phase (the build then waits
-    for the device at each phase's end). ``stats``: None, or a dict that gets
-    ``iterations``, ``levels`` (the clustered tree's, before any rebuild), ``rebuilt``
-    (subtrees rebuilt balanced), ``fallback`` (True when the radix tree was returned) and
+    for the device at each phase's end; where ``KEEP_BETTER`` builds the uncut tree too,
+    both trees' phases are summed). ``stats``: None, or a dict that gets ``iterations``,
+    ``levels`` (the clustered tree's, before any rebuild), ``rebuilt`` (subtrees rebuilt
+    balanced), ``fallback`` (True when the radix tree was returned) and
     ``cut`` (True when the tree holds cut triangles' references).
     A scene of at most ``leaf_size`` triangles gets ``build_bvh``'s single-leaf tree.
     The tree carries its unpadded child boxes too (``BVHArrays.raw``, what
@@ -358,6 +359,8 @@ def build_ploc(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm", *
     job = _Job(m, Vn, Fn, leaf_size, radius, progress, phases, t_phase)
     lo, hi = triangle_boxes(m, Vn, Fn)
     cut = presplit.split_references(m, Vn, Fn, lo, hi) if cuts else None   # cut, or None
+    if phases is not None:
+        _phase(phases, "triangle boxes and cuts", t_phase)
     if cut is None:
         tree, refs = _device_tree(job, lo, hi, info), None
     else:
@@ -431,7 +434,7 @@ def _device_tree(job: _Job, lo, hi, info: dict):
     dr.eval(perm, slo, shi)
     del code
     if phases is not None:
-        _phase(phases, "boxes, Morton codes and sort", t_phase)
+        _phase(phases, "Morton codes and sort", t_phase)
 
     # ---- 2. clustering -----------------------------------------------------------------------
     cl = _cluster(m, slo, shi, radius, READ_EVERY[backend], FREEZE[backend], progress)
