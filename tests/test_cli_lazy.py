@@ -1,6 +1,7 @@
 """``whitted CMD ...`` imports only CMD's module (start-up time: the bench parts, the report,
-the gate's verdicts and golden store and the XML reader are not imported for ``render``), and the full parser still lists
-every subcommand (references: the subcommand names ``whitted --help`` has always listed)."""
+the gate's verdicts and golden store and the XML reader are not imported for ``render``),
+and the full parser still lists every subcommand (references: the subcommand names
+``whitted --help`` has always listed)."""
 import subprocess
 import sys
 from pathlib import Path

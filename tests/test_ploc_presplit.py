@@ -142,3 +142,74 @@ def test_auto_first_image_tree_is_uncut_and_keyed_apart(tmp_path, monkeypatch):
     a2, info = builders.binary_tree(scene, "llvm", build="auto", cache=cache, frames=1)
     assert info.cached and a2.cells is None
     assert np.array_equal(a2.order, a.order) and np.array_equal(a2.boxes, a.boxes)
+
+
+def _device_cut(V, faces):
+    """The large triangles of ``V``/``faces`` cut by ``presplit.cut`` (numpy) and by
+    ``presplit.cut_device`` (Dr.Jit, LLVM), both answers in numpy."""
+    from renderer.accel.ploc import _module
+    m = _module("llvm")
+    tri = V[faces]
+    lo, hi = tri.min(1), tri.max(1)
+    s_lo, s_hi = lo.min(0).astype(np.float64), hi.max(0).astype(np.float64)
+    big = np.flatnonzero((hi - lo).max(1) > presplit.SPLIT_SIZE * (s_hi - s_lo).max())
+    budget = int(presplit.SPLIT_BUDGET * len(faces))
+    host = presplit.cut(V, faces, big, lo[big], hi[big], (s_lo, s_hi), budget)
+    dev = presplit.cut_device(m, presplit._geometry(m, V, faces),
+                              m.UInt32(big.astype(np.uint32)),
+                              [m.Float(np.ascontiguousarray(lo[big, a])) for a in range(3)],
+                              [m.Float(np.ascontiguousarray(hi[big, a])) for a in range(3)],
+                              (s_lo, s_hi), budget)
+    dev = (np.asarray(dev[0].numpy(), np.int64),) + tuple(
+        np.stack([np.asarray(x.numpy()) for x in part], 1) for part in dev[1:])
+    return host, dev
+
+
+@pytest.mark.parametrize("scene", ["floors", "walls"])
+def test_device_cut_is_the_host_cut_bitwise(scene):
+    """The device cut makes the host cut's references in its order: the same faces, cells
+    and float32 boxes, bit for bit (the tree over them is then the host-cut tree)."""
+    if scene == "floors":
+        V, faces = floors_and_soup()
+    else:                                 # a box room: every triangle large, slanted ones too
+        rng = np.random.default_rng(5)
+        V = rng.random((90, 3)).astype(np.float32)
+        faces = rng.integers(0, 90, (30, 3))
+        faces = faces[np.array([len(set(f)) == 3 for f in faces])]
+    host, dev = _device_cut(V, faces)
+    assert len(host[0]) > len(set(host[0].tolist()))          # something was cut
+    for h, d, what in zip(host, dev, ("face", "cell_lo", "cell_hi", "lo", "hi")):
+        assert h.shape == d.shape, what
+        assert np.array_equal(h.view(np.uint8), d.astype(h.dtype).view(np.uint8)), what
+
+
+def test_device_clip_is_the_host_clip_bitwise():
+    """``clip_boxes_device`` against ``spatial.clipped_boxes`` on random triangles and random
+    cells bounded by up to six planes (many of them crossing the triangle, some missing it,
+    some through a corner; slivers): the same float32 boxes bit for bit."""
+    from renderer.accel.ploc import _module
+    from renderer.accel.spatial import clipped_boxes
+    m = _module("llvm")
+    rng = np.random.default_rng(11)
+    R = 3000
+    V = rng.random((3 * R, 3)).astype(np.float32)
+    V[:R // 10] = V[R // 10: 2 * (R // 10)] + 1e-6             # some slivers
+    faces = np.arange(3 * R).reshape(R, 3)
+    a, b = rng.random((R, 3)), rng.random((R, 3))
+    c_lo, c_hi = np.minimum(a, b), np.maximum(a, b)
+    c_lo[rng.random((R, 3)) < 0.4] = -np.inf
+    c_hi[rng.random((R, 3)) < 0.4] = np.inf
+    on = rng.random(R) < 0.2                                    # planes through corners
+    c_lo[on, 0] = V[faces[on, 1], 0]
+    c_hi[on, 1] = V[faces[on, 2], 1]
+    face = np.arange(R)
+    lo, hi = clipped_boxes(V, faces, face, c_lo, c_hi, np.float32)
+    tri = [[m.Float64(np.ascontiguousarray(V[faces[:, k], c].astype(np.float64)))
+            for c in range(3)] for k in range(3)]
+    d_lo, d_hi = presplit.clip_boxes_device(
+        m, tri, [m.Float64(np.ascontiguousarray(c_lo[:, c])) for c in range(3)],
+        [m.Float64(np.ascontiguousarray(c_hi[:, c])) for c in range(3)])
+    d_lo = np.stack([np.asarray(x.numpy()) for x in d_lo], 1)
+    d_hi = np.stack([np.asarray(x.numpy()) for x in d_hi], 1)
+    assert np.array_equal(lo.view(np.uint32), d_lo.view(np.uint32))
+    assert np.array_equal(hi.view(np.uint32), d_hi.view(np.uint32))

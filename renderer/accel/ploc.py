@@ -6,7 +6,8 @@ Steps, each a few Dr.Jit kernels over all triangles, clusters or nodes:
 1. triangle boxes, large triangles cut into references at coarse planes of the Morton
    grid (``presplit``: the tree then carries their cells, ``BVHArrays.cells``, and
    ``order`` holds a face once per reference; where anything is cut the uncut tree is built
-   too and the one of lower SAH cost kept), the scene box and 30-bit Morton codes of the
+   too, over the triangle boxes already made, their SAH costs compared from one small read
+   and only the kept tree copied back), the scene box and 30-bit Morton codes of the
    box centres, sorted by ``dr.argsort``, as ``device_build`` makes them but without its
    large-triangle key (clustering merges a large triangle late by itself: its union boxes
    are large);
@@ -55,7 +56,7 @@ import drjit as dr
 import numpy as np
 
 from . import presplit
-from .bvh_build import LEAF_SIZE, MAX_LEVELS, BVHArrays, build_bvh
+from .bvh_build import C_TRAV, LEAF_SIZE, MAX_LEVELS, BVHArrays, build_bvh
 from .device_build import (
     _levels_needed,
     _module,
@@ -328,9 +329,10 @@ def build_ploc(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm", *
     after each clustering iteration as ``progress(done)``, ``done`` the clusters merged so
     far on the level-wise builders' scale of ``MAX_LEVELS`` (log of the clusters left).
     ``phases``: None, or a dict that gets the seconds of each phase (the build then waits
-    for the device at each phase's end). ``stats``: None, or a dict that gets
-    ``iterations``, ``levels`` (the clustered tree's, before any rebuild), ``rebuilt``
-    (subtrees rebuilt balanced), ``fallback`` (True when the radix tree was returned) and
+    for the device at each phase's end; where ``KEEP_BETTER`` builds the uncut tree too,
+    both trees' phases are summed). ``stats``: None, or a dict that gets ``iterations``,
+    ``levels`` (the clustered tree's, before any rebuild), ``rebuilt`` (subtrees rebuilt
+    balanced), ``fallback`` (True when the radix tree was returned) and
     ``cut`` (True when the tree holds cut triangles' references).
     A scene of at most ``leaf_size`` triangles gets ``build_bvh``'s single-leaf tree.
     The tree carries its unpadded child boxes too (``BVHArrays.raw``, what
@@ -352,24 +354,87 @@ def build_ploc(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm", *
                          optimize=0)
     if MAX_LEVELS < math.ceil(math.log2(math.ceil(F / leaf_size))) + 1:
         raise ValueError(f"faces: {F} triangles need more than {MAX_LEVELS} BVH levels")
-    Float, UInt32 = m.Float, m.UInt32
     t_phase = [t_start]
     info = stats if stats is not None else {}
-
-    # ---- 1. triangle boxes, Morton codes, sorted -------------------------------------------
+    job = _Job(m, Vn, Fn, leaf_size, radius, progress, phases, t_phase)
     lo, hi = triangle_boxes(m, Vn, Fn)
-    refs = presplit.split_references(m, Vn, Fn, lo, hi) if cuts else None   # cut, or None
-    if refs is not None:
-        lo, hi, refs = refs
-        F = dr.width(lo[0])                               # references from here on
+    cut = presplit.split_references(m, Vn, Fn, lo, hi) if cuts else None   # cut, or None
+    if phases is not None:
+        _phase(phases, "triangle boxes and cuts", t_phase)
+    if cut is None:
+        tree, refs = _device_tree(job, lo, hi, info), None
+    else:
+        c_lo, c_hi, refs = cut
+        tree = _device_tree(job, c_lo, c_hi, info)
+        del c_lo, c_hi
+        if isinstance(tree, BVHArrays):                     # the radix tree: nothing cut
+            refs = None
+        elif presplit.KEEP_BETTER:       # the uncut tree where it costs less (its boxes kept)
+            w_info = {}
+            whole = _device_tree(job, lo, hi, w_info)
+            if _sah_cost(whole) <= _sah_cost(tree):
+                tree, refs = whole, None
+                info.update(w_info)
+    del lo, hi
+    info["cut"] = refs is not None
+    # ---- the host arrays ---------------------------------------------------------------------
+    arrays = tree if isinstance(tree, BVHArrays) else host_arrays(*tree)
+    if refs is not None:                  # reference positions to faces, with their cells
+        arrays.cells = (refs.cell_lo[arrays.order], refs.cell_hi[arrays.order])
+        arrays.order = refs.face[arrays.order]
+    arrays.build_seconds = time.perf_counter() - t_start
+    if phases is not None:
+        _phase(phases, "host copy", t_phase)
+    return arrays
+
+
+@dataclass
+class _Job:
+    """What every tree ``build_ploc`` builds shares: the backend module, the host vertices
+    and faces, its options, and the phase clock."""
+
+    m: object
+    Vn: np.ndarray
+    Fn: np.ndarray
+    leaf_size: int
+    radius: int
+    progress: object
+    phases: dict | None
+    t_phase: list
+
+
+def _sah_cost(tree) -> float:
+    """The SAH cost of a ``_device_tree`` answer, as ``host_arrays`` computes it (one small
+    read instead of the whole tree)."""
+    if isinstance(tree, BVHArrays):
+        return tree.sah_cost
+    (s_lo, s_hi), total = tree[4], tree[5]
+    lo = np.array([float(x.numpy()[0]) for x in s_lo], np.float32).astype(np.float64)
+    hi = np.array([float(x.numpy()[0]) for x in s_hi], np.float32).astype(np.float64)
+    dd = hi - lo
+    root = float(dd[0] * dd[1] + dd[1] * dd[2] + dd[2] * dd[0])
+    return (C_TRAV * root + float(total.numpy()[0])) / root if root > 0 else 0.0
+
+
+def _device_tree(job: _Job, lo, hi, info: dict):
+    """PLOC's tree over the boxes ``lo``/``hi`` (3 ``m.Float`` each: the triangles', or
+    their references'), on the device: ``host_arrays``'s arguments, or the radix tree's
+    ``BVHArrays`` where the clustering fell back. ``info`` gets ``build_ploc``'s stats."""
+    m, Vn, Fn, leaf_size, radius = job.m, job.Vn, job.Fn, job.leaf_size, job.radius
+    progress, phases, t_phase = job.progress, job.phases, job.t_phase
+    backend = "cuda" if m.__name__.endswith("cuda") else "llvm"
+    Float, UInt32 = m.Float, m.UInt32
+    F = dr.width(lo[0])
+
+    # ---- 1. Morton codes, sorted -------------------------------------------------------------
     code, s_lo, s_hi = morton_codes(UInt32, lo, hi)
     perm = dr.argsort(code)
     slo = [dr.gather(Float, x, perm) for x in lo]        # triangle boxes in sorted order
     shi = [dr.gather(Float, x, perm) for x in hi]
     dr.eval(perm, slo, shi)
-    del lo, hi, code
+    del code
     if phases is not None:
-        _phase(phases, "boxes, Morton codes and sort", t_phase)
+        _phase(phases, "Morton codes and sort", t_phase)
 
     # ---- 2. clustering -----------------------------------------------------------------------
     cl = _cluster(m, slo, shi, radius, READ_EVERY[backend], FREEZE[backend], progress)
@@ -378,7 +443,7 @@ def build_ploc(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm", *
     if phases is not None:
         _phase(phases, "clustering", t_phase)
     if cl.fallback:
-        info["levels"], info["rebuilt"], info["fallback"], info["cut"] = None, 0, True, False
+        info["levels"], info["rebuilt"], info["fallback"] = None, 0, True
         return build_device(Vn, Fn, backend, leaf_size=leaf_size, raw=True)
 
     # ---- 3. triangle order, top down ---------------------------------------------------------
@@ -462,24 +527,7 @@ def build_ploc(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm", *
     info["fallback"] = False
     if phases is not None:
         _phase(phases, "inner nodes", t_phase)
-
-    # ---- the host arrays ---------------------------------------------------------------------
-    arrays = host_arrays(boxes_d, refs_d, order_d, raw_d, (s_lo, s_hi), total, levels)
-    info["cut"] = refs is not None
-    if refs is not None and presplit.KEEP_BETTER:     # the uncut tree where it costs less
-        w_info = {}
-        whole = build_ploc(Vn, Fn, backend, leaf_size=leaf_size, radius=radius, cuts=False,
-                           stats=w_info)
-        if whole.sah_cost <= arrays.sah_cost:
-            arrays, refs = whole, None
-            info.update(w_info)
-    if refs is not None:                  # reference positions to faces, with their cells
-        arrays.cells = (refs.cell_lo[arrays.order], refs.cell_hi[arrays.order])
-        arrays.order = refs.face[arrays.order]
-    arrays.build_seconds = time.perf_counter() - t_start
-    if phases is not None:
-        _phase(phases, "host copy", t_phase)
-    return arrays
+    return boxes_d, refs_d, order_d, raw_d, (s_lo, s_hi), total, levels
 
 
 def _write_box(m, boxes_d, at, lo, hi, pad):
