@@ -1,5 +1,5 @@
 """``whitted CMD ...`` imports only CMD's module (start-up time: the bench parts, the report,
-the gate's verdicts and golden store and the XML reader are not imported for ``render``),
+the gate's verdicts and golden store are not imported for ``render``),
 and the full parser still lists every subcommand (references: the subcommand names
 ``whitted --help`` has always listed)."""
 import subprocess
@@ -9,7 +9,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 OTHERS = ("whitted.bench", "whitted.view", "whitted.compare", "whitted.study",
           "evaluation.bench", "evaluation.gate.report", "evaluation.gate.verdict",
-          "reference.golden", "renderer.scene.mitsuba_xml")
+          "reference.golden")
 
 
 def test_render_imports_no_other_command():

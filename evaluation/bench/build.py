@@ -149,7 +149,7 @@ def build_row(ctx: Context, name: str) -> dict:
     row["ploc_mtris_s"] = F / row["ploc_s"] / 1e6
     row["ploc_sah_cost"], row["ploc_levels"] = pl.sah_cost, pl.levels
     phases = {}
-    build_ploc(scene.vertices, scene.faces, ctx.backend, phases=phases)
+    build_ploc(scene.vertices, scene.faces, ctx.backend, stats={"phases": phases})
     row["ploc_phases_s"] = phases
     build_ploc(scene.vertices, scene.faces, ctx.backend, cuts=False)             # warm-up
     row["ploc_cut"] = bool(pl_stats.get("cut"))

@@ -147,7 +147,7 @@ def scene_row(name: str) -> dict:
             ts[tag].append(time.perf_counter() - t)
     for tag, b in builds.items():
         ph = {}
-        b(V, Fa, args.backend, phases=ph)
+        b(V, Fa, args.backend, **({"phases": ph} if tag == "main" else {"stats": {"phases": ph}}))
         s = statistics.median(ts[tag])
         row[tag] = {"s": s, "all_s": ts[tag], "mtri_s": F / s / 1e6, "phases_ms":
                     {k: v * 1e3 for k, v in ph.items()}, "stats": st[tag],
@@ -168,7 +168,7 @@ def scene_row(name: str) -> dict:
         ploc._PAIRS, ploc._MERGE = dr.freeze(ploc._pairs), dr.freeze(ploc._merge)
         a, s, ts = timed(lambda: build_ploc(V, Fa, args.backend))
         ph = {}
-        build_ploc(V, Fa, args.backend, phases=ph)
+        build_ploc(V, Fa, args.backend, stats={"phases": ph})
         (ploc.READ_EVERY[be], ploc.FREEZE[be], ploc._nearest, ploc._PAIRS,
          ploc._MERGE) = keep
         row[tag] = {"s": s, "mtri_s": F / s / 1e6, "same_tree": same(a, trees["new"]),

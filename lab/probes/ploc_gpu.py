@@ -75,7 +75,7 @@ for name in args.scenes:
         check_bvh(a)
         row["builds"][f"ploc{r}"] = {"s": s, "sah_cost": a.sah_cost, "levels": a.levels, **st}
     ph = {}
-    build_ploc(V, Fa, args.backend, phases=ph)
+    build_ploc(V, Fa, args.backend, stats={"phases": ph})
     row["ploc8_phases_s"] = ph
     t = time.perf_counter()
     a = build_bvh(V, Fa)

@@ -77,7 +77,7 @@ for scene in args.scenes:
         st, ph = {}, {}
         a, s = timed(partial(build_ploc, V, Fa, args.backend, stats=st))
         check_bvh(a)
-        build_ploc(V, Fa, args.backend, phases=ph)
+        build_ploc(V, Fa, args.backend, stats={"phases": ph})
         row["builds"][label] = {"ms": 1e3 * s, "sah_cost": a.sah_cost, "levels": a.levels,
                                 "references": int(a.order.size), "phases_ms":
                                 {k: 1e3 * x for k, x in ph.items()}, **st}

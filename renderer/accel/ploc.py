@@ -319,8 +319,7 @@ def _positions(m, cl: Clusters):
 
 def build_ploc(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm", *,
                leaf_size: int = LEAF_SIZE, radius: int = RADIUS, cuts: bool = True,
-               progress=None, phases: dict | None = None, stats: dict | None = None
-               ) -> BVHArrays:
+               progress=None, stats: dict | None = None) -> BVHArrays:
     """Build a BVH over ``faces`` (int (F, 3)) of ``vertices`` (float (V, 3)) on ``backend``
     ("cuda" or "llvm"; see the module docstring). ``leaf_size``: most triangles per leaf
     (1..16); ``radius``: the nearest-neighbour search radius (1..64); ``cuts``: False builds
@@ -328,12 +327,12 @@ def build_ploc(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm", *
     whose one frame gains less than the cuts cost). ``progress``: called
     after each clustering iteration as ``progress(done)``, ``done`` the clusters merged so
     far on the level-wise builders' scale of ``MAX_LEVELS`` (log of the clusters left).
-    ``phases``: None, or a dict that gets the seconds of each phase (the build then waits
-    for the device at each phase's end; where ``KEEP_BETTER`` builds the uncut tree too,
-    both trees' phases are summed). ``stats``: None, or a dict that gets ``iterations``,
-    ``levels`` (the clustered tree's, before any rebuild), ``rebuilt`` (subtrees rebuilt
-    balanced), ``fallback`` (True when the radix tree was returned) and
-    ``cut`` (True when the tree holds cut triangles' references).
+    ``stats``: None, or a dict that gets ``iterations``, ``levels`` (the clustered tree's,
+    before any rebuild), ``rebuilt`` (subtrees rebuilt balanced), ``fallback`` (True when
+    the radix tree was returned) and ``cut`` (True when the tree holds cut triangles'
+    references); a dict it holds under ``"phases"`` gets the seconds of each phase (the
+    build then waits for the device at each phase's end; where ``KEEP_BETTER`` builds the
+    uncut tree too, both trees' phases are summed).
     A scene of at most ``leaf_size`` triangles gets ``build_bvh``'s single-leaf tree.
     The tree carries its unpadded child boxes too (``BVHArrays.raw``, what
     ``bvh_build.raw_boxes`` computes on the host), so the traversal pads them for its ray
@@ -356,6 +355,7 @@ def build_ploc(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm", *
         raise ValueError(f"faces: {F} triangles need more than {MAX_LEVELS} BVH levels")
     t_phase = [t_start]
     info = stats if stats is not None else {}
+    phases = info.get("phases")
     job = _Job(m, Vn, Fn, leaf_size, radius, progress, phases, t_phase)
     lo, hi = triangle_boxes(m, Vn, Fn)
     cut = presplit.split_references(m, Vn, Fn, lo, hi) if cuts else None   # cut, or None

@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from . import loader, meshio
+from .mitsuba_xml import load_xml
 from .model import Assembly, Material, Scene, SceneError, Settings, validate_image_size
 from .parts import (
     AUTO_FOV,
@@ -75,7 +76,6 @@ def load_scene(path, *, shading: str | None = None, camera: str | None = None,
     elif suffix == ".ply":
         scene = load_ply_scene(path, shading=shading, cache=cache)
     elif suffix == ".xml":
-        from .mitsuba_xml import load_xml  # (its import is paid only by XML scenes)
         scene = load_xml(path, shading=shading, defines=defines or {},
                          approximate=approximate, cache=cache)
     else:
