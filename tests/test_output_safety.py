@@ -82,28 +82,42 @@ def test_no_writer_replaces_a_pipe(tmp_path):
     assert fifo.is_fifo()
 
 
-def test_render_writes_run_together_and_errors_reach_the_command():
-    """``whitted.render.write_all``: every write runs (the first ones on threads), and an
-    error of any of them is raised in the command once all have ended."""
+def test_render_writes_run_together_and_errors_reach_the_command(tmp_path):
+    """``whitted.render.write_all``: every write runs (the first ones on threads); an error
+    of any is raised in the command once all have ended, and the files the other writes
+    created are removed (a file that was there before stays)."""
     import threading
 
     from whitted.render import write_all
-    done, names = [], []
+    names = []
+    exr, png = tmp_path / "a.exr", tmp_path / "a.png"
 
-    def ok(name):
-        names.append(threading.current_thread().name)
-        done.append(name)
+    def ok(path):
+        def write():
+            names.append(threading.current_thread().name)
+            path.write_text("new")
+        return write
 
     def bad():
         raise OSError("disk full")
 
-    write_all([lambda: ok("exr"), lambda: ok("png")])
-    assert sorted(done) == ["exr", "png"] and len(set(names)) == 2
-    done.clear()
+    write_all([(exr, ok(exr)), (png, ok(png))])
+    assert exr.read_text() == png.read_text() == "new" and len(set(names)) == 2
+    exr.unlink()
+    png.unlink()
     with pytest.raises(OSError, match="disk full"):
-        write_all([bad, lambda: ok("png")])
-    assert done == ["png"]
+        write_all([(exr, bad), (png, ok(png))])
+    assert not png.exists() and not exr.exists()        # the new PNG went with the EXR
+    png.write_text("old")
     with pytest.raises(OSError, match="disk full"):
-        write_all([lambda: ok("exr"), bad])
-    assert done == ["png", "exr"]
+        write_all([(exr, ok(exr)), (png, bad)])
+    assert not exr.exists() and png.read_text() == "old"
+    png.unlink()
+    with pytest.raises(OSError, match="disk full"):
+        write_all([(png, ok(png)), (exr, bad)])
+    assert not png.exists()
+    exr.write_text("before")                              # there before: replaced, kept
+    with pytest.raises(OSError, match="disk full"):
+        write_all([(exr, ok(exr)), (png, bad)])
+    assert exr.read_text() == "new"
     write_all([])

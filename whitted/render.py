@@ -100,25 +100,33 @@ def output_files(scene, views: list[int], out: Path, orbit: bool) -> list[dict]:
 
 
 def write_all(writes: list) -> None:
-    """Run the file writes ``writes`` (callables), the first ones on threads beside the last
-    (the EXR's compression and the PNG's run in C without the GIL, so two files take about
-    as long as the slower one); the first error of any is raised once all have ended."""
-    errors = []
+    """Write a view's files: ``writes`` is a list of ``(path, write)`` (``write`` a
+    callable), the first ones run on threads beside the last (the EXR's compression and the
+    PNG's run in C without the GIL, so two files take about as long as the slower one).
+    When any fails, the files the others created (paths that were not there before) are
+    removed, so a failed render leaves none of its new files (each write is atomic: a
+    failed one leaves nothing), and the first error is raised once all have ended."""
+    errors, made = [], []
+    existed = {Path(p): Path(p).exists() for p, _ in writes}
 
-    def run(w):
+    def run(path, write):
         try:
-            w()
+            write()
+            made.append(Path(path))
         except BaseException as e:       # re-raised in the calling thread
             errors.append(e)
 
-    threads = [threading.Thread(target=run, args=(w,)) for w in writes[:-1]]
+    threads = [threading.Thread(target=run, args=w) for w in writes[:-1]]
     for th in threads:
         th.start()
     if writes:
-        run(writes[-1])
+        run(*writes[-1])
     for th in threads:
         th.join()
     if errors:
+        for path in made:
+            if not existed[path]:
+                path.unlink(missing_ok=True)
         raise errors[0]
 
 
@@ -169,10 +177,11 @@ def cmd_render(args: argparse.Namespace) -> int:
             from evaluation.gate.imagemeta import ours_metadata
             meta = ours_metadata(scene, v, backend=renderer.t.backend,
                                  precision=renderer.t.precision)
-            writes.append(partial(write_exr, f["exr"], res.image, overwrite=args.overwrite,
-                                  metadata=meta))
+            writes.append((f["exr"], partial(write_exr, f["exr"], res.image,
+                                             overwrite=args.overwrite, metadata=meta)))
         if "png" in f:
-            writes.append(partial(write_png, f["png"], res.image, overwrite=args.overwrite))
+            writes.append((f["png"], partial(write_png, f["png"], res.image,
+                                             overwrite=args.overwrite)))
         write_all(writes)
         bands = res.stats.get("bands", 1)
         print(f"  view {cam.name}: {cam.width}x{cam.height}, {res.seconds * 1e3:.1f} ms"
