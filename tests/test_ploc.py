@@ -193,3 +193,22 @@ def test_ploc_raw_boxes_are_the_host_refit(case):
     assert st["fallback"] == (case == "fallback")
     assert (st["rebuilt"] >= 1) == (case == "rebuilt")
     assert a.raw is not None and np.array_equal(a.raw, raw_boxes(a, V, faces, np.float32))
+
+
+@pytest.mark.parametrize("build", [build_ploc, build_device])
+def test_device_builders_refuse_bad_input_in_one_error(build):
+    """Both device builders check their input alike (``device_build.checked_input``): face
+    indices outside the vertices, a leaf size out of range; PLOC also its radius."""
+    V, faces = soup(100, seed=3)
+    bad = faces.copy()
+    bad[7, 1] = len(V)
+    with pytest.raises(ValueError, match=r"faces: indices must lie in \[0, "):
+        build(V, bad, "llvm")
+    bad[7, 1] = -1
+    with pytest.raises(ValueError, match="faces: indices"):
+        build(V, bad, "llvm")
+    with pytest.raises(ValueError, match="leaf_size: expected 1..16"):
+        build(V, faces, "llvm", leaf_size=17)
+    if build is build_ploc:
+        with pytest.raises(ValueError, match="radius"):
+            build(V, faces, "llvm", radius=0)

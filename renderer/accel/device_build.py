@@ -186,6 +186,29 @@ def host_arrays(boxes_d, refs_d, order_d, raw_d, scene_box, area, levels: int) -
     return BVHArrays(boxes, ch, order, levels, leaf_count, sah, 0.0, bounds, raw=raw_h)
 
 
+def checked_input(vertices, faces, leaf_size: int) -> tuple:
+    """What a device builder starts from: ``(Vn, Fn, small)``, the vertices as contiguous
+    float32 and the faces as given; ``small`` is ``build_bvh``'s single-leaf tree for a
+    scene of at most ``leaf_size`` triangles, else None. ValueError for a leaf size out of
+    1..``MAX_LEAF``, more triangles than a leaf reference can count, face indices outside
+    the vertices, or a scene needing more than ``MAX_LEVELS`` levels."""
+    if not 1 <= leaf_size <= MAX_LEAF:
+        raise ValueError(f"leaf_size: expected 1..{MAX_LEAF}, got {leaf_size}")
+    Vn = np.ascontiguousarray(np.asarray(vertices, np.float32))
+    Fn = np.asarray(faces)
+    F = int(Fn.shape[0])
+    if F >= 1 << COUNT_SHIFT:
+        raise ValueError(f"faces: at most {1 << COUNT_SHIFT} triangles, got {F}")
+    if F <= leaf_size:
+        return Vn, Fn, build_bvh(Vn, Fn.astype(np.int64), leaf_size=leaf_size, spatial=0.0,
+                                 optimize=0)
+    if Fn.size and (int(Fn.min()) < 0 or int(Fn.max()) >= Vn.shape[0]):
+        raise ValueError(f"faces: indices must lie in [0, {Vn.shape[0]})")
+    if MAX_LEVELS < math.ceil(math.log2(math.ceil(F / leaf_size))) + 1:
+        raise ValueError(f"faces: {F} triangles need more than {MAX_LEVELS} BVH levels")
+    return Vn, Fn, None
+
+
 def build_device(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm", *,
                  leaf_size: int = LEAF_SIZE, progress=None,
                  phases: dict | None = None, raw: bool = False) -> BVHArrays:
@@ -197,22 +220,12 @@ def build_device(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm",
     ``leaf_size`` triangles gets ``build_bvh``'s single-leaf tree. ``raw``: also copy back
     the unpadded child boxes (``BVHArrays.raw``, what ``bvh_build.raw_boxes`` computes on
     the host), so the traversal pads them for its ray origins without a host refit."""
-    if not 1 <= leaf_size <= MAX_LEAF:
-        raise ValueError(f"leaf_size: expected 1..{MAX_LEAF}, got {leaf_size}")
     m = _module(backend)
     t_start = time.perf_counter()
-    Vn = np.ascontiguousarray(np.asarray(vertices, np.float32))
-    Fn = np.asarray(faces)
+    Vn, Fn, small = checked_input(vertices, faces, leaf_size)
+    if small is not None:
+        return small
     F = int(Fn.shape[0])
-    if F >= 1 << COUNT_SHIFT:
-        raise ValueError(f"faces: at most {1 << COUNT_SHIFT} triangles, got {F}")
-    if F <= leaf_size:
-        return build_bvh(Vn, Fn.astype(np.int64), leaf_size=leaf_size, spatial=0.0,
-                         optimize=0)
-    if Fn.size and (int(Fn.min()) < 0 or int(Fn.max()) >= Vn.shape[0]):
-        raise ValueError(f"faces: indices must lie in [0, {Vn.shape[0]})")
-    if MAX_LEVELS < math.ceil(math.log2(math.ceil(F / leaf_size))) + 1:
-        raise ValueError(f"faces: {F} triangles need more than {MAX_LEVELS} BVH levels")
     Float, UInt32 = m.Float, m.UInt32
     t_phase = [t_start]
 

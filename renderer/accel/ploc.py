@@ -56,18 +56,19 @@ import drjit as dr
 import numpy as np
 
 from . import presplit
-from .bvh_build import C_TRAV, LEAF_SIZE, MAX_LEVELS, BVHArrays, build_bvh
+from .bvh_build import C_TRAV, LEAF_SIZE, MAX_LEVELS, BVHArrays
 from .device_build import (
     _levels_needed,
     _module,
     _phase,
     _read_back,
     build_device,
+    checked_input,
     host_arrays,
     morton_codes,
     triangle_boxes,
 )
-from .traverse import COUNT_SHIFT, LEAF_BIT, MAX_LEAF
+from .traverse import COUNT_SHIFT, LEAF_BIT
 from .triangle import unit_roundoff
 
 #: Clusters searched on either side of each cluster for its nearest neighbour.
@@ -337,22 +338,13 @@ def build_ploc(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm", *
     The tree carries its unpadded child boxes too (``BVHArrays.raw``, what
     ``bvh_build.raw_boxes`` computes on the host), so the traversal pads them for its ray
     origins without a host refit."""
-    if not 1 <= leaf_size <= MAX_LEAF:
-        raise ValueError(f"leaf_size: expected 1..{MAX_LEAF}, got {leaf_size}")
     if not 1 <= radius <= 64:
         raise ValueError(f"radius: expected 1..64, got {radius}")
     m = _module(backend)
     t_start = time.perf_counter()
-    Vn = np.ascontiguousarray(np.asarray(vertices, np.float32))
-    Fn = np.asarray(faces)
-    F = int(Fn.shape[0])
-    if F >= 1 << COUNT_SHIFT:
-        raise ValueError(f"faces: at most {1 << COUNT_SHIFT} triangles, got {F}")
-    if F <= leaf_size:
-        return build_bvh(Vn, Fn.astype(np.int64), leaf_size=leaf_size, spatial=0.0,
-                         optimize=0)
-    if MAX_LEVELS < math.ceil(math.log2(math.ceil(F / leaf_size))) + 1:
-        raise ValueError(f"faces: {F} triangles need more than {MAX_LEVELS} BVH levels")
+    Vn, Fn, small = checked_input(vertices, faces, leaf_size)
+    if small is not None:
+        return small
     t_phase = [t_start]
     info = stats if stats is not None else {}
     phases = info.get("phases")
