@@ -244,9 +244,9 @@ def srgb_encode(image) -> np.ndarray:
     """Linear RGB -> 8-bit sRGB (clamped to [0, 1], NaN as 0); uint8, the input's shape.
     The bytes are ``srgb_curve``'s; a float32 or float64 image gets them from
     ``_srgb_tables`` (a bucket's byte, plus one where the value reaches the bucket's step:
-    no float64 copy and power per value), any other dtype from the curve."""
+    no float64 copy and power per value), any other dtype or byte order from the curve."""
     img = np.asarray(image)
-    if img.dtype.type not in _KEY_BITS:
+    if img.dtype.type not in _KEY_BITS or not img.dtype.isnative:
         return srgb_curve(img)
     base, step, shift, uint = _srgb_tables(img.dtype.type)
     key = img.view(uint) >> uint(shift)

@@ -62,3 +62,5 @@ def test_srgb_encode_by_table_is_the_curve_byte_for_byte(dtype):
     assert srgb_encode(steps).tolist() == list(range(1, 256))      # one byte per step
     h = x[:1000].astype(np.float16)                               # other dtypes: the curve
     assert np.array_equal(srgb_encode(h), srgb_curve(h))
+    swapped = x[:1000].astype(np.dtype(dtype).newbyteorder())     # and other byte orders
+    assert np.array_equal(srgb_encode(swapped), srgb_curve(x[:1000]))
