@@ -51,7 +51,7 @@ from ..cache_key import CODE_MODULES, code_version, content_key
 from ..outputs import OutputError, atomic_path
 
 __all__ = ["ALIGN", "CODE_MODULES", "MAGIC", "MAX_BYTES", "CacheWarning", "TreeCache",
-           "checksum", "code_version", "content_key", "default_folder"]
+           "checksum", "checksums", "code_version", "content_key", "default_folder"]
 
 MAGIC = b"whitted-cache 2\n"
 #: Default bound on the folder's size (bytes).
@@ -84,7 +84,26 @@ def checksum(a: np.ndarray) -> list[int]:
     sum weighted by ``2 b + 1`` (``b`` its index) and each place's sum over the blocks
     weighted by ``2 k + 1`` (``k`` the place in a block), mod 2^64. The words are summed
     exactly (64-bit sums of 32-bit words) and the weights are odd, so a change of any one
-    or two words (two bits flipped anywhere, a swap of two words) changes the pair."""
+    or two words (two bits flipped anywhere, a swap of two words) changes the pair.
+    Arrays of more than ``SPLIT_WORDS`` words are summed in slices of blocks on threads
+    (numpy releases the interpreter lock; the sums, mod 2^64, are the same)."""
+    return checksums([a])[0]
+
+
+#: Words above which ``checksums`` sums an array in slices on threads.
+SPLIT_WORDS = 1 << 20
+_POOL: list = []
+
+
+def _pool():
+    if not _POOL:
+        from concurrent.futures import ThreadPoolExecutor
+        _POOL.append(ThreadPoolExecutor(max(1, min(16, os.cpu_count() or 1)),
+                                        thread_name_prefix="cache checksum"))
+    return _POOL[0]
+
+
+def _words(a: np.ndarray) -> np.ndarray:
     b = np.ascontiguousarray(a).reshape(-1).view(np.uint8)
     n = b.size // 4
     words = b[:n * 4].view("<u4")
@@ -92,17 +111,49 @@ def checksum(a: np.ndarray) -> list[int]:
         last = np.zeros(4, np.uint8)
         last[:b.size - n * 4] = b[n * 4:]
         words = np.concatenate([words, last.view("<u4")])
-    m = words.size // BLOCK * BLOCK
-    blocks = words[:m].reshape(-1, BLOCK)
-    rows = np.concatenate([np.add.reduce(blocks, axis=1, dtype=np.uint64),
-                           [np.add.reduce(words[m:], dtype=np.uint64)]])
-    places = (np.add.reduce(blocks, axis=0, dtype=np.uint64) if m
-              else np.zeros(BLOCK, np.uint64))
-    places[:words.size - m] += words[m:]
-    odd = lambda k: np.arange(k, dtype=np.uint64) * np.uint64(2) + np.uint64(1)  # noqa: E731
+    return words
+
+
+def _block_sums(blocks: np.ndarray, first: int) -> tuple[int, np.ndarray]:
+    """The blocks' part of ``checksum``: the weighted sum of their row sums (block
+    ``first + i`` weighted by ``2 (first + i) + 1``) and their place sums, mod 2^64."""
+    rows = np.add.reduce(blocks, axis=1, dtype=np.uint64)
+    odd = np.arange(first, first + rows.size, dtype=np.uint64) * np.uint64(2) + np.uint64(1)
     with np.errstate(over="ignore"):
-        return [int(np.add.reduce(rows * odd(rows.size), dtype=np.uint64)),
-                int(np.add.reduce(places * odd(BLOCK), dtype=np.uint64))]
+        return (int(np.add.reduce(rows * odd, dtype=np.uint64)),
+                np.add.reduce(blocks, axis=0, dtype=np.uint64))
+
+
+def checksums(arrays: list) -> list[list[int]]:
+    """``checksum`` of each array of ``arrays``, large ones in slices on threads."""
+    words = [_words(a) for a in arrays]
+    jobs = []                      # (array index, first block, blocks)
+    for i, w in enumerate(words):
+        nb = w.size // BLOCK
+        step = max(1, SPLIT_WORDS // BLOCK)
+        for b0 in range(0, nb, step):
+            jobs.append((i, b0, w[b0 * BLOCK:min(nb, b0 + step) * BLOCK].reshape(-1, BLOCK)))
+    if len(jobs) > 1:
+        parts = list(_pool().map(lambda j: _block_sums(j[2], j[1]), jobs))
+    else:
+        parts = [_block_sums(j[2], j[1]) for j in jobs]
+    mask = (1 << 64) - 1
+    out = []
+    for i, w in enumerate(words):
+        m = w.size // BLOCK * BLOCK
+        mine = [p for j, p in zip(jobs, parts) if j[0] == i]
+        rows = sum(p[0] for p in mine)
+        places = np.zeros(BLOCK, np.uint64)
+        with np.errstate(over="ignore"):
+            for _, p in mine:
+                places += p
+        tail = w[m:]
+        rows += (2 * (m // BLOCK) + 1) * int(np.add.reduce(tail, dtype=np.uint64))
+        places[:tail.size] += tail
+        odd = np.arange(BLOCK, dtype=np.uint64) * np.uint64(2) + np.uint64(1)
+        with np.errstate(over="ignore"):
+            out.append([rows & mask, int(np.add.reduce(places * odd, dtype=np.uint64))])
+    return out
 
 
 @dataclass
@@ -223,8 +274,8 @@ def _write_entry(f, kind: str, key: str, arrays: dict, meta: dict) -> None:
     """One entry (the module docstring's layout) to the open binary file ``f``."""
     arrays = {k: np.ascontiguousarray(v) for k, v in arrays.items()}
     table, offset = [], 0
-    for name, a in arrays.items():
-        table.append([name, a.dtype.str, list(a.shape), offset, a.nbytes, checksum(a)])
+    for (name, a), check in zip(arrays.items(), checksums(list(arrays.values()))):
+        table.append([name, a.dtype.str, list(a.shape), offset, a.nbytes, check])
         offset = _aligned(offset + a.nbytes)
     head = {"kind": kind, "key": key, "meta": meta, "arrays": table}
     # the file size closes the header; its digits do not move the data start by more
@@ -240,13 +291,10 @@ def _write_entry(f, kind: str, key: str, arrays: dict, meta: dict) -> None:
 
 
 def _map(f, size: int):
-    """A private, writable memory map of the whole file ``f`` (pages read ahead where
-    the platform allows)."""
-    flags = getattr(mmap, "MAP_PRIVATE", None)
-    if flags is None:
-        return mmap.mmap(f.fileno(), size, access=mmap.ACCESS_COPY)
-    return mmap.mmap(f.fileno(), size, flags | getattr(mmap, "MAP_POPULATE", 0),
-                     mmap.PROT_READ | mmap.PROT_WRITE)
+    """A private, writable memory map of the whole file ``f``. Its pages are mapped as
+    they are first read (the checksums' threads read them in parallel): a private
+    writable map populated up front would copy every page."""
+    return mmap.mmap(f.fileno(), size, access=mmap.ACCESS_COPY)
 
 
 def _read(f, kind: str, key: str) -> dict:
@@ -280,15 +328,15 @@ def _read(f, kind: str, key: str) -> dict:
         raise ValueError(f"is unreadable ({type(e).__name__})") from None
     mm = _map(f, size)
     out = {}
-    for name, dt, shape, off, nb, check in table:
+    for name, dt, shape, off, nb, _check in table:
         count = int(np.prod(shape, dtype=np.int64))
         if (dt.hasobject or count * dt.itemsize != nb or off % ALIGN
                 or start + off + nb > size):
             raise ValueError(f"is unreadable (array {name!r} out of place)")
         a = (np.frombuffer(mm, dt, count, start + off) if count else np.zeros(0, dt))
-        a = a.reshape(shape)
-        if checksum(a) != check:
+        out[name] = a.reshape(shape)
+    for (name, *_, check), got in zip(table, checksums([out[t[0]] for t in table])):
+        if got != check:
             raise ValueError(f"is corrupt (checksum mismatch in {name!r})")
-        out[name] = a
     out["meta"] = meta
     return out
