@@ -16,6 +16,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from .scene import Scene
+from .scene.model import used_materials
 
 FLAGS = ("shadows", "ambient", "reflection", "refraction", "smooth_normals", "specular",
          "many_lights", "fresnel", "soft_shadows")
@@ -62,8 +63,7 @@ class EffectSet:
     def from_scene(cls, scene: Scene) -> "EffectSet":
         s = scene.settings
         mats, lights = scene.materials, scene.lights
-        used = (sorted(set(int(m) for m in np.unique(scene.face_material)))
-                if scene.face_count else [])
+        used = used_materials(scene)
         used_mats = [mats[i] for i in used if i < len(mats)]
         reasons = {}
 

@@ -256,12 +256,18 @@ def srgb_encode(image) -> np.ndarray:
     return out
 
 
+#: zlib level of the PNGs (``write_png``): 1, the fastest; the PNG is lossless at any level.
+PNG_COMPRESS_LEVEL = 1
+
+
 def write_png(path, image, *, overwrite: bool = False) -> Path:
     """Write ``image`` (linear RGB (H, W, 3)) as an 8-bit sRGB PNG (through Pillow itself:
-    imageio's import and plugin layer cost a render's start-up more than the write)."""
+    imageio's import and plugin layer cost a render's start-up more than the write), its
+    pixels compressed at zlib level ``PNG_COMPRESS_LEVEL``."""
     from PIL import Image
     img = _check_image(image, str(path))
     path = Path(path)
     with atomic_path(path, overwrite=overwrite, flag="overwrite=True") as tmp:
-        Image.fromarray(np.ascontiguousarray(srgb_encode(img))).save(tmp, format="PNG")
+        Image.fromarray(np.ascontiguousarray(srgb_encode(img))).save(
+            tmp, format="PNG", compress_level=PNG_COMPRESS_LEVEL)
     return path

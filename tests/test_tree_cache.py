@@ -204,7 +204,9 @@ def _scene_file(tmp_path, levels=2):
 
 
 def test_scene_load_through_the_cache_gives_the_same_scene(tmp_path):
-    from renderer.scene import load_scene
+    """The loader's own entries (subdivided meshes, objects: ``loader.load_scene``; the
+    scene entry over them is ``tests/test_scene_cache.py``'s)."""
+    from renderer.scene.loader import load_scene
     path = _scene_file(tmp_path)
     ref = load_scene(path)
     cache = TreeCache(tmp_path / "cache")

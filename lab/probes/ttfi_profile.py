@@ -13,7 +13,7 @@ import time
 
 from renderer.accel.cache import TreeCache
 from renderer.render import Renderer
-from renderer.scene.loader import load_scene
+from renderer.scene import load_scene
 
 SORT = "cumulative" if "--cumulative" in sys.argv else "tottime"
 

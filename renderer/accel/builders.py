@@ -35,7 +35,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..scene.model import TREE_BUILDS
+from ..scene.model import TREE_BUILDS, any_smooth, layout_inputs, triangles_digest
 from .bvh_build import LEAF_SIZE, BVHArrays, build_bvh, raw_boxes
 from .cache import CacheWarning, TreeCache, code_version, content_key
 from .device_build import build_device
@@ -92,8 +92,9 @@ def builder(build: str) -> str:
 
 
 def triangles_key(scene) -> str:
-    """The content hash of ``scene``'s triangles (float32 vertices, faces)."""
-    return content_key(np.asarray(scene.vertices, np.float32), np.asarray(scene.faces))
+    """The content hash of ``scene``'s triangles (float32 vertices, faces): the scene's
+    ``model.triangles_digest``."""
+    return triangles_digest(scene)
 
 
 def tree_key(scene, build: str, leaf_size: int = LEAF_SIZE, triangles: str | None = None,
@@ -245,31 +246,25 @@ def layout_key(scene, tree: str, req: LayoutRequest, t, extent: float) -> str:
     (``pad_extent``), the face materials and smooth flags, the vertex normals (where any
     face is smooth), the float64 vertices (float64 renders: the float32 ones are in the
     tree's key) and the code (``code_version`` of ``LAYOUT_MODULES``)."""
-    double = t.is_double
-    smooth = bool(scene.face_smooth.any())
-    parts = [tree, req.name, req.width, t.precision, req.intersection, float(extent), smooth,
-             np.asarray(scene.face_material), np.asarray(scene.face_smooth)]
-    if smooth:
-        parts.append(np.asarray(scene.normals_of(double)))
-    if double and scene.vertices64 is not None:
-        parts.append(np.asarray(scene.vertices64))
+    parts = [tree, req.name, req.width, t.precision, req.intersection, float(extent),
+             any_smooth(scene), layout_inputs(scene, t.is_double)]
     return content_key("layout", *parts, code_version(LAYOUT_MODULES))
 
 
 def _refs_fit(refs: np.ndarray, nodes: int, faces: int) -> bool:
     """Whether every node reference of ``refs`` (uint32) is ``DONE``, an inner node below
-    ``nodes`` or a leaf of triangle positions below ``faces``."""
-    r = refs.reshape(-1).astype(np.int64)
-    real = r[r != DONE]
-    leaf = (real & LEAF_BIT) != 0
-    inner = real[~leaf]
-    if inner.size and int(inner.max()) >= nodes:
+    ``nodes`` or a leaf of triangle positions below ``faces`` (in 32-bit words, without
+    copies of the references: a leaf's end stays below 2^28)."""
+    r = refs.reshape(-1)
+    if r.dtype != np.uint32:
         return False
-    packed = real[leaf]
-    if not packed.size:
-        return True
-    end = (packed & FIRST_MASK) + ((packed >> COUNT_SHIFT) & (MAX_LEAF - 1)) + 1
-    return int(end.max()) <= faces
+    leaf = (r & np.uint32(LEAF_BIT)) != 0
+    real_leaf = leaf & (r != np.uint32(DONE))
+    if r.size and int(np.max(np.where(leaf, np.uint32(0), r))) >= nodes and (~leaf).any():
+        return False
+    end = (r & np.uint32(FIRST_MASK)) + ((r >> np.uint32(COUNT_SHIFT))
+                                         & np.uint32(MAX_LEAF - 1)) + np.uint32(1)
+    return not real_leaf.any() or int(np.max(np.where(real_leaf, end, np.uint32(0)))) <= faces
 
 
 def _layout_fits(e: dict, req: LayoutRequest, scene, t) -> bool:
@@ -280,7 +275,7 @@ def _layout_fits(e: dict, req: LayoutRequest, scene, t) -> bool:
     fdt = np.dtype(np.float64 if t.is_double else np.float32)
     try:
         info = e["meta"]["info"]
-        normals = bool(scene.face_smooth.any())
+        normals = any_smooth(scene)
         ok = (info["accel"] == ("bvh" if req.width == 2 else f"bvh{req.width}")
               and info["intersection"] == req.intersection and info["triangles"] == F
               and e["tri_data"].dtype == fdt and e["tri_data"].shape == (F, STRIDE)

@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 import drjit as dr
 import numpy as np
 
-from ..device import Types, host_array, host_view
+from ..device import Types
 from .base import (
     Accelerator,
     DeviceTriangles,
@@ -57,6 +57,7 @@ from .triangle import (
     bind_routine,
     box_reach,
     device_triangles,
+    host_source,
     origin_reach,
     pad_extent,
     triangle_arrays,
@@ -202,7 +203,7 @@ class BVH(Accelerator):
         call's to hand over, as ``device_triangles``)."""
         tri_data, tris = device_triangles(t, arrays, own)
         boxes, children = arrays["nodes"], arrays["children"]
-        put = host_view if own else host_array
+        put = host_source(t, own)
         if uses_pairs(t):
             nodes = as_pairs(t, boxes.view(np.uint32), copy=not own)
             children = as_pairs(t, children, copy=not own)

@@ -28,6 +28,7 @@ import numpy as np
 
 from ..device import Types, host_array, host_view, rcp
 from ..device import unit_roundoff as unit_roundoff
+from ..scene.model import vertex_reach
 from .base import DeviceTriangles, gather_floats
 
 #: Floats per packed triangle.
@@ -251,8 +252,7 @@ def box_reach(scene, routine: str) -> float:
     slab test never rejects a ray the triangle test would accept); and the slab test's FMA
     form moves its planes by up to a unit of roundoff of ``|o|`` (``traverse.box_ray``,
     where origins beyond the reach enter every box), whichever routine the boxes serve."""
-    V = scene.vertices64 if scene.vertices64 is not None else scene.vertices
-    mags = [float(np.max(np.abs(V))) if scene.face_count else 0.0]
+    mags = [vertex_reach(scene)]
     mags += [float(np.max(np.abs(c.position))) for c in scene.cameras]
     mags += [float(np.max(np.abs(li.position))) for li in scene.lights]
     return max(mags)
@@ -367,6 +367,16 @@ def permuted(arrays: dict, order: np.ndarray) -> dict:
     return out
 
 
+def host_source(t: Types, own: bool):
+    """How a host array becomes the source of a device array of ``t``: on CUDA the array
+    as it is where C-contiguous of the dtype (the upload copies it to the device, so its
+    address enters no kernel), on LLVM ``device.host_view`` (``own``) or
+    ``device.host_array`` (aligned: the traced kernel does not depend on the address)."""
+    if t.backend == "cuda":
+        return lambda a, dtype=None: np.ascontiguousarray(a, dtype)
+    return host_view if own else host_array
+
+
 def device_triangles(t: Types, arrays: dict, own: bool = False):
     """``(tri_data, tris)`` on the device from ``triangle_arrays``'s ``arrays`` (of the
     precision of ``t``): the packed geometry as a Float and the ``DeviceTriangles``
@@ -374,7 +384,7 @@ def device_triangles(t: Types, arrays: dict, own: bool = False):
     this call's to hand over (a cache hit's views): aligned ones become the device
     arrays' memory on LLVM (``device.host_view``) instead of being copied."""
     fdt = np.float64 if t.is_double else np.float32
-    put = host_view if own else host_array
+    put = host_source(t, own)
     cols = lambda a: t.Array3f(*(t.Float(put(a[k], fdt)) for k in range(3)))  # noqa: E731
     if "n0" in arrays:
         n0, n1, n2 = (cols(arrays[f"n{k}"]) for k in range(3))

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import loader, meshio
+from . import loader, meshio, scene_cache
 from .mitsuba_xml import load_xml
 from .model import Assembly, Material, Scene, SceneError, Settings, validate_image_size
 from .parts import (
@@ -109,6 +109,8 @@ def load_toml(path, *, shading: str | None = None, cache=None) -> Scene:
     objs = data.get("objects")
     if not isinstance(objs, list) or not any(
             isinstance(o, dict) and set(o) & set(OBJECT_IMPORT_KEYS) for o in objs):
+        if cache is not None:          # the geometry as one entry, keyed by its sources
+            return scene_cache.load_toml(path, data, shading, cache)
         return loader.load_scene(path, shading=shading, cache=cache)
     r = loader._Reader(path)
     r.keys(data, loader._TOP_KEYS, "")

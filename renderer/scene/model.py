@@ -21,6 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ..cache_key import content_key
+
 SHADING_MODES = ("classic", "physical")
 #: Rules for where secondary and shadow rays start (docs/MODEL.md, "Ray offsets"):
 #: "scale-free" (the default: each hit point's own rounding error) and "mitsuba" (Mitsuba 3's
@@ -144,6 +146,128 @@ def used_vertices(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return vertices if used.all() else vertices[used]
 
 
+def object_reach(scene: "Scene", double: bool) -> list:
+    """Per object, the largest coordinate magnitude of its vertices in the precision
+    (``positions(double)``), a float, or None for an object without vertices."""
+    V = scene.positions(double)
+    out = []
+    for obj in scene.objects:
+        v = V[obj.first_vertex:obj.first_vertex + obj.vertex_count]
+        out.append(float(np.max(np.abs(v))) if v.size else None)
+    return out
+
+
+def extent_of(vertices: np.ndarray, faces: np.ndarray) -> float:
+    """The largest side of the bounding box of the vertices ``faces`` use."""
+    used = used_vertices(vertices, faces)
+    return float(np.max(used.max(axis=0) - used.min(axis=0)))
+
+
+def _bounds(vertices: np.ndarray, faces: np.ndarray) -> tuple[list, list]:
+    used = used_vertices(vertices, faces)
+    return (used.min(axis=0).astype(np.float64).tolist(),
+            used.max(axis=0).astype(np.float64).tolist())
+
+
+#: The fields of a ``Scene`` whose values ``Scene.facts`` describes (by identity).
+FACT_FIELDS = ("vertices", "normals", "faces", "face_material", "face_object", "vertices64",
+               "normals64", "objects")
+
+
+def _facts_hold(scene: "Scene") -> bool:
+    f = scene.facts
+    return bool(f) and all(getattr(scene, k) is v for k, v in zip(FACT_FIELDS, f["_of"]))
+
+
+def scene_fact(scene: "Scene", name: str, compute):
+    """``scene.facts[name]`` where ``scene.facts`` describes ``scene``'s own arrays (the
+    very objects of ``FACT_FIELDS``: a copy with other arrays computes), else
+    ``compute()``, remembered in those facts where they hold."""
+    if not _facts_hold(scene):
+        return compute()
+    f = scene.facts
+    if name not in f:
+        value = compute()
+        if isinstance(value, np.ndarray):
+            value.flags.writeable = False
+        f[name] = value
+    return f[name]
+
+
+def with_facts(scene: "Scene", facts: dict | None = None) -> "Scene":
+    """``scene`` with its arrays read-only and ``facts`` (a dict of ``scene_fact`` values,
+    None: none yet) describing them: the values derived from the arrays are then computed
+    once (``scene_fact``), or come with the facts."""
+    for k in FACT_FIELDS[:-1]:
+        a = getattr(scene, k)
+        if isinstance(a, np.ndarray):
+            a.flags.writeable = False
+    facts = dict(facts or {})
+    facts["_of"] = tuple(getattr(scene, k) for k in FACT_FIELDS)
+    return replace(scene, facts=facts)
+
+
+def triangles_digest(scene: "Scene") -> str:
+    """The content hash of ``scene``'s triangles (float32 vertices, faces): the key the
+    accelerators' trees are stored under (``accel.builders.triangles_key``)."""
+    return scene_fact(scene, "triangles", lambda: content_key(
+        np.asarray(scene.vertices, np.float32), np.asarray(scene.faces)))
+
+
+def any_smooth(scene: "Scene") -> bool:
+    """Whether any face of ``scene`` interpolates vertex normals."""
+    return scene_fact(scene, "smooth", lambda: bool(scene.face_smooth.any()))
+
+
+def layout_inputs(scene: "Scene", double: bool) -> str:
+    """The content hash of the scene arrays an accelerator's layout holds beyond its
+    triangles: the face materials and smooth flags, the vertex normals of the precision
+    (where any face is smooth) and the float64 vertices (``double``, where the scene has
+    them)."""
+    def compute():
+        parts = [np.asarray(scene.face_material), np.asarray(scene.face_smooth)]
+        if any_smooth(scene):
+            parts.append(np.asarray(scene.normals_of(double)))
+        if double and scene.vertices64 is not None:
+            parts.append(np.asarray(scene.vertices64))
+        return content_key("layout inputs", *parts)
+    return scene_fact(scene, f"layout inputs {'float64' if double else 'float32'}", compute)
+
+
+def vertex_reach(scene: "Scene") -> float:
+    """The largest coordinate magnitude of the vertices (float64 where the scene has them;
+    0 without triangles)."""
+    if not scene.face_count:
+        return 0.0
+    V = scene.vertices64 if scene.vertices64 is not None else scene.vertices
+    return scene_fact(scene, "vertex reach", lambda: float(np.max(np.abs(V))))
+
+
+def used_materials(scene: "Scene") -> list[int]:
+    """The material indices the faces use, ascending."""
+    return scene_fact(scene, "materials", lambda: sorted(
+        set(int(m) for m in np.unique(scene.face_material))) if scene.face_count else [])
+
+
+#: The ``scene_fact`` values ``store_facts`` computes (JSON-able: a cache entry holds them).
+STORED_FACTS = ("triangles", "smooth", "layout inputs float32", "vertex reach", "materials",
+                "bounds", "object_reach float32", "extent float32")
+
+
+def stored_facts(scene: "Scene") -> dict:
+    """``STORED_FACTS`` of ``scene`` (which must carry facts: ``with_facts``), computed
+    where not yet known: what a cache entry of the scene stores beside its arrays."""
+    triangles_digest(scene)
+    layout_inputs(scene, False)
+    vertex_reach(scene)
+    used_materials(scene)
+    scene.bounds()
+    scene_fact(scene, "object_reach float32", lambda: object_reach(scene, False))
+    if scene.face_count:
+        scene_fact(scene, "extent float32", lambda: extent_of(scene.vertices, scene.faces))
+    return {k: scene.facts[k] for k in STORED_FACTS if k in scene.facts}
+
+
 def check_ranges(scene: "Scene", precision: str = "float32") -> None:
     """Numerical guard before upload: every vertex, camera and light position within the
     precision's coordinate limit and every light intensity within its intensity limit
@@ -175,15 +299,13 @@ def check_ranges(scene: "Scene", precision: str = "float32") -> None:
     for i, cam in enumerate(scene.cameras):
         if np.max(np.abs(cam.position)) > c_lim:
             fail(f"views[{i}].position", "coordinate", np.max(np.abs(cam.position)), c_lim)
-    V = scene.positions(double)
-    for k, obj in enumerate(scene.objects):
-        v = V[obj.first_vertex:obj.first_vertex + obj.vertex_count]
-        if v.size and np.max(np.abs(v)) > c_lim:
-            fail(f"objects[{k}] ({obj.name!r}) vertices", "coordinate",
-                 float(np.max(np.abs(v))), c_lim)
+    for k, (obj, mag) in enumerate(zip(scene.objects, scene_fact(
+            scene, f"object_reach {precision}", lambda: object_reach(scene, double)))):
+        if mag is not None and mag > c_lim:
+            fail(f"objects[{k}] ({obj.name!r}) vertices", "coordinate", mag, c_lim)
     if scene.face_count:
-        used = used_vertices(V, scene.faces)
-        extent = float(np.max(used.max(axis=0) - used.min(axis=0)))
+        extent = scene_fact(scene, f"extent {precision}", lambda: extent_of(
+            scene.positions(double), scene.faces))
         s_lim = size_limit(double)
         if extent < s_lim:
             f = "objects vertices"
@@ -434,6 +556,9 @@ class Scene:
     # ``approximate`` where given (keyword arguments, so the file can be read again the same
     # way: ``load_scene(path, shading=..., **scene.read)``); part of a golden's key.
     read: dict = field(default_factory=dict)
+    # Values derived from the arrays (``scene_fact``): given by the loader with a cache
+    # (stored in its scene entry), for these very arrays, which it makes read-only.
+    facts: dict | None = field(default=None, compare=False, repr=False)
 
     def __post_init__(self):
         # A copy made with ``replace(scene, vertices=...)`` (moved, scaled) keeps the old
@@ -443,7 +568,8 @@ class Scene:
         # float64 face normals, so they need not round to the float32 ones (far from the
         # origin a face can have area in float64 only).
         v64 = self.vertices64
-        if v64 is not None and (v64.shape != np.shape(self.vertices) or not np.array_equal(
+        if v64 is not None and not _facts_hold(self) and (
+                v64.shape != np.shape(self.vertices) or not np.array_equal(
                 v64.astype(np.float32), np.asarray(self.vertices, np.float32))):
             self.vertices64 = None
         if self.vertices64 is None or (self.normals64 is not None
@@ -458,8 +584,10 @@ class Scene:
     @property
     def face_smooth(self) -> np.ndarray:
         """bool (F,): whether each face interpolates vertex normals."""
-        smooth = np.array([o.smooth for o in self.objects], dtype=bool)
-        return smooth[self.face_object] if len(smooth) else np.zeros(0, bool)
+        def compute():
+            smooth = np.array([o.smooth for o in self.objects], dtype=bool)
+            return smooth[self.face_object] if len(smooth) else np.zeros(0, bool)
+        return scene_fact(self, "face_smooth", compute)
 
     def positions(self, double: bool = False) -> np.ndarray:
         """Vertex positions of the precision in use: float64 (V, 3) ``vertices64`` for a
@@ -478,8 +606,8 @@ class Scene:
         """(lo, hi) float64 (3,) of all vertices used by faces."""
         if self.face_count == 0:
             return np.zeros(3), np.zeros(3)
-        used = used_vertices(self.vertices, self.faces)
-        return used.min(axis=0).astype(np.float64), used.max(axis=0).astype(np.float64)
+        lo, hi = scene_fact(self, "bounds", lambda: _bounds(self.vertices, self.faces))
+        return np.array(lo, np.float64), np.array(hi, np.float64)
 
     @property
     def diagonal(self) -> float:
