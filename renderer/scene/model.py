@@ -163,10 +163,11 @@ def extent_of(vertices: np.ndarray, faces: np.ndarray) -> float:
     return float(np.max(used.max(axis=0) - used.min(axis=0)))
 
 
-def _bounds(vertices: np.ndarray, faces: np.ndarray) -> tuple[list, list]:
+def _bounds(vertices: np.ndarray, faces: np.ndarray) -> list[list]:
+    """``[lo, hi]`` (lists of floats: a cache entry stores them) of the used vertices."""
     used = used_vertices(vertices, faces)
-    return (used.min(axis=0).astype(np.float64).tolist(),
-            used.max(axis=0).astype(np.float64).tolist())
+    return [used.min(axis=0).astype(np.float64).tolist(),
+            used.max(axis=0).astype(np.float64).tolist()]
 
 
 #: The fields of a ``Scene`` whose values ``Scene.facts`` describes (by identity).
