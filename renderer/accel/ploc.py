@@ -158,7 +158,8 @@ def _pairs(m, radius: int, c_box, made_d, f_d):
     far, ``f_d``: the triangles, one-lane UInt32 each): each cluster's nearest neighbour
     ``best_j`` and the exclusive prefix sum ``ex`` (UInt64) of the lanes that merge (high
     word: the lower lane of a mutual pair) and that leave (low word: the higher one);
-    answers them with the nodes made after the iteration (one lane)."""
+    answers them with the nodes made after the iteration (one lane: the nodes made before
+    plus the scan's total, its sum and flag at the last cluster's lane)."""
     UInt32, UInt64 = m.UInt32, m.UInt64
     i = dr.arange(UInt32, dr.width(c_box[0]))
     k = dr.gather(UInt32, f_d, i & 0) - dr.gather(UInt32, made_d, i & 0)
@@ -170,7 +171,9 @@ def _pairs(m, radius: int, c_box, made_d, f_d):
     flags = (UInt64(dr.select(merge, UInt32(1), 0)) << 32) | UInt64(dr.select(gone,
                                                                              UInt32(1), 0))
     ex = dr.prefix_reduce(dr.ReduceOp.Add, flags, exclusive=True)
-    made_new = made_d + dr.sum(dr.select(merge, UInt32(1), 0))
+    last = f_d - made_d - 1                 # the last cluster's lane: the scan's total
+    made_new = made_d + UInt32((dr.gather(UInt64, ex, last) + dr.gather(UInt64, flags, last))
+                               >> 32)
     dr.eval(best_j, ex, made_new)
     return best_j, ex, made_new
 
