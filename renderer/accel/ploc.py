@@ -570,24 +570,39 @@ def _deep_subtrees(m, batches, n_ch, n_cnt, n_depth, leaf_size):
         n = dr.gather(UInt32, n_cnt, c)
         d = dr.gather(UInt32, n_depth, c)
         hc = dr.maximum(h[0], h[1]) + 1
-        dr.eval(hc, n, d)
         big = n > leaf_size
         rebuild = big & (d + hc > MAX_LEVELS) & (d + _levels_needed(n, leaf_size) <= MAX_LEVELS)
+        # one kernel per batch: it reads the rows of earlier batches (its children) and
+        # writes its own
         dr.scatter(height, dr.select(big, hc, 0), c)
         dr.scatter(roots, rebuild, c)
         dr.eval(height, roots)
-    inside = dr.zeros(Bool, n_in)
-    for b0, cnt in reversed(batches):
-        c = dr.opaque(UInt32, b0) + dr.arange(UInt32, cnt)
-        below = dr.gather(Bool, inside, c) | dr.gather(Bool, roots, c)
-        ch = [dr.gather(UInt32, n_ch[s], c) for s in range(2)]
-        dr.eval(below, ch)
-        for s in range(2):
-            dr.scatter(inside, below, ch[s] & MASK, (ch[s] & NODE) != 0)
-        dr.eval(inside)
+    inside = _below_any(m, n_ch, roots, len(batches))
     roots &= ~inside
     dr.eval(roots)
     return roots, inside
+
+
+def _below_any(m, n_ch, flag, iterations: int):
+    """Bool over the nodes: whether any strict ancestor has ``flag`` (Bool over the
+    nodes; the root is the last node), by pointer jumping as ``_positions`` sums: every
+    node ORs its jump target's answer in and jumps to that target's target,
+    ``ceil(log2(iterations)) + 1`` rounds (a node lies at most ``iterations - 1`` levels
+    deep)."""
+    UInt32, Bool = m.UInt32, m.Bool
+    n_in = dr.width(flag)
+    root = dr.opaque(UInt32, n_in - 1, 1)
+    n = dr.arange(UInt32, n_in)
+    up = dr.full(UInt32, n_in - 1, n_in)          # the parent (the root's: itself)
+    for s in range(2):
+        dr.scatter(up, n, n_ch[s] & MASK, (n_ch[s] & NODE) != 0)
+    dr.eval(up)
+    acc = dr.gather(Bool, flag, up) & (n != root)   # the parent's flag (the root: none)
+    dr.eval(acc)
+    for _ in range(math.ceil(math.log2(max(iterations, 1))) + 1):
+        acc, up = acc | dr.gather(Bool, acc, up), dr.gather(UInt32, up, up)
+        dr.eval(acc, up)
+    return acc
 
 
 def _rebuild(m, rb, p_box, boxes_d, refs_d, n_next, leaf_size, pad):
