@@ -8,11 +8,11 @@ installed package has). Prints the medians of the wall time, of the ``timing:`` 
 (imports, load, tree, upload, frame+writes = first image - the others, outside = wall -
 first image) and a finer split of the frame+writes part, measured in the child by wrapping
 the functions ``whitted render`` calls after the upload (the first frame, the EXR metadata,
-the EXR and PNG writes, the cache flush, and the end from ``main`` returning to the
-process's exit).
+the EXR and PNG writes, the cache flush, and the end from the command's return to the
+process's exit); ``start`` is the parent's start of the child to the child's first line.
 
 The child is this file with ``--child``: it wraps those functions with timers, runs
-``whitted.cli.main`` as the console script does, and prints one ``split:`` JSON line.
+``whitted.entry.main`` as the console script does, and prints one ``split:`` JSON line.
 """
 from __future__ import annotations
 
@@ -32,9 +32,9 @@ ROOT = Path(__file__).resolve().parents[2]
 
 
 def child(argv: list[str]) -> int:
-    """Run ``whitted`` with ``argv``, the steps after the upload timed."""
+    """Run ``whitted`` with ``argv`` as the console script does (``whitted.entry.main``),
+    the steps after the upload timed."""
     t_enter = time.time()
-    import whitted.cli as cli
     import whitted.render as wr
     from renderer import film
     from renderer.accel.cache import TreeCache
@@ -61,15 +61,21 @@ def child(argv: list[str]) -> int:
     wr.write_exr = timed("exr", film.write_exr)
     wr.write_png = timed("png", film.write_png)
     wr.render_view = timed("render_view", wr.render_view)
+    real_exit = os._exit
+
+    def report(code=0):
+        if "writes start" in stamps:      # the EXR metadata (its imports included)
+            spent["metadata"] = stamps["writes start"] - stamps["render_view end"]
+        sys.stdout.flush()
+        print("split: " + json.dumps({"enter": t_enter, "main_end": time.time(), **spent}),
+              file=sys.stderr, flush=True)
+        return code
+
+    # ``whitted.entry.main`` ends a render with ``os._exit`` (QUICK_EXIT): report first
+    os._exit = lambda code: real_exit(report(code))
+    import whitted.entry as entry
     sys.argv = ["whitted", *argv]
-    code = cli.main(argv)
-    t_main = time.time()
-    if "writes start" in stamps:      # the EXR metadata (its imports included)
-        spent["metadata"] = stamps["writes start"] - stamps["render_view end"]
-    sys.stdout.flush()
-    print("split: " + json.dumps({"enter": t_enter, "main_end": t_main, **spent}),
-          file=sys.stderr, flush=True)
-    return code
+    return report(entry.main())
 
 
 def run_once(scene: str, args, cache: Path, out: Path, env: dict) -> dict:
