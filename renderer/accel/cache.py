@@ -20,7 +20,9 @@ parameter or code misses.
   position-weighted sums of its 32-bit words (blocks of ``BLOCK`` words weighted by their
   index, and the words' places in a block by theirs): additions only, cheaper than
   SHA-256, and any change of one or two words (flipped bits, a swap) changes it, as does
-  a zeroed or torn page; the header that names the arrays is covered by SHA-256;
+  a zeroed or torn page; the header that names the arrays is covered by SHA-256; large
+  arrays are summed in slices on threads (``checksums``), which also map the file's pages
+  as they read them;
 - bounded: after each write the least recently used entries (file mtimes, touched on
   every hit) are removed until the folder holds at most ``max_bytes``;
 - optional: a folder that cannot be made or written leaves the cache read-only or off,
@@ -92,15 +94,18 @@ def checksum(a: np.ndarray) -> list[int]:
 
 #: Words above which ``checksums`` sums an array in slices on threads.
 SPLIT_WORDS = 1 << 20
-_POOL: list = []
+_POOL: dict = {}
 
 
 def _pool():
-    if not _POOL:
+    """The checksums' threads, one pool per process (a forked child makes its own: the
+    parent's threads are not in it)."""
+    pid = os.getpid()
+    if _POOL.get("pid") != pid:
         from concurrent.futures import ThreadPoolExecutor
-        _POOL.append(ThreadPoolExecutor(max(1, min(16, os.cpu_count() or 1)),
-                                        thread_name_prefix="cache checksum"))
-    return _POOL[0]
+        _POOL.update(pid=pid, pool=ThreadPoolExecutor(max(1, min(16, os.cpu_count() or 1)),
+                                                      thread_name_prefix="cache checksum"))
+    return _POOL["pool"]
 
 
 def _words(a: np.ndarray) -> np.ndarray:
