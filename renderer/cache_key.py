@@ -1,5 +1,6 @@
 """Content keys of cached arrays: ``content_key`` hashes what went in, ``code_version`` the
-source text of the code that made it (``renderer.accel.cache`` stores under these keys).
+source text of the code that made it (``renderer.accel.cache`` stores under these keys),
+and ``CacheWarning``, the warning of an entry that could not be used or written.
 
 Below both ``renderer.accel`` and ``renderer.scene``, so the scene loader keys its cached
 arrays without importing the accelerators.
@@ -12,6 +13,11 @@ from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
+
+
+class CacheWarning(UserWarning):
+    """A cache entry that could not be used or written (the work is redone)."""
+
 
 #: Modules of ``renderer/accel`` whose source text is part of every key (they decide what a
 #: stored tree holds).

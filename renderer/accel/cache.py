@@ -49,7 +49,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..cache_key import CODE_MODULES, code_version, content_key
+from ..cache_key import CODE_MODULES, CacheWarning, code_version, content_key
 from ..outputs import OutputError, atomic_path
 
 __all__ = ["ALIGN", "CODE_MODULES", "MAGIC", "MAX_BYTES", "CacheWarning", "TreeCache",
@@ -63,10 +63,6 @@ ALIGN = 64
 #: 32-bit words per block of ``checksum``.
 BLOCK = 1024
 _PREFIX = len(MAGIC) + 8 + 32
-
-
-class CacheWarning(UserWarning):
-    """A cache entry that could not be used or written (the work is redone)."""
 
 
 def default_folder() -> Path:

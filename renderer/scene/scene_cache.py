@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..cache_key import code_version, content_key
+from ..cache_key import CacheWarning, code_version, content_key
 from . import loader
 from .model import (
     FACT_FIELDS,
@@ -51,6 +51,8 @@ ARRAYS = {"vertices": (np.float32, 3), "normals": (np.float32, 3),
           "vertices64": (np.float64, 3), "normals64": (np.float64, 3),
           "faces": (np.int32, 3), "face_material": (np.int32, 0),
           "face_object": (np.int32, 0)}
+
+
 def _mesh_paths(path: Path, data: dict) -> list[Path] | None:
     """The mesh files ``[[objects]]`` names, in order; None where the table is not as
     the loader reads it (the loader then says why)."""
@@ -144,7 +146,6 @@ def _from_entry(e: dict, r, data: dict, a) -> Scene | None:
     """The scene of the entry ``e`` (with ``a``'s cameras, settings, lights, materials),
     its warnings given again; None (one ``CacheWarning``) where ``e`` does not hold a
     scene of this shape."""
-    from ..accel.cache import CacheWarning
     try:
         meta = e["meta"]
         objects = [ObjectInfo(**o) for o in meta["objects"]]
