@@ -195,3 +195,19 @@ def test_facts_are_those_of_the_arrays(tmp_path):
     moved = dataclasses.replace(warm, vertices=warm.vertices + np.float32(1.0))
     assert triangles_key(moved) != triangles_key(warm)
     assert moved.bounds()[0].tolist() != warm.bounds()[0].tolist()
+
+
+def test_unwritable_folder_loads_without_the_entry(tmp_path):
+    """A cache folder that cannot be made: the scene loads as without a cache, with one
+    ``CacheWarning`` for the cache (not one per entry or load)."""
+    path = _files(tmp_path)
+    ref, ref_w = _load(path, None)
+    blocker = tmp_path / "file"
+    blocker.write_text("a file where the cache folder would go")
+    cache = TreeCache(blocker / "cache")
+    first, w1 = _load(path, cache)
+    second, w2 = _load(path, cache)
+    assert [c for c, _ in w1 + w2].count(CacheWarning) == 1, w1 + w2
+    for s, w in ((first, w1), (second, w2)):
+        _same(s, ref)
+        assert [x for x in w if x[0] is not CacheWarning] == ref_w
