@@ -134,15 +134,16 @@ def together(*steps) -> list:
     return run(lambda step: step(), steps)
 
 
-def spans(n: int, grain: int = GRAIN) -> list[tuple[int, int]]:
+def spans(n: int, grain: int | None = None) -> list[tuple[int, int]]:
     """``range(n)`` cut into at most ``thread_count()`` contiguous ``(lo, hi)`` spans of
-    at least ``grain`` rows each (one span when ``n`` is small)."""
+    at least ``grain`` (default ``GRAIN``) rows each (one span when ``n`` is small)."""
+    grain = GRAIN if grain is None else grain
     k = max(1, min(thread_count(), n // max(grain, 1)))
     cuts = [n * j // k for j in range(k + 1)]
     return list(zip(cuts[:-1], cuts[1:]))
 
 
-def for_spans(n: int, fn, grain: int = GRAIN) -> None:
+def for_spans(n: int, fn, grain: int | None = None) -> None:
     """``fn(lo, hi)`` for the ``spans(n, grain)`` of ``range(n)``, side by side (``run``);
     ``fn`` writes its rows into arrays the caller made."""
     run(lambda s: fn(*s), spans(n, grain))

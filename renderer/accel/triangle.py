@@ -303,7 +303,7 @@ def _corners(vc: list, f: list):
     columns), the cross product ``(p1 - p0) x (p2 - p0)`` (three columns, ``np.cross``'s
     operations in its order) and its length (``np.linalg.norm``'s ``sqrt((x² + y²) +
     z²)``), computed once for both the packed rows and the geometric normals."""
-    p = [[np.take(vc[k], f[c]) for k in range(3)] for c in range(3)]
+    p = [[np.take(vc[k], f[c], mode="clip") for k in range(3)] for c in range(3)]
     a = [p[1][k] - p[0][k] for k in range(3)]
     b = [p[2][k] - p[0][k] for k in range(3)]
     n = [a[(k + 1) % 3] * b[(k + 2) % 3] - a[(k + 2) % 3] * b[(k + 1) % 3] for k in range(3)]
@@ -365,8 +365,8 @@ def triangle_arrays(scene, double: bool, order: np.ndarray | None = None,
     order = np.arange(F, dtype=np.int64) if order is None else np.asarray(order, np.int64)
     fdt = np.float64 if double else np.float32
     faces = scene.faces
-    f = parallel.run(lambda c: np.take(np.ascontiguousarray(faces[:, c], np.intp), order),
-                     range(3))
+    f = parallel.run(lambda c: np.take(np.ascontiguousarray(faces[:, c], np.intp), order,
+                                       mode="clip"), range(3))
     out = {"tri_data": np.zeros((F, STRIDE), fdt), "ng": np.empty((3, F), fdt)}
     _pack_rows(_columns(scene.positions(double)), f, layout_of(routine), out)
     smooth = scene.face_smooth[order]
@@ -380,7 +380,7 @@ def triangle_arrays(scene, double: bool, order: np.ndarray | None = None,
         def normals_span(lo, hi):
             for k in range(3):
                 for j in range(3):
-                    np.take(nc[j], f[k][lo:hi], out=out[f"n{k}"][j, lo:hi])
+                    np.take(nc[j], f[k][lo:hi], out=out[f"n{k}"][j, lo:hi], mode="clip")
         parallel.for_spans(F, normals_span)
     out["material"] = np.asarray(scene.face_material[order], np.uint32)
     out["smooth"] = np.asarray(smooth, bool)
@@ -403,10 +403,10 @@ def permuted(arrays: dict, order: np.ndarray) -> dict:
         o = order[lo:hi]
         for k in cols:
             for j in range(3):
-                np.take(src[k][j], o, out=out[k][j, lo:hi])
-        np.take(src["tri_data"], o, axis=0, out=out["tri_data"][lo:hi])
+                np.take(src[k][j], o, out=out[k][j, lo:hi], mode="clip")
+        np.take(src["tri_data"], o, axis=0, out=out["tri_data"][lo:hi], mode="clip")
         for k in ("material", "smooth", "order"):
-            np.take(src[k], o, out=out[k][lo:hi])
+            np.take(src[k], o, out=out[k][lo:hi], mode="clip")
     parallel.for_spans(F, span)
     return out
 

@@ -718,18 +718,20 @@ def _part_arrays(world: np.ndarray, faces: np.ndarray) -> dict:
     if used is None:
         verts, vc = world.copy(), w64
     else:
-        verts = np.take(world, used, axis=0)
-        vc = parallel.run(lambda k: np.take(w64[k], used), range(3))
+        verts = np.take(world, used, axis=0, mode="clip")
+        vc = parallel.run(lambda k: np.take(w64[k], used, mode="clip"), range(3))
     faces = np.empty((len(faces_c[0]), 3), np.int64)
 
     def put_faces(lo, hi):
         for c in range(3):
             faces[lo:hi, c] = faces_c[c][lo:hi]
     parallel.for_spans(len(faces), put_faces)
-    weld, units = parallel.together(lambda: _weld_columns(vc),
-                                    lambda: [_unit_columns(cross32, area32),
-                                             _unit_columns(cross, area2)])
-    normals, normals64 = _normals_columns(weld, faces_c, units)
+    F = len(faces)
+    weights = [[np.empty(3 * F) for _ in range(3)] for _ in range(2)]
+    weld, _, _ = parallel.together(lambda: _weld_columns(vc),
+                                   lambda: _unit_columns(cross32, area32, weights[0]),
+                                   lambda: _unit_columns(cross, area2, weights[1]))
+    normals, normals64 = _normals_columns(weld, faces_c, weights)
     return {"keep": keep, "faces": faces, "verts": verts, "normals": normals,
             "normals64": normals64}
 
@@ -761,9 +763,9 @@ def _face_cross_columns(pc: list, fc: list) -> tuple[list, np.ndarray]:
         f0, f1, f2 = (c[lo:hi] for c in fc)
         a, b = [], []
         for k in range(3):
-            p0 = np.take(pc[k], f0)
-            a.append(np.take(pc[k], f1) - p0)
-            b.append(np.subtract(np.take(pc[k], f2), p0, out=p0))
+            p0 = np.take(pc[k], f0, mode="clip")
+            a.append(np.take(pc[k], f1, mode="clip") - p0)
+            b.append(np.subtract(np.take(pc[k], f2, mode="clip"), p0, out=p0))
         tmp = np.empty(hi - lo)
         for k in range(3):
             i, j = (k + 1) % 3, (k + 2) % 3
@@ -796,7 +798,7 @@ def _compact_columns(fc: list, n: int) -> tuple[np.ndarray | None, list]:
         return None, [c.astype(np.int64, copy=False) for c in fc]
     used = np.flatnonzero(mask)
     remap = np.cumsum(mask, dtype=np.int64) - 1
-    return used, parallel.run(lambda c: np.take(remap, c), fc)
+    return used, parallel.run(lambda c: np.take(remap, c, mode="clip"), fc)
 
 
 def _mix(x: np.ndarray) -> np.ndarray:
@@ -838,8 +840,8 @@ def _weld_columns(vc: list) -> np.ndarray:
     label = label.reshape(-1)
     rep = np.empty(int(label.max()) + 1 if label.size else 0, np.int64)
     rep[label] = np.arange(label.size)
-    src = np.take(rep, label)
-    same = parallel.run(lambda s: all(np.array_equal(np.take(vc[k], src[s[0]:s[1]]),
+    src = np.take(rep, label, mode="clip")
+    same = parallel.run(lambda s: all(np.array_equal(np.take(vc[k], src[s[0]:s[1]], mode="clip"),
                                                      vc[k][s[0]:s[1]]) for k in range(3)),
                         parallel.spans(V))
     if all(same):
@@ -905,11 +907,13 @@ def _unit_rows(v: np.ndarray, length: np.ndarray) -> np.ndarray:
     return np.stack(_unit_columns([v[:, k] for k in range(3)], length), axis=1)
 
 
-def _unit_columns(vc: list, length: np.ndarray) -> list[np.ndarray]:
+def _unit_columns(vc: list, length: np.ndarray, out: list | None = None
+                  ) -> list[np.ndarray]:
     """``_unit_rows`` of the rows whose three columns are ``vc``, as three columns
-    (elementwise over spans)."""
+    (elementwise over spans): written into the first ``len(length)`` values of the three
+    float64 arrays ``out`` where given (returned)."""
     n = len(length)
-    out = [np.empty(n) for _ in range(3)]
+    out = [np.empty(n) for _ in range(3)] if out is None else out
 
     def span(lo, hi):
         ln = length[lo:hi]
@@ -931,33 +935,37 @@ def _vertex_normals(verts: np.ndarray, faces: np.ndarray, face_n: np.ndarray,
     input order; ``_normals_columns``)."""
     weld = _weld(verts) if weld is None else weld
     face_n = np.asarray(face_n, np.float64)
-    return _normals_columns(np.asarray(weld), _columns(faces, np.intp),
-                            [[face_n[:, k] for k in range(3)]])[0]
+    weights = [np.empty(3 * face_n.shape[0]) for _ in range(3)]
+    for k in range(3):
+        weights[k][:face_n.shape[0]] = face_n[:, k]
+    return _normals_columns(np.asarray(weld), _columns(faces, np.intp), [weights])[0]
 
 
-def _normals_columns(weld: np.ndarray, fc: list, units: list) -> list[np.ndarray]:
-    """``_vertex_normals`` for each face normal set of ``units`` (each three float64 columns
-    over the faces ``fc``, three index columns), the vertices labelled by ``weld``: one
-    (V, 3) float64 array per set. The sums are ``np.bincount`` passes (one per set and
-    component, side by side, each adding in the order corner 0 of every face, then corner
-    1, then corner 2); the gathers and divisions are elementwise over spans."""
+def _normals_columns(weld: np.ndarray, fc: list, weights: list) -> list[np.ndarray]:
+    """``_vertex_normals`` for each face normal set of ``weights`` over the faces ``fc``
+    (three index columns), the vertices labelled by ``weld``: one (V, 3) float64 array per
+    set. A set is three float64 arrays (3 F,), one per component, whose first F values are
+    the unit face normals; the other two copies (``np.tile``'s) are made here. The sums are
+    ``np.bincount`` passes (one per set and component, side by side, each adding in the
+    order corner 0 of every face, then corner 1, then corner 2); the gathers and divisions
+    are elementwise over spans."""
     F = len(fc[0])
     L = int(weld.max()) + 1
     idx = np.empty(3 * F, np.intp)
-    weights = [[np.empty(3 * F) for _ in range(3)] for _ in units]
 
     def gather_span(lo, hi):
         for c in range(3):
-            np.take(weld, fc[c][lo:hi], out=idx[c * F + lo:c * F + hi])
-            for s, u in enumerate(units):
-                for k in range(3):
-                    weights[s][k][c * F + lo:c * F + hi] = u[k][lo:hi]
+            np.take(weld, fc[c][lo:hi], out=idx[c * F + lo:c * F + hi], mode="clip")
+        for w in (w for ws in weights for w in ws):
+            w[F + lo:F + hi] = w[lo:hi]
+            w[2 * F + lo:2 * F + hi] = w[lo:hi]
     parallel.for_spans(F, gather_span)
-    jobs = [(s, k) for s in range(len(units)) for k in range(3)]
+    jobs = [(s, k) for s in range(len(weights)) for k in range(3)]
     sums = parallel.run(lambda j: np.bincount(idx, weights=weights[j[0]][j[1]], minlength=L),
                         jobs)
-    return parallel.run(lambda s: _normalised(weld, sums[3 * s:3 * s + 3], fc, units[s]),
-                        range(len(units)))
+    return parallel.run(lambda s: _normalised(weld, sums[3 * s:3 * s + 3], fc,
+                                              [w[:F] for w in weights[s]]),
+                        range(len(weights)))
 
 
 def _normalised(weld: np.ndarray, acc: list, fc: list, unit: list) -> np.ndarray:
@@ -972,7 +980,7 @@ def _normalised(weld: np.ndarray, acc: list, fc: list, unit: list) -> np.ndarray
     def length_span(lo, hi):
         w = weld[lo:hi]
         for k in range(3):
-            np.take(acc[k], w, out=n[k][lo:hi])
+            np.take(acc[k], w, out=n[k][lo:hi], mode="clip")
         sq = np.multiply(n[0][lo:hi], n[0][lo:hi], out=length[lo:hi])
         sq += n[1][lo:hi] * n[1][lo:hi]
         sq += n[2][lo:hi] * n[2][lo:hi]

@@ -53,8 +53,8 @@ def _level(V: np.ndarray, Fc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     def mid_span(lo, hi):
         u = uniq[lo:hi]
         a, b = u // nv, u % nv
-        out_v[nv + lo:nv + hi] = ((np.take(V, a, axis=0).astype(np.float64)
-                                   + np.take(V, b, axis=0).astype(np.float64)) * 0.5)
+        out_v[nv + lo:nv + hi] = ((np.take(V, a, axis=0, mode="clip").astype(np.float64)
+                                   + np.take(V, b, axis=0, mode="clip").astype(np.float64)) * 0.5)
     m = (nv + inverse).reshape(F, 3)               # midpoint index of ab, bc, ca
     out_f = np.empty((F, 4, 3), np.int64)
 
