@@ -361,8 +361,9 @@ def triangle_arrays(scene, double: bool, order: np.ndarray | None = None,
     vertices are those of the precision (``Scene.positions``); corners, cross products and
     their lengths are computed once for the packed rows and the unit geometric normals,
     elementwise over spans of faces on ``renderer.parallel``'s threads."""
-    F = scene.face_count
-    order = np.arange(F, dtype=np.int64) if order is None else np.asarray(order, np.int64)
+    order = (np.arange(scene.face_count, dtype=np.int64) if order is None
+             else np.asarray(order, np.int64))
+    F = order.size                        # references: a face may appear more than once
     fdt = np.float64 if double else np.float32
     faces = scene.faces
     f = parallel.run(lambda c: np.take(np.ascontiguousarray(faces[:, c], np.intp), order,
