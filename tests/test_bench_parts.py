@@ -35,6 +35,29 @@ def test_build_part_renders_its_stored_rows():
     assert "Time to first image" in text and all(r["scene"] in text for r in rows)
 
 
+def test_timed_processes_read_compiled_bytecode_even_where_it_is_turned_off(tmp_path,
+                                                                            monkeypatch):
+    """The time-to-first-image processes run as an installed package does, from bytecode:
+    the environment they get writes it (to the part's own folder) although the caller's
+    ``PYTHONDONTWRITEBYTECODE`` says not to."""
+    import subprocess
+    import sys
+
+    from evaluation.bench.build import _process_env
+    monkeypatch.setenv("PYTHONDONTWRITEBYTECODE", "1")
+    env = _process_env(tmp_path / "cache", tmp_path / "pyc")
+    assert env["WHITTED_CACHE"] == str(tmp_path / "cache")
+    subprocess.run([sys.executable, "-c", "import evaluation.bench.part"], env=env,
+                   cwd=ROOT, check=True)
+    assert list((tmp_path / "pyc").rglob("part.*.pyc"))
+
+
+def test_median_process_is_the_middle_run_with_its_own_breakdown():
+    from evaluation.bench.build import _median_process
+    runs = [(3.0, {"load": 3}), (1.0, {"load": 1}), (2.0, {"load": 2})]
+    assert _median_process(runs) == (2.0, {"load": 2})
+
+
 def test_unknown_part_is_refused_before_anything_runs(tmp_path):
     with pytest.raises(ValueError, match="unknown.*'sed'"):
         run(tmp_path / "out", backend="llvm", parts=("sed",))

@@ -158,7 +158,8 @@ def _pairs(m, radius: int, c_box, made_d, f_d):
     far, ``f_d``: the triangles, one-lane UInt32 each): each cluster's nearest neighbour
     ``best_j`` and the exclusive prefix sum ``ex`` (UInt64) of the lanes that merge (high
     word: the lower lane of a mutual pair) and that leave (low word: the higher one);
-    answers them with the nodes made after the iteration (one lane)."""
+    answers them with the nodes made after the iteration (one lane: the nodes made before
+    plus the scan's total, its sum and flag at the last cluster's lane)."""
     UInt32, UInt64 = m.UInt32, m.UInt64
     i = dr.arange(UInt32, dr.width(c_box[0]))
     k = dr.gather(UInt32, f_d, i & 0) - dr.gather(UInt32, made_d, i & 0)
@@ -170,7 +171,9 @@ def _pairs(m, radius: int, c_box, made_d, f_d):
     flags = (UInt64(dr.select(merge, UInt32(1), 0)) << 32) | UInt64(dr.select(gone,
                                                                              UInt32(1), 0))
     ex = dr.prefix_reduce(dr.ReduceOp.Add, flags, exclusive=True)
-    made_new = made_d + dr.sum(dr.select(merge, UInt32(1), 0))
+    last = f_d - made_d - 1                 # the last cluster's lane: the scan's total
+    made_new = made_d + UInt32((dr.gather(UInt64, ex, last) + dr.gather(UInt64, flags, last))
+                               >> 32)
     dr.eval(best_j, ex, made_new)
     return best_j, ex, made_new
 
@@ -567,24 +570,39 @@ def _deep_subtrees(m, batches, n_ch, n_cnt, n_depth, leaf_size):
         n = dr.gather(UInt32, n_cnt, c)
         d = dr.gather(UInt32, n_depth, c)
         hc = dr.maximum(h[0], h[1]) + 1
-        dr.eval(hc, n, d)
         big = n > leaf_size
         rebuild = big & (d + hc > MAX_LEVELS) & (d + _levels_needed(n, leaf_size) <= MAX_LEVELS)
+        # one kernel per batch: it reads the rows of earlier batches (its children) and
+        # writes its own
         dr.scatter(height, dr.select(big, hc, 0), c)
         dr.scatter(roots, rebuild, c)
         dr.eval(height, roots)
-    inside = dr.zeros(Bool, n_in)
-    for b0, cnt in reversed(batches):
-        c = dr.opaque(UInt32, b0) + dr.arange(UInt32, cnt)
-        below = dr.gather(Bool, inside, c) | dr.gather(Bool, roots, c)
-        ch = [dr.gather(UInt32, n_ch[s], c) for s in range(2)]
-        dr.eval(below, ch)
-        for s in range(2):
-            dr.scatter(inside, below, ch[s] & MASK, (ch[s] & NODE) != 0)
-        dr.eval(inside)
+    inside = _below_any(m, n_ch, roots, len(batches))
     roots &= ~inside
     dr.eval(roots)
     return roots, inside
+
+
+def _below_any(m, n_ch, flag, iterations: int):
+    """Bool over the nodes: whether any strict ancestor has ``flag`` (Bool over the
+    nodes; the root is the last node), by pointer jumping as ``_positions`` sums: every
+    node ORs its jump target's answer in and jumps to that target's target,
+    ``ceil(log2(iterations)) + 1`` rounds (a node lies at most ``iterations - 1`` levels
+    deep)."""
+    UInt32, Bool = m.UInt32, m.Bool
+    n_in = dr.width(flag)
+    root = dr.opaque(UInt32, n_in - 1, 1)
+    n = dr.arange(UInt32, n_in)
+    up = dr.full(UInt32, n_in - 1, n_in)          # the parent (the root's: itself)
+    for s in range(2):
+        dr.scatter(up, n, n_ch[s] & MASK, (n_ch[s] & NODE) != 0)
+    dr.eval(up)
+    acc = dr.gather(Bool, flag, up) & (n != root)   # the parent's flag (the root: none)
+    dr.eval(acc)
+    for _ in range(math.ceil(math.log2(max(iterations, 1))) + 1):
+        acc, up = acc | dr.gather(Bool, acc, up), dr.gather(UInt32, up, up)
+        dr.eval(acc, up)
+    return acc
 
 
 def _rebuild(m, rb, p_box, boxes_d, refs_d, n_next, leaf_size, pad):
