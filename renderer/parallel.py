@@ -4,9 +4,10 @@ vertex arrays, the accelerators' packed triangles and boxes).
 numpy releases the GIL inside its elementwise loops, gathers, sorts and ``np.bincount``, so
 splitting such work over threads uses every core. The helpers here only ever split work
 whose results do not depend on the split: elementwise operations and gathers over spans of
-rows (each row computed alone, in the same operations as without threads), or independent
-steps run side by side. No floating-point reduction is split: the results are the same bit
-for bit for any number of threads.
+rows (each row computed alone, in the same operations as without threads), independent
+steps run side by side, and the sort of integers by value ranges (``unique_inverse``). No
+floating-point reduction is split: the results are the same bit for bit for any number of
+threads.
 
 The pool's size is ``thread_count()``: the cores this process may run on (at most
 ``MAX_THREADS``), or the ``WHITTED_HOST_THREADS`` environment variable, or the ``threads``
@@ -20,6 +21,8 @@ import os
 import queue
 import threading
 from contextlib import contextmanager
+
+import numpy as np
 
 #: The most threads the pool uses (memory bandwidth, not cores, bounds these steps).
 MAX_THREADS = 16
@@ -147,3 +150,39 @@ def for_spans(n: int, fn, grain: int | None = None) -> None:
     """``fn(lo, hi)`` for the ``spans(n, grain)`` of ``range(n)``, side by side (``run``);
     ``fn`` writes its rows into arrays the caller made."""
     run(lambda s: fn(*s), spans(n, grain))
+
+
+def unique_inverse(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``np.unique(x, return_inverse=True)`` of a 1-D integer array ``x`` (the sorted
+    distinct values and each element's index among them), the same arrays, with the sort
+    split over threads: ``x`` is cut by value at splitters drawn from a regular sample,
+    each value range is made unique on its own thread, and the ranges' results are
+    joined in value order (integers: no rounding anywhere)."""
+    x = np.asarray(x)
+    n = x.size
+    k = min(thread_count(), n // (4 * GRAIN), 255)       # ranges numbered in uint8
+    if k <= 1:
+        values, inverse = np.unique(x, return_inverse=True)
+        return values, inverse.reshape(-1)
+    sample = np.sort(x[::max(1, n // (64 * k))])
+    splitters = np.unique(sample[[len(sample) * j // k for j in range(1, k)]])
+    bucket = np.zeros(n, np.uint8)             # the value range of each element
+
+    def find(lo, hi):
+        for s in splitters:
+            bucket[lo:hi] += x[lo:hi] >= s
+    for_spans(n, find)
+
+    def part(j):
+        members = np.flatnonzero(bucket == j)
+        values, inverse = np.unique(x[members], return_inverse=True)
+        return members, values, inverse.reshape(-1)
+    parts = run(part, range(len(splitters) + 1))
+    offsets = np.cumsum([0] + [len(v) for _, v, _ in parts])
+    inverse = np.empty(n, np.intp)
+
+    def place(j):
+        members, _, inv = parts[j]
+        inverse[members] = inv + offsets[j]
+    run(place, range(len(parts)))
+    return np.concatenate([v for _, v, _ in parts]), inverse

@@ -98,6 +98,19 @@ def test_pool_runs_in_order_raises_and_nests():
             pass
 
 
+def test_unique_inverse_is_numpy_unique(small_spans):
+    rng = np.random.default_rng(2)
+    for x in (rng.integers(0, 2**40, 20000), rng.integers(-5, 5, 9000),
+              np.zeros(5000, np.int64), np.arange(7000)[::-1].copy(),
+              rng.integers(0, 2**64 - 1, 12000, dtype=np.uint64)):
+        ref_v, ref_i = np.unique(x, return_inverse=True)
+        for n in (1, 2, MANY, 300):
+            with parallel.threads(n):
+                v, i = parallel.unique_inverse(x)
+            _same(v, ref_v)
+            _same(i, ref_i.reshape(-1))
+
+
 def test_part_arrays_same_for_any_thread_count(bunny, small_spans):
     V, F = _degenerate(*bunny)
     one, many = _both(lambda: loader._part_arrays(V, F))

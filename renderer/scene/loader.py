@@ -836,8 +836,7 @@ def _weld_columns(vc: list) -> np.ndarray:
             np.add(vc[k][lo:hi], 0.0, out=bits[lo:hi, k].view(np.float64))  # -0.0 -> 0.0
         h[lo:hi] = _row_hash(bits[lo:hi])
     parallel.for_spans(V, hash_span)
-    _, label = np.unique(h, return_inverse=True)
-    label = label.reshape(-1)
+    _, label = parallel.unique_inverse(h)
     rep = np.empty(int(label.max()) + 1 if label.size else 0, np.int64)
     rep[label] = np.arange(label.size)
     src = np.take(rep, label, mode="clip")

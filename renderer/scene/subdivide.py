@@ -45,7 +45,7 @@ def _level(V: np.ndarray, Fc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
             p, q = cols[j][lo:hi], cols[(j + 1) % 3][lo:hi]
             np.add(np.minimum(p, q) * nv, np.maximum(p, q), out=key[lo:hi, j])
     parallel.for_spans(F, key_span)
-    uniq, inverse = np.unique(key.reshape(-1), return_inverse=True)
+    uniq, inverse = parallel.unique_inverse(key.reshape(-1))
     E = uniq.shape[0]
     out_v = np.empty((nv + E,) + V.shape[1:], V.dtype)
     out_v[:nv] = V
