@@ -365,14 +365,24 @@ def triangle_arrays(scene, double: bool, order: np.ndarray | None = None,
              else np.asarray(order, np.int64))
     F = order.size                        # references: a face may appear more than once
     fdt = np.float64 if double else np.float32
-    faces = scene.faces
-    f = parallel.run(lambda c: np.take(np.ascontiguousarray(faces[:, c], np.intp), order,
-                                       mode="clip"), range(3))
+    faces, material, smooth = scene.faces, scene.face_material, scene.face_smooth
+    cols = parallel.run(lambda c: np.ascontiguousarray(faces[:, c], np.intp), range(3))
+    f = [np.empty(F, np.intp) for _ in range(3)]
     out = {"tri_data": np.zeros((F, STRIDE), fdt), "ng": np.empty((3, F), fdt)}
+    tail = {"material": np.empty(F, np.uint32), "smooth": np.empty(F, bool),
+            "order": np.empty(F, np.uint32)}
+
+    def gather_span(lo, hi):
+        o = order[lo:hi]
+        for c in range(3):
+            np.take(cols[c], o, out=f[c][lo:hi], mode="clip")
+        tail["material"][lo:hi] = np.take(material, o, mode="clip")
+        np.take(smooth, o, out=tail["smooth"][lo:hi], mode="clip")
+        tail["order"][lo:hi] = o
+    parallel.for_spans(F, gather_span)
     _pack_rows(_columns(scene.positions(double)), f, layout_of(routine), out)
-    smooth = scene.face_smooth[order]
     if with_normals is None:
-        with_normals = bool(smooth.any())
+        with_normals = bool(tail["smooth"].any())
     if with_normals:
         nc = _columns(scene.normals_of(double), fdt)
         for k in range(3):
@@ -383,9 +393,7 @@ def triangle_arrays(scene, double: bool, order: np.ndarray | None = None,
                 for j in range(3):
                     np.take(nc[j], f[k][lo:hi], out=out[f"n{k}"][j, lo:hi], mode="clip")
         parallel.for_spans(F, normals_span)
-    out["material"] = np.asarray(scene.face_material[order], np.uint32)
-    out["smooth"] = np.asarray(smooth, bool)
-    out["order"] = order.astype(np.uint32)
+    out.update(tail)
     return out
 
 
