@@ -820,7 +820,10 @@ def _weld(verts: np.ndarray) -> np.ndarray:
     numbers: -0.0 equals 0.0) and different otherwise: the grouping of
     ``np.unique(verts, axis=0, return_inverse=True)``, from a hash of each row's bits (one
     1-D sort instead of a row sort), checked row by row; a collision, or a NaN, falls back
-    to the row sort (``_weld_columns``)."""
+    to the row sort's labels (``_weld_columns``). A hash grouping labels each row with the
+    index of one row of its group: most rows are their own, so the normal sums over the
+    labels read and write memory nearly in vertex order (any labelling of the same
+    grouping gives the same sums)."""
     return _weld_columns(_columns(np.asarray(verts), np.float64))
 
 
@@ -840,11 +843,11 @@ def _weld_columns(vc: list) -> np.ndarray:
     rep = np.empty(int(label.max()) + 1 if label.size else 0, np.int64)
     rep[label] = np.arange(label.size)
     src = np.take(rep, label, mode="clip")
-    same = parallel.run(lambda s: all(np.array_equal(np.take(vc[k], src[s[0]:s[1]], mode="clip"),
-                                                     vc[k][s[0]:s[1]]) for k in range(3)),
-                        parallel.spans(V))
+    same = parallel.run(lambda s: all(np.array_equal(
+        np.take(vc[k], src[s[0]:s[1]], mode="clip"), vc[k][s[0]:s[1]]) for k in range(3)),
+        parallel.spans(V))
     if all(same):
-        return label
+        return src
     rows = np.stack(vc, axis=1)
     return np.unique(rows, axis=0, return_inverse=True)[1].reshape(-1)
 
