@@ -792,8 +792,7 @@ def _compact_columns(fc: list, n: int) -> tuple[np.ndarray | None, list]:
     """``_compact`` of faces as three index columns: the used indices (None: all ``n``
     are used) and the renumbered columns (int64; the same columns where all are used)."""
     mask = np.zeros(n, bool)
-    for c in fc:
-        mask[c] = True
+    parallel.run(lambda c: mask.__setitem__(c, True), fc)   # every write stores True
     if mask.all():
         return None, [c.astype(np.int64, copy=False) for c in fc]
     used = np.flatnonzero(mask)
