@@ -741,14 +741,6 @@ def _columns(a: np.ndarray, dtype) -> list[np.ndarray]:
     return parallel.run(lambda k: np.ascontiguousarray(a[:, k], dtype), range(3))
 
 
-def _face_cross(points: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """``(p1 - p0) x (p2 - p0)`` of each face (F, 3) over ``points`` (V, 3): ``np.cross``'s
-    products and differences (``_face_cross_columns``)."""
-    cross, _ = _face_cross_columns(_columns(np.asarray(points), np.float64),
-                                   _columns(faces, np.intp))
-    return np.stack(cross, axis=1)
-
-
 def _face_cross_columns(pc: list, fc: list) -> tuple[list, np.ndarray]:
     """The cross products ``(p1 - p0) x (p2 - p0)`` of faces ``fc`` (three index columns)
     over points ``pc`` (three float64 columns), as three columns, and their lengths
