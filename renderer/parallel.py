@@ -79,6 +79,16 @@ def _ensure_workers(n: int) -> None:
             _started += 1
 
 
+def _after_fork() -> None:
+    """A forked child has none of the parent's pool threads: start afresh."""
+    global _jobs, _started, _start_lock
+    _jobs, _started, _start_lock = queue.SimpleQueue(), 0, threading.Lock()
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_after_fork)
+
+
 class _Batch:
     """Items handed out one at a time to whichever thread asks next; ``wait`` returns
     once every item is done."""
