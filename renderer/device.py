@@ -7,14 +7,15 @@ float32 (default) or float64 for every floating-point array, so the same code re
 double precision. The LLVM backend is refused before any kernel where the libLLVM Dr.Jit
 loaded cannot run it (``llvm_problem``: one line with the fix). The renderer takes its
 reciprocals from here (``rcp``, ``rsqrt``, ``normalize``): Dr.Jit's own are float32-accurate
-for float64 arrays on CUDA.
+for float64 arrays on CUDA. Its ``syntax`` is ``dr.syntax`` applied at a function's first
+call, so a process pays the source transformation only for the kernels it traces.
 """
 from __future__ import annotations
 
 import importlib
 import os
 from dataclasses import dataclass
-from functools import lru_cache
+from functools import lru_cache, wraps
 
 import drjit as dr
 import numpy as np
@@ -26,6 +27,21 @@ PRECISIONS = ("float32", "float64")
 class DeviceError(RuntimeError):
     """A backend that this machine cannot run (``--backend cuda`` without a CUDA device,
     the LLVM backend without a usable libLLVM)."""
+
+
+def syntax(f):
+    """``@dr.syntax`` (Python control flow on Dr.Jit values as symbolic loops and
+    conditionals), transformed at the first call of ``f`` rather than at its definition:
+    the transformation reads and recompiles the function's source (milliseconds each), and
+    a render calls only some of the kernels the renderer defines."""
+    done = []
+
+    @wraps(f)
+    def call(*args, **kwargs):
+        if not done:
+            done.append(dr.syntax(f))
+        return done[0](*args, **kwargs)
+    return call
 
 
 #: The oldest libLLVM major version the LLVM backend renders with: Dr.Jit 1.5 refuses 14

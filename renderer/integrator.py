@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import drjit as dr
 
 from .accel import Ray
-from .device import Types
+from .device import Types, syntax
 from .effects import EffectSet
 from .shade import (
     SceneArrays,
@@ -63,7 +63,7 @@ def _no_secondary(sa: SceneArrays, o, d, t: Types, fx: EffectSet, opt: TraceOpti
     return dr.select(hit.found, I_local, t.Array3f(sa.background))
 
 
-@dr.syntax
+@syntax
 def trace(sa: SceneArrays, o, d, t: Types, fx: EffectSet, opt: TraceOptions, key=None):
     """Radiance along the rays ``(o, d)`` (Array3f, ``d`` unit) through the Whitted tree.
 

@@ -19,7 +19,7 @@ import numpy as np
 from .accel import ClosestHit, Ray
 from .accel.triangle import layout_of, unit_roundoff
 from .accel.triangle import load as load_triangle
-from .device import Types, array3, normalize, rcp
+from .device import Types, array3, normalize, rcp, syntax
 from .effects import EffectSet
 from .lights import DeviceLights, sample_hash, sample_light
 from .scene import Scene, validate_settings
@@ -439,7 +439,7 @@ def _sample_term(ls, ctx: ShadingContext, lobe: PhongLobe, sa: SceneArrays, t: T
     return dr.select(lit, dr.fma(ls.Li, brdf, result), result)
 
 
-@dr.syntax
+@syntax
 def _soft_light_term(li, ctx: ShadingContext, lobe: PhongLobe, sa: SceneArrays, t: Types,
                      fx: EffectSet, opt: TraceOptions, result):
     """Light ``li``'s shadow samples (docs/MODEL.md, "Lights with extent"): a device loop
@@ -468,7 +468,7 @@ def _soft_light_term(li, ctx: ShadingContext, lobe: PhongLobe, sa: SceneArrays, 
     return result
 
 
-@dr.syntax
+@syntax
 def _light_loop(ctx: ShadingContext, lobe: PhongLobe, sa: SceneArrays, t: Types,
                 fx: EffectSet, opt: TraceOptions, result):
     """The same sum as the unrolled one, as one device loop over the ``opt.n_lights``

@@ -5,6 +5,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import drjit as dr
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -67,3 +69,45 @@ def test_importing_the_product_registers_no_triangle_routine():
         "import renderer.accel as A\n"
         "print(before == sorted(triangle.ROUTINES) == sorted(A.ROUTINES), before)\n")
     assert out == "True ['moller_trumbore', 'watertight']"
+
+
+def test_importing_the_renderer_transforms_no_kernel_source():
+    """``@renderer.device.syntax`` defers ``dr.syntax``'s source transformation to a
+    kernel's first call: importing every kernel module transforms nothing."""
+    out = _python(
+        "import drjit as dr\n"
+        "calls = []\n"
+        "orig = dr.syntax\n"
+        "dr.syntax = lambda f, **kw: calls.append(f.__qualname__) or orig(f, **kw)\n"
+        "import renderer.render, renderer.integrator, renderer.shade\n"
+        "import renderer.accel.bvh, renderer.accel.wide, renderer.accel.brute\n"
+        "import renderer.accel.boxes, renderer.accel.traverse\n"
+        "print(calls)\n")
+    assert out == "[]"
+
+
+def _count_up(n, step: int):
+    """A symbolic loop under ``dr.syntax``: the first multiple of ``step`` at or above
+    ``n``, per lane."""
+    i = dr.zeros(type(n), dr.width(n))
+    while i < n:
+        i += step
+    return i
+
+
+def test_a_deferred_syntax_function_is_transformed_once_and_runs_as_dr_syntax(monkeypatch):
+    from drjit.llvm import UInt32
+
+    from renderer.device import syntax
+
+    count_up = _count_up
+    eager = dr.syntax(count_up)
+    calls = []
+    orig = dr.syntax
+    monkeypatch.setattr(dr, "syntax", lambda f, **kw: calls.append(f) or orig(f, **kw))
+    lazy = syntax(count_up)
+    assert calls == [] and lazy.__name__ == "_count_up"
+    n = UInt32(0, 5, 7, 10)
+    assert lazy(n, 3).numpy().tolist() == eager(n, 3).numpy().tolist() == [0, 6, 9, 12]
+    assert lazy(n, 2).numpy().tolist() == [0, 6, 8, 10]
+    assert calls == [count_up]

@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 import drjit as dr
 import numpy as np
 
-from ..device import Types, host_array
+from ..device import Types, host_array, syntax
 from .base import Accelerator, DeviceTriangles, Ray, array_type, gather_floats
 from .bvh_build import pad_boxes
 from .query import Closest
@@ -113,7 +113,7 @@ class ObjectBoxes(Accelerator):
         return (dr.select(hit, r0, first), dr.select(hit, r0 + r1, end),
                 obj + 1 if active is True else dr.select(active, obj + 1, obj))
 
-    @dr.syntax
+    @syntax
     def _traverse(self, ray: Ray, active, any_hit: bool, probe=None):
         t = self.types
         n_obj = dr.width(self.ranges) // 2

@@ -6,7 +6,7 @@ from dataclasses import dataclass, field
 
 import drjit as dr
 
-from ..device import Types
+from ..device import Types, syntax
 from .base import Accelerator, DeviceTriangles, Ray
 from .query import Closest
 from .traverse import LeafTriangles, setup, traversal_result, triangle_step
@@ -48,7 +48,7 @@ class BruteForce(Accelerator):
         return cls(tri_data, tris, backend=t.backend, precision=t.precision,
                    intersection=intersection, info=info)
 
-    @dr.syntax
+    @syntax
     def _traverse(self, ray: Ray, active, any_hit: bool, probe=None):
         t = self.types
         count = self.tris.count

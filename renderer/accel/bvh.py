@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 import drjit as dr
 import numpy as np
 
-from ..device import Types, host_array, host_view
+from ..device import Types, host_array, host_view, syntax
 from .base import (
     Accelerator,
     DeviceTriangles,
@@ -239,7 +239,7 @@ class BVH(Accelerator):
                     ray, active, any_hit, lanes, "bvh_refill", self.reach)
         return self._traverse_lanes(ray, active, any_hit, probe, counting)
 
-    @dr.syntax
+    @syntax
     def _traverse_lanes(self, ray: Ray, active, any_hit: bool, probe=None,
                         counting: bool = False):
         t = self.types

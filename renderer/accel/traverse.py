@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import drjit as dr
 
-from ..device import Types
+from ..device import Types, syntax
 from .layout import COUNT_SHIFT as COUNT_SHIFT
 from .layout import DONE, FIRST_MASK, LEAF_BIT, STACK_SIZE
 from .layout import MAX_LEAF as MAX_LEAF
@@ -311,7 +311,7 @@ def refill_lanes(n: int, refill: int) -> int:
     return min(n, max(-(-n // refill), REFILL_MIN_LANES)) if refill else n
 
 
-@dr.syntax
+@syntax
 def refill_traversal(tris: LeafTriangles, node_fn, ray: Ray, active, any_hit: bool,
                      lanes: int, label: str, reach: float):
     """A traversal whose ``lanes`` lanes take a new ray when theirs is done: they start on

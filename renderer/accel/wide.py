@@ -43,7 +43,7 @@ from dataclasses import dataclass, field, replace
 import drjit as dr
 import numpy as np
 
-from ..device import Types, host_array, host_view
+from ..device import Types, host_array, host_view, syntax
 from .base import (
     Accelerator,
     DeviceTriangles,
@@ -521,7 +521,7 @@ class WideBVH(Accelerator):
                     ray, active, any_hit, lanes, f"bvh{self.width}_refill", self.reach)
         return self._traverse_lanes(ray, active, any_hit, probe, counting)
 
-    @dr.syntax
+    @syntax
     def _traverse_lanes(self, ray: Ray, active, any_hit: bool, probe=None,
                         counting: bool = False):
         t, W = self.types, self.width
