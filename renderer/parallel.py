@@ -20,6 +20,7 @@ from __future__ import annotations
 import os
 import queue
 import threading
+import warnings
 from contextlib import contextmanager
 
 import numpy as np
@@ -34,6 +35,7 @@ _override: list[int] = []
 _jobs: queue.SimpleQueue = queue.SimpleQueue()
 _started = 0
 _start_lock = threading.Lock()
+_warned: set[str] = set()                 # the bad WHITTED_HOST_THREADS values warned of
 
 
 def thread_count() -> int:
@@ -45,6 +47,10 @@ def thread_count() -> int:
     env = os.environ.get("WHITTED_HOST_THREADS", "").strip()
     if env.isdigit() and int(env) > 0:
         return int(env)
+    if env and env not in _warned:
+        _warned.add(env)
+        warnings.warn(f"WHITTED_HOST_THREADS={env!r}: expected a positive integer; using "
+                      "the cores this process may run on", stacklevel=2)
     try:
         cores = len(os.sched_getaffinity(0))
     except AttributeError:                  # not on Linux

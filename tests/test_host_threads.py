@@ -5,6 +5,7 @@ is split into many), and the same as the plain numpy forms they replace (``np.cr
 ``np.linalg.norm``, row gathers: references written out here). The pool itself returns
 results in order, raises a call's error and does not deadlock when a step splits again
 inside another step."""
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -197,3 +198,17 @@ def test_padded_boxes_same_for_any_thread_count(scene, small_spans):
         ref[:, 6 * k + 3:6 * k + 6] = np.where(real[:, k, None], hi, np.inf)
     _same(one, ref)
     _same(many, ref)
+
+
+def test_host_threads_variable_is_read_and_a_bad_value_warns_once(monkeypatch):
+    from renderer import parallel
+    monkeypatch.setenv("WHITTED_HOST_THREADS", "3")
+    assert parallel.thread_count() == 3
+    monkeypatch.setenv("WHITTED_HOST_THREADS", "three")
+    monkeypatch.setattr(parallel, "_warned", set())
+    with pytest.warns(UserWarning, match=r"WHITTED_HOST_THREADS='three': expected a positive"):
+        n = parallel.thread_count()
+    assert 1 <= n <= parallel.MAX_THREADS
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert parallel.thread_count() == n          # warned once
