@@ -76,7 +76,7 @@ FORMAT = 2
 HARNESS_FILES = (
     "reference/mitsuba_scene.py", "reference/plugins.py",
     "renderer/scene/loader.py", "renderer/scene/shapes.py", "renderer/scene/meshio.py",
-    "renderer/scene/subdivide.py",
+    "renderer/scene/subdivide.py", "renderer/parallel.py",
 )
 #: The readers of other tools' scene files (``renderer.scene.load_scene``): part of the key
 #: of a golden of an OBJ, PLY or Mitsuba XML scene only, so TOML scenes' keys do not change

@@ -26,6 +26,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from .. import parallel
 from .bvh_arrays import C_TRAV, C_TRI, BVHArrays, half_area, sah_cost
 from .layout import COUNT_SHIFT, FIRST_MASK, LEAF_BIT, MAX_LEAF, MAX_LEVELS, leaf_ref
 from .optimize import reinsert
@@ -654,15 +655,21 @@ def raw_boxes(a: BVHArrays, vertices: np.ndarray, faces: np.ndarray, dtype) -> n
 
 def pad_refit(a: BVHArrays, raw: np.ndarray, extent: float) -> np.ndarray:
     """``raw`` (``raw_boxes``, (N, 12)) padded by ``pad_boxes(.., extent)`` in its dtype,
-    at infinity where ``a``'s own child box is (the empty child of a single-leaf tree)."""
+    at infinity where ``a``'s own child box is (the empty child of a single-leaf tree);
+    elementwise over spans of nodes (``renderer.parallel``)."""
     N = a.node_count
     real = np.isfinite(a.boxes.reshape(N, 2, 6)[:, :, 0])          # (N, 2)
     boxes = np.empty_like(raw)
-    for k in range(2):
-        with np.errstate(invalid="ignore"):
-            plo, phi = pad_boxes(raw[:, 6 * k:6 * k + 3], raw[:, 6 * k + 3:6 * k + 6], extent)
-        boxes[:, 6 * k:6 * k + 3] = np.where(real[:, k, None], plo, np.inf)
-        boxes[:, 6 * k + 3:6 * k + 6] = np.where(real[:, k, None], phi, np.inf)
+
+    def span(lo, hi):
+        for k in range(2):
+            with np.errstate(invalid="ignore"):
+                plo, phi = pad_boxes(raw[lo:hi, 6 * k:6 * k + 3],
+                                     raw[lo:hi, 6 * k + 3:6 * k + 6], extent)
+            r = real[lo:hi, k, None]
+            boxes[lo:hi, 6 * k:6 * k + 3] = np.where(r, plo, np.inf)
+            boxes[lo:hi, 6 * k + 3:6 * k + 6] = np.where(r, phi, np.inf)
+    parallel.for_spans(N, span)
     return boxes
 
 

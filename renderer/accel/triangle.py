@@ -26,6 +26,7 @@ from __future__ import annotations
 import drjit as dr
 import numpy as np
 
+from .. import parallel
 from ..device import Types, host_array, host_view, rcp
 from ..device import unit_roundoff as unit_roundoff
 from ..scene.model import vertex_reach
@@ -283,37 +284,62 @@ def pack(vertices: np.ndarray, faces: np.ndarray, layout: str = "edges") -> np.n
     ``normalize((p1 - p0) x (p2 - p0))`` (zero for a triangle without area: never hits)."""
     if layout not in ("edges", "vertices"):
         raise ValueError(f"layout: expected 'edges' or 'vertices', got {layout!r}")
-    corners = _corners(vertices, faces)
-    return _pack_rows(corners, layout, np.float64)
-
-
-def _corners(vertices: np.ndarray, faces: np.ndarray):
-    """``(p0, p1, p2, n, length)`` of the triangles: float64 corners (F, 3), the cross
-    product ``(p1 - p0) x (p2 - p0)`` (F, 3) and its length (F, 1), computed once for both
-    the packed rows and the geometric normals."""
-    V = np.asarray(vertices).astype(np.float64)
-    p0, p1, p2 = (V[faces[:, k]] for k in range(3))
-    n = np.cross(p1 - p0, p2 - p0)
-    return p0, p1, p2, n, np.linalg.norm(n, axis=1, keepdims=True)
-
-
-def _pack_rows(corners, layout: str, dtype) -> np.ndarray:
-    """``pack``'s rows from ``_corners``, written straight into ``dtype`` (each value
-    rounded once, as the float64 rows cast to ``dtype``)."""
-    p0, p1, p2, n, length = corners
-    packed = np.zeros((p0.shape[0], STRIDE), dtype)
-    packed[:, 0:3] = p0
-    if layout == "edges":
-        # a triangle without area in these vertices (kept for the other precision, where it
-        # has some) gets zero edges: det = 0, so it never hits
-        flat = length == 0
-        packed[:, 3:6] = np.where(flat, 0.0, p1 - p0)
-        packed[:, 6:9] = np.where(flat, 0.0, p2 - p0)
-    else:
-        packed[:, 3:6] = p1
-        packed[:, 6:9] = p2
-        packed[:, 9:12] = np.where(length > 0, n / np.where(length > 0, length, 1.0), 0.0)
+    faces = np.asarray(faces)
+    packed = np.zeros((faces.shape[0], STRIDE), np.float64)
+    fc = [np.ascontiguousarray(faces[:, c], np.intp) for c in range(3)]
+    _pack_rows(_columns(vertices), fc, layout, {"tri_data": packed})
     return packed
+
+
+def _columns(a: np.ndarray, dtype=np.float64) -> list[np.ndarray]:
+    """The three columns of ``a`` (N, 3) as contiguous ``dtype`` arrays (threads)."""
+    a = np.asarray(a)
+    return parallel.run(lambda k: np.ascontiguousarray(a[:, k], dtype), range(3))
+
+
+def _corners(vc: list, f: list):
+    """``(p, n, length)`` of the triangles of corner indices ``f`` (three index columns)
+    over the vertices ``vc`` (three float64 columns): the corners ``p[c][k]`` (float64
+    columns), the cross product ``(p1 - p0) x (p2 - p0)`` (three columns, ``np.cross``'s
+    operations in its order) and its length (``np.linalg.norm``'s ``sqrt((x² + y²) +
+    z²)``), computed once for both the packed rows and the geometric normals."""
+    p = [[np.take(vc[k], f[c], mode="clip") for k in range(3)] for c in range(3)]
+    a = [p[1][k] - p[0][k] for k in range(3)]
+    b = [p[2][k] - p[0][k] for k in range(3)]
+    n = [a[(k + 1) % 3] * b[(k + 2) % 3] - a[(k + 2) % 3] * b[(k + 1) % 3] for k in range(3)]
+    length = np.sqrt((n[0] * n[0] + n[1] * n[1]) + n[2] * n[2])
+    return p, a, b, n, length
+
+
+def _pack_rows(vc: list, f: list, layout: str, out: dict) -> None:
+    """``pack``'s rows of the faces ``f`` (three index columns) over ``vc`` (three float64
+    columns), written into ``out["tri_data"]`` (its dtype: each value rounded once, as the
+    float64 rows cast to it), and where ``out`` has them the unit geometric normals
+    ``out["ng"]`` (3, F); elementwise over spans of faces."""
+    packed, ng = out["tri_data"], out.get("ng")
+
+    def span(lo, hi):
+        p, a, b, n, length = _corners(vc, [c[lo:hi] for c in f])
+        rows = packed[lo:hi]
+        if layout == "edges":
+            # a triangle without area in these vertices (kept for the other precision,
+            # where it has some) gets zero edges: det = 0, so it never hits
+            flat = length == 0
+            for k in range(3):
+                rows[:, k] = p[0][k]
+                rows[:, 3 + k] = np.where(flat, 0.0, a[k])
+                rows[:, 6 + k] = np.where(flat, 0.0, b[k])
+        else:
+            pos = length > 0
+            safe = np.where(pos, length, 1.0)
+            for k in range(3):
+                rows[:, k], rows[:, 3 + k], rows[:, 6 + k] = p[0][k], p[1][k], p[2][k]
+                rows[:, 9 + k] = np.where(pos, n[k] / safe, 0.0)
+        if ng is not None:
+            floor = np.maximum(length, 1e-300)
+            for k in range(3):
+                ng[k, lo:hi] = n[k] / floor
+    parallel.for_spans(len(f[0]), span)
 
 
 def load(t, data, i, active=True, layout: str = "edges"):
@@ -333,37 +359,64 @@ def triangle_arrays(scene, double: bool, order: np.ndarray | None = None,
     default: when any object is smooth), ``material`` uint32 (F,), ``smooth`` bool (F,) and
     ``order`` uint32 (F,), all permuted by ``order`` (int (F,); None: face order). The
     vertices are those of the precision (``Scene.positions``); corners, cross products and
-    their lengths are computed once for the packed rows and the unit geometric normals."""
-    F = scene.face_count
-    order = np.arange(F, dtype=np.int64) if order is None else np.asarray(order, np.int64)
-    faces = scene.faces[order]
+    their lengths are computed once for the packed rows and the unit geometric normals,
+    elementwise over spans of faces on ``renderer.parallel``'s threads."""
+    order = (np.arange(scene.face_count, dtype=np.int64) if order is None
+             else np.asarray(order, np.int64))
+    F = order.size                        # references: a face may appear more than once
     fdt = np.float64 if double else np.float32
-    corners = _corners(scene.positions(double), faces)
-    out = {"tri_data": _pack_rows(corners, layout_of(routine), fdt)}
-    n, length = corners[3], corners[4]
-    out["ng"] = np.ascontiguousarray((n / np.maximum(length, 1e-300)).T, fdt)
-    smooth = scene.face_smooth[order]
+    faces, material, smooth = scene.faces, scene.face_material, scene.face_smooth
+    cols = parallel.run(lambda c: np.ascontiguousarray(faces[:, c], np.intp), range(3))
+    f = [np.empty(F, np.intp) for _ in range(3)]
+    out = {"tri_data": np.zeros((F, STRIDE), fdt), "ng": np.empty((3, F), fdt)}
+    tail = {"material": np.empty(F, np.uint32), "smooth": np.empty(F, bool),
+            "order": np.empty(F, np.uint32)}
+
+    def gather_span(lo, hi):
+        o = order[lo:hi]
+        for c in range(3):
+            np.take(cols[c], o, out=f[c][lo:hi], mode="clip")
+        tail["material"][lo:hi] = np.take(material, o, mode="clip")
+        np.take(smooth, o, out=tail["smooth"][lo:hi], mode="clip")
+        tail["order"][lo:hi] = o
+    parallel.for_spans(F, gather_span)
+    _pack_rows(_columns(scene.positions(double)), f, layout_of(routine), out)
     if with_normals is None:
-        with_normals = bool(smooth.any())
+        with_normals = bool(tail["smooth"].any())
     if with_normals:
-        N = scene.normals_of(double)
+        nc = _columns(scene.normals_of(double), fdt)
         for k in range(3):
-            out[f"n{k}"] = np.ascontiguousarray(N[faces[:, k]].T, fdt)
-    out["material"] = np.asarray(scene.face_material[order], np.uint32)
-    out["smooth"] = np.asarray(smooth, bool)
-    out["order"] = order.astype(np.uint32)
+            out[f"n{k}"] = np.empty((3, F), fdt)
+
+        def normals_span(lo, hi):
+            for k in range(3):
+                for j in range(3):
+                    np.take(nc[j], f[k][lo:hi], out=out[f"n{k}"][j, lo:hi], mode="clip")
+        parallel.for_spans(F, normals_span)
+    out.update(tail)
     return out
 
 
 def permuted(arrays: dict, order: np.ndarray) -> dict:
     """``triangle_arrays`` made in face order, permuted by ``order`` (int (F,)): the
     arrays ``triangle_arrays`` gives for ``order`` (each row's values depend on its face
-    only), by gathers."""
+    only), by gathers over spans of rows."""
     order = np.asarray(order, np.int64)
-    out = {k: np.ascontiguousarray(v[:, order]) for k, v in arrays.items()
-           if k in ("ng", "n0", "n1", "n2")}
-    out.update(tri_data=arrays["tri_data"][order], material=arrays["material"][order],
-               smooth=arrays["smooth"][order], order=arrays["order"][order])
+    F = order.size
+    cols = [k for k in ("ng", "n0", "n1", "n2") if k in arrays]
+    src = {k: arrays[k] for k in cols + ["tri_data", "material", "smooth", "order"]}
+    out = {k: np.empty((3, F) if k in cols else (F,) + v.shape[1:], v.dtype)
+           for k, v in src.items()}
+
+    def span(lo, hi):
+        o = order[lo:hi]
+        for k in cols:
+            for j in range(3):
+                np.take(src[k][j], o, out=out[k][j, lo:hi], mode="clip")
+        np.take(src["tri_data"], o, axis=0, out=out["tri_data"][lo:hi], mode="clip")
+        for k in ("material", "smooth", "order"):
+            np.take(src[k], o, out=out[k][lo:hi], mode="clip")
+    parallel.for_spans(F, span)
     return out
 
 

@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import parallel
 from ..cache_key import code_version, content_key
 from . import meshio, shapes
 from .model import (
@@ -691,39 +692,104 @@ def _part_arrays(world: np.ndarray, faces: np.ndarray) -> dict:
     render far from the origin keeps the small triangles that float32's grid collapses
     (those never hit in float32: ``triangle.pack`` stores them degenerate). The vertex
     normals of each precision come from its own face normals (a face without area in one
-    precision does not count there)."""
-    cross32 = _face_cross(world.astype(np.float32).astype(np.float64), faces)
-    cross = _face_cross(world, faces)
-    area32, area2 = np.linalg.norm(cross32, axis=1), np.linalg.norm(cross, axis=1)
+    precision does not count there). The work is elementwise over spans of faces and
+    vertices on ``renderer.parallel``'s threads, both precisions side by side; the normal
+    sums keep their order (``_vertex_normals``)."""
+    world = np.asarray(world, np.float64)
+    V = world.shape[0]
+    fc = _columns(faces, np.intp)
+    w64 = _columns(world, np.float64)
+    w32 = [None] * 3
+
+    def rounded(k):                  # the float32 grid's positions, in float64
+        w32[k] = w64[k].astype(np.float32).astype(np.float64)
+    parallel.run(rounded, range(3))
+    (cross32, area32), (cross, area2) = parallel.together(
+        lambda: _face_cross_columns(w32, fc), lambda: _face_cross_columns(w64, fc))
     keep = (area32 > 0) | (area2 > 0)
-    faces = faces[keep]
-    cross32, area32, cross, area2 = cross32[keep], area32[keep], cross[keep], area2[keep]
-    if len(faces) == 0:
-        return {"keep": keep, "faces": faces, "verts": world[:0], "normals": world[:0],
-                "normals64": world[:0]}
-    used, faces = _compact(faces, world.shape[0])        # compact to used vertices
-    verts = world[used]
-    weld = _weld(verts)
-    return {"keep": keep, "faces": faces, "verts": verts,
-            "normals": _vertex_normals(verts, faces, _unit_rows(cross32, area32), weld),
-            "normals64": _vertex_normals(verts, faces, _unit_rows(cross, area2), weld)}
+    if not keep.all():
+        fc = [c[keep] for c in fc]
+        cross32, cross = [c[keep] for c in cross32], [c[keep] for c in cross]
+        area32, area2 = area32[keep], area2[keep]
+    if len(fc[0]) == 0:
+        return {"keep": keep, "faces": np.asarray(faces)[keep], "verts": world[:0],
+                "normals": world[:0], "normals64": world[:0]}
+    used, faces_c = _compact_columns(fc, V)              # compact to used vertices
+    if used is None:
+        verts, vc = world.copy(), w64
+    else:
+        verts = np.take(world, used, axis=0, mode="clip")
+        vc = parallel.run(lambda k: np.take(w64[k], used, mode="clip"), range(3))
+    faces = np.empty((len(faces_c[0]), 3), np.int64)
+
+    def put_faces(lo, hi):
+        for c in range(3):
+            faces[lo:hi, c] = faces_c[c][lo:hi]
+    parallel.for_spans(len(faces), put_faces)
+    F = len(faces)
+    weights = [[np.empty(3 * F) for _ in range(3)] for _ in range(2)]
+    weld, _, _ = parallel.together(lambda: _weld_columns(vc),
+                                   lambda: _unit_columns(cross32, area32, weights[0]),
+                                   lambda: _unit_columns(cross, area2, weights[1]))
+    normals, normals64 = _normals_columns(weld, faces_c, weights)
+    return {"keep": keep, "faces": faces, "verts": verts, "normals": normals,
+            "normals64": normals64}
 
 
-def _face_cross(points: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """``(p1 - p0) x (p2 - p0)`` of each face (F, 3) over ``points`` (V, 3), from one
-    gather of the corners."""
-    P = points[faces]                                      # (F, 3 corners, 3)
-    return np.cross(P[:, 1] - P[:, 0], P[:, 2] - P[:, 0])
+def _columns(a: np.ndarray, dtype) -> list[np.ndarray]:
+    """The three columns of ``a`` (N, 3) as contiguous ``dtype`` arrays (threads)."""
+    return parallel.run(lambda k: np.ascontiguousarray(a[:, k], dtype), range(3))
+
+
+def _face_cross_columns(pc: list, fc: list) -> tuple[list, np.ndarray]:
+    """The cross products ``(p1 - p0) x (p2 - p0)`` of faces ``fc`` (three index columns)
+    over points ``pc`` (three float64 columns), as three columns, and their lengths
+    (``np.linalg.norm``'s ``sqrt((x² + y²) + z²)``). Each component is ``np.cross``'s
+    ``a1 b2 - a2 b1`` (cyclic) of the edges ``a = p1 - p0``, ``b = p2 - p0``: the same
+    operations in the same order, so the same bits; elementwise over spans of faces."""
+    F = len(fc[0])
+    cross = [np.empty(F) for _ in range(3)]
+    length = np.empty(F)
+
+    def span(lo, hi):
+        f0, f1, f2 = (c[lo:hi] for c in fc)
+        a, b = [], []
+        for k in range(3):
+            p0 = np.take(pc[k], f0, mode="clip")
+            a.append(np.take(pc[k], f1, mode="clip") - p0)
+            b.append(np.subtract(np.take(pc[k], f2, mode="clip"), p0, out=p0))
+        tmp = np.empty(hi - lo)
+        for k in range(3):
+            i, j = (k + 1) % 3, (k + 2) % 3
+            out = cross[k][lo:hi]
+            np.multiply(a[i], b[j], out=out)
+            np.subtract(out, np.multiply(a[j], b[i], out=tmp), out=out)
+        sq = np.multiply(cross[0][lo:hi], cross[0][lo:hi], out=length[lo:hi])
+        sq += np.multiply(cross[1][lo:hi], cross[1][lo:hi], out=tmp)
+        sq += np.multiply(cross[2][lo:hi], cross[2][lo:hi], out=tmp)
+        np.sqrt(sq, out=sq)
+    parallel.for_spans(F, span)
+    return cross, length
 
 
 def _compact(faces: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
     """``np.unique(faces, return_inverse=True)`` for indices below ``n``: the used indices
     in ascending order and the faces (F, 3) renumbered over them, by a mask (no sort)."""
+    used, cols = _compact_columns(_columns(faces, np.intp), n)
+    used = np.arange(n) if used is None else used
+    return used, np.stack(cols, axis=1).astype(np.int64, copy=False)
+
+
+def _compact_columns(fc: list, n: int) -> tuple[np.ndarray | None, list]:
+    """``_compact`` of faces as three index columns: the used indices (None: all ``n``
+    are used) and the renumbered columns (int64; the same columns where all are used)."""
     mask = np.zeros(n, bool)
-    mask[faces.reshape(-1)] = True
+    parallel.run(lambda c: mask.__setitem__(c, True), fc)   # every write stores True
+    if mask.all():
+        return None, [c.astype(np.int64, copy=False) for c in fc]
     used = np.flatnonzero(mask)
     remap = np.cumsum(mask, dtype=np.int64) - 1
-    return used, remap[faces]
+    return used, parallel.run(lambda c: np.take(remap, c, mode="clip"), fc)
 
 
 def _mix(x: np.ndarray) -> np.ndarray:
@@ -745,16 +811,36 @@ def _weld(verts: np.ndarray) -> np.ndarray:
     numbers: -0.0 equals 0.0) and different otherwise: the grouping of
     ``np.unique(verts, axis=0, return_inverse=True)``, from a hash of each row's bits (one
     1-D sort instead of a row sort), checked row by row; a collision, or a NaN, falls back
-    to the row sort."""
-    v = np.ascontiguousarray(verts, np.float64) + 0.0      # -0.0 -> 0.0
-    h = _row_hash(v.view(np.uint64))
-    _, label = np.unique(h, return_inverse=True)
-    label = label.reshape(-1)
+    to the row sort's labels (``_weld_columns``). A hash grouping labels each row with the
+    index of one row of its group: most rows are their own, so the normal sums over the
+    labels read and write memory nearly in vertex order (any labelling of the same
+    grouping gives the same sums)."""
+    return _weld_columns(_columns(np.asarray(verts), np.float64))
+
+
+def _weld_columns(vc: list) -> np.ndarray:
+    """``_weld`` of the rows whose three float64 columns are ``vc``; the hashes and the
+    check elementwise over spans of rows."""
+    V = len(vc[0])
+    h = np.empty(V, np.uint64)
+    bits = np.empty((V, 3), np.uint64)
+
+    def hash_span(lo, hi):
+        for k in range(3):
+            np.add(vc[k][lo:hi], 0.0, out=bits[lo:hi, k].view(np.float64))  # -0.0 -> 0.0
+        h[lo:hi] = _row_hash(bits[lo:hi])
+    parallel.for_spans(V, hash_span)
+    _, label = parallel.unique_inverse(h)
     rep = np.empty(int(label.max()) + 1 if label.size else 0, np.int64)
     rep[label] = np.arange(label.size)
-    if np.array_equal(v[rep[label]], v):
-        return label
-    return np.unique(verts, axis=0, return_inverse=True)[1].reshape(-1)
+    src = np.take(rep, label, mode="clip")
+    same = parallel.run(lambda s: all(np.array_equal(
+        np.take(vc[k], src[s[0]:s[1]], mode="clip"), vc[k][s[0]:s[1]]) for k in range(3)),
+        parallel.spans(V))
+    if all(same):
+        return src
+    rows = np.stack(vc, axis=1)
+    return np.unique(rows, axis=0, return_inverse=True)[1].reshape(-1)
 
 
 def _assemble(r: _Reader, parts: list[_Part], a: Assembly, cache=None) -> Scene:
@@ -811,7 +897,26 @@ def _assemble(r: _Reader, parts: list[_Part], a: Assembly, cache=None) -> Scene:
 
 def _unit_rows(v: np.ndarray, length: np.ndarray) -> np.ndarray:
     """Rows of ``v`` divided by ``length`` (0 where the length is 0)."""
-    return np.where(length[:, None] > 0, v / np.where(length > 0, length, 1.0)[:, None], 0.0)
+    return np.stack(_unit_columns([v[:, k] for k in range(3)], length), axis=1)
+
+
+def _unit_columns(vc: list, length: np.ndarray, out: list | None = None
+                  ) -> list[np.ndarray]:
+    """``_unit_rows`` of the rows whose three columns are ``vc``, as three columns
+    (elementwise over spans): written into the first ``len(length)`` values of the three
+    float64 arrays ``out`` where given (returned)."""
+    n = len(length)
+    out = [np.empty(n) for _ in range(3)] if out is None else out
+
+    def span(lo, hi):
+        ln = length[lo:hi]
+        flat = ~(ln > 0)
+        safe = np.where(flat, 1.0, ln)
+        for k in range(3):
+            np.divide(vc[k][lo:hi], safe, out=out[k][lo:hi])
+            out[k][lo:hi][flat] = 0.0
+    parallel.for_spans(n, span)
+    return out
 
 
 def _vertex_normals(verts: np.ndarray, faces: np.ndarray, face_n: np.ndarray,
@@ -820,20 +925,72 @@ def _vertex_normals(verts: np.ndarray, faces: np.ndarray, face_n: np.ndarray,
     coincident positions are welded for the average (smooth across mesh seams; ``weld``:
     ``_weld(verts)``, computed when None). Each vertex's sum adds its faces' normals in the
     order corner 0 of every face, then corner 1, then corner 2 (``np.bincount`` adds in
-    input order)."""
+    input order; ``_normals_columns``)."""
     weld = _weld(verts) if weld is None else weld
-    L = int(weld.max()) + 1
-    idx = np.concatenate([weld[faces[:, c]] for c in range(3)])
-    acc = np.empty((L, 3))
+    face_n = np.asarray(face_n, np.float64)
+    weights = [np.empty(3 * face_n.shape[0]) for _ in range(3)]
     for k in range(3):
-        acc[:, k] = np.bincount(idx, weights=np.tile(face_n[:, k], 3), minlength=L)
-    n = acc[weld]
-    length = np.linalg.norm(n, axis=1)
-    # Opposing faces can cancel: fall back to the normal of one adjacent face.
-    bad = length < 1e-12
+        weights[k][:face_n.shape[0]] = face_n[:, k]
+    return _normals_columns(np.asarray(weld), _columns(faces, np.intp), [weights])[0]
+
+
+def _normals_columns(weld: np.ndarray, fc: list, weights: list) -> list[np.ndarray]:
+    """``_vertex_normals`` for each face normal set of ``weights`` over the faces ``fc``
+    (three index columns), the vertices labelled by ``weld``: one (V, 3) float64 array per
+    set. A set is three float64 arrays (3 F,), one per component, whose first F values are
+    the unit face normals; the other two copies (``np.tile``'s) are made here. The sums are
+    ``np.bincount`` passes (one per set and component, side by side, each adding in the
+    order corner 0 of every face, then corner 1, then corner 2); the gathers and divisions
+    are elementwise over spans."""
+    F = len(fc[0])
+    L = int(weld.max()) + 1
+    idx = np.empty(3 * F, np.intp)
+
+    def gather_span(lo, hi):
+        for c in range(3):
+            np.take(weld, fc[c][lo:hi], out=idx[c * F + lo:c * F + hi], mode="clip")
+        for w in (w for ws in weights for w in ws):
+            w[F + lo:F + hi] = w[lo:hi]
+            w[2 * F + lo:2 * F + hi] = w[lo:hi]
+    parallel.for_spans(F, gather_span)
+    jobs = [(s, k) for s in range(len(weights)) for k in range(3)]
+    sums = parallel.run(lambda j: np.bincount(idx, weights=weights[j[0]][j[1]], minlength=L),
+                        jobs)
+    return parallel.run(lambda s: _normalised(weld, sums[3 * s:3 * s + 3], fc,
+                                              [w[:F] for w in weights[s]]),
+                        range(len(weights)))
+
+
+def _normalised(weld: np.ndarray, acc: list, fc: list, unit: list) -> np.ndarray:
+    """The (V, 3) unit vertex normals from the welded sums ``acc`` (three columns over the
+    weld labels) of the face normals ``unit`` (three columns over the faces ``fc``); a
+    vertex whose sum cancels takes the normal of one adjacent face. Elementwise over spans
+    of vertices (``np.linalg.norm``'s ``sqrt((x² + y²) + z²)``, then one division)."""
+    V = len(weld)
+    n = [np.empty(V) for _ in range(3)]
+    length = np.empty(V)
+
+    def length_span(lo, hi):
+        w = weld[lo:hi]
+        for k in range(3):
+            np.take(acc[k], w, out=n[k][lo:hi], mode="clip")
+        sq = np.multiply(n[0][lo:hi], n[0][lo:hi], out=length[lo:hi])
+        sq += n[1][lo:hi] * n[1][lo:hi]
+        sq += n[2][lo:hi] * n[2][lo:hi]
+        np.sqrt(sq, out=sq)
+    parallel.for_spans(V, length_span)
+    bad = length < 1e-12             # opposing faces cancel: one adjacent face's normal
     if bad.any():
-        fallback = np.zeros_like(n)
-        fallback[faces.reshape(-1)] = np.repeat(face_n, 3, axis=0)
-        n[bad] = fallback[bad]
         length[bad] = 1.0
-    return n / length[:, None]
+    res = np.empty((V, 3))
+
+    def divide_span(lo, hi):
+        for k in range(3):
+            np.divide(n[k][lo:hi], length[lo:hi], out=res[lo:hi, k])
+    parallel.for_spans(V, divide_span)
+    if bad.any():
+        fallback = np.zeros((V, 3))
+        fallback[np.stack(fc, axis=1).reshape(-1)] = np.repeat(np.stack(unit, axis=1), 3,
+                                                               axis=0)
+        res[bad] = fallback[bad]
+    return res

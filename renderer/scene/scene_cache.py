@@ -44,7 +44,7 @@ from .model import (
 #: Source files (relative to the ``renderer`` package) whose text keys a scene entry.
 SCENE_MODULES = ("scene/loader.py", "scene/meshio.py", "scene/shapes.py",
                  "scene/subdivide.py", "scene/model.py", "scene/scene_cache.py",
-                 "cache_key.py")
+                 "cache_key.py", "parallel.py")
 #: The arrays of an entry: name -> (dtype, columns; 0: one axis), all of one length per
 #: row kind (vertices or faces); the float64 pair is optional.
 ARRAYS = {"vertices": (np.float32, 3), "normals": (np.float32, 3),

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .. import parallel
+
 
 def subdivide_midpoint(vertices: np.ndarray, faces: np.ndarray, levels: int = 1
                        ) -> tuple[np.ndarray, np.ndarray]:
@@ -25,19 +27,45 @@ def subdivide_midpoint(vertices: np.ndarray, faces: np.ndarray, levels: int = 1
     V = np.asarray(vertices)
     Fc = np.asarray(faces, np.int64)
     for _ in range(levels):
-        nv = V.shape[0]
-        F = Fc.shape[0]
-        # The three edges of every face (ab, bc, ca), as sorted vertex pairs.
-        e = np.stack([Fc[:, [0, 1]], Fc[:, [1, 2]], Fc[:, [2, 0]]], axis=1).reshape(-1, 2)
-        key = np.minimum(e[:, 0], e[:, 1]) * nv + np.maximum(e[:, 0], e[:, 1])
-        uniq, inverse = np.unique(key, return_inverse=True)
-        a, b = uniq // nv, uniq % nv
-        mid = ((V[a].astype(np.float64) + V[b].astype(np.float64)) * 0.5).astype(V.dtype)
-        m = (nv + inverse).reshape(F, 3)               # midpoint index of ab, bc, ca
-        A, B, C = Fc[:, 0], Fc[:, 1], Fc[:, 2]
-        ab, bc, ca = m[:, 0], m[:, 1], m[:, 2]
-        Fc = np.stack([
-            np.stack([A, ab, ca], 1), np.stack([ab, B, bc], 1),
-            np.stack([ca, bc, C], 1), np.stack([ab, bc, ca], 1)], axis=1).reshape(-1, 3)
-        V = np.concatenate([V, mid], axis=0)
+        V, Fc = _level(V, Fc)
     return V, Fc.astype(np.int32)
+
+
+def _level(V: np.ndarray, Fc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """One level of ``subdivide_midpoint`` (faces int64): the edge keys, midpoints and
+    child faces elementwise over spans of faces (``renderer.parallel``), one sort of the
+    keys (``np.unique``) in between."""
+    nv, F = V.shape[0], Fc.shape[0]
+    cols = [np.ascontiguousarray(Fc[:, c]) for c in range(3)]
+    # The three edges of every face (ab, bc, ca), as sorted vertex pairs, face by face.
+    key = np.empty((F, 3), np.int64)
+
+    def key_span(lo, hi):
+        for j in range(3):
+            p, q = cols[j][lo:hi], cols[(j + 1) % 3][lo:hi]
+            np.add(np.minimum(p, q) * nv, np.maximum(p, q), out=key[lo:hi, j])
+    parallel.for_spans(F, key_span)
+    uniq, inverse = parallel.unique_inverse(key.reshape(-1))
+    E = uniq.shape[0]
+    out_v = np.empty((nv + E,) + V.shape[1:], V.dtype)
+    out_v[:nv] = V
+
+    def mid_span(lo, hi):
+        u = uniq[lo:hi]
+        a, b = u // nv, u % nv
+        out_v[nv + lo:nv + hi] = ((np.take(V, a, axis=0, mode="clip").astype(np.float64)
+                                   + np.take(V, b, axis=0, mode="clip").astype(np.float64)) * 0.5)
+    m = (nv + inverse).reshape(F, 3)               # midpoint index of ab, bc, ca
+    out_f = np.empty((F, 4, 3), np.int64)
+
+    def face_span(lo, hi):
+        A, B, C = (c[lo:hi] for c in cols)
+        ab, bc, ca = m[lo:hi, 0], m[lo:hi, 1], m[lo:hi, 2]
+        # children (a, ab, ca), (ab, b, bc), (ca, bc, c), (ab, bc, ca)
+        for child, corners in enumerate(((A, ab, ca), (ab, B, bc), (ca, bc, C),
+                                         (ab, bc, ca))):
+            for k, x in enumerate(corners):
+                out_f[lo:hi, child, k] = x
+    parallel.together(lambda: parallel.for_spans(E, mid_span),
+                      lambda: parallel.for_spans(F, face_span))
+    return out_v, out_f.reshape(-1, 3)
