@@ -22,8 +22,8 @@ def test_parts_have_unique_names_and_keys_in_study_order():
     assert all(name == p.name for name, p in PARTS.items())
 
 
-@pytest.mark.parametrize("stored", sorted(ROOT.glob("results/*/bench-*.json")),
-                         ids=lambda p: p.parent.name)
+@pytest.mark.parametrize("stored", sorted(ROOT.glob("results/**/bench-*.json")),
+                         ids=lambda p: str(p.parent.relative_to(ROOT / "results")))
 def test_stored_results_render_to_the_stored_markdown(stored):
     assert markdown(json.loads(stored.read_text())) == stored.with_suffix(".md").read_text()
 

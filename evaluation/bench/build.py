@@ -300,8 +300,8 @@ def markdown(rows: list[dict]) -> list[str]:
     cells = [[r["scene"], f"{r['process_size']}²", f"{r['process_sah_nocache_s']:.2f}",
               f"{r['process_cold_s']:.2f}", f"{r['process_cached_s']:.2f}"] for r in rows]
     n = rows[0].get("process_repeats", 1) if rows else 1
-    out += table("Time to first image: one `whitted render` process, start to exit (cold and "
-                 f"cached: median of {n} processes)",
+    out += table("Time to first image: one `whitted render` process, start to exit"
+                 + (f" (cold and cached: median of {n} processes)" if n > 1 else ""),
                  ["scene", "size", "SAH, no cache s", "auto, cold cache s",
                   "auto, cached s"], "lrrrr", cells)
     cells = []
