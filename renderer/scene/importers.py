@@ -22,7 +22,7 @@ import numpy as np
 
 from . import loader, meshio, scene_cache
 from .mitsuba_xml import load_xml
-from .model import Assembly, Material, Scene, SceneError, Settings, validate_image_size
+from .model import Assembly, Material, Scene, SceneError, Settings
 from .parts import (
     AUTO_FOV,
     AUTO_SIZE,
@@ -113,21 +113,8 @@ def load_toml(path, *, shading: str | None = None, cache=None) -> Scene:
             return scene_cache.load_toml(path, data, shading, cache)
         return loader.load_scene(path, shading=shading, cache=cache)
     r = loader._Reader(path)
-    r.keys(data, loader._TOP_KEYS, "")
-    if "description" in data:
-        r.string(data["description"], "description")
-    settings = loader._read_render(r, data, shading)
-    look = loader._read_physical(r, data, settings)
-    settings = replace(settings, background=look.background)
-    cameras = loader._read_views(r, data)
-    for i, cam in enumerate(cameras):
-        try:
-            validate_image_size(cam.width, cam.height, settings.spp,
-                                f"views[{i}]" if "views" in data else "camera")
-        except SceneError as e:
-            raise SceneError(f"{r.path}: {e}", field=e.field) from None
-    lights = loader._read_lights(r, data, settings.shading, look.light_scale)
-    materials = loader._read_materials(r, data)
+    head = loader._read_head(r, data, shading)
+    materials = head.materials
     index = {m.name: i for i, m in enumerate(materials)}
     # The import objects stand in as plain mesh objects of a placeholder material, so the
     # loader checks their common keys (name, mesh, transform, smooth) and names them.
@@ -152,10 +139,8 @@ def load_toml(path, *, shading: str | None = None, cache=None) -> Scene:
         else:
             out.append(part)
             normals.append(None)
-    scene = assemble(path, out, normals,
-                     Assembly(cameras=cameras, settings=settings, lights=lights,
-                              materials=materials, ambient=look.ambient,
-                              sources=[path.resolve(), *sources]), cache=cache)
+    scene = assemble(path, out, normals, replace(head, sources=[path.resolve(), *sources]),
+                     cache=cache)
     return replace(scene, check=check)
 
 

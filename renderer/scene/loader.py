@@ -179,6 +179,19 @@ def load_scene(path, *, shading: str | None = None, cache=None) -> Scene:
     path = Path(path)
     r = _Reader(path)
     data = _read_toml(path)
+    a = _read_head(r, data, shading)
+    objects, sources = _read_objects(r, data, {m.name: i for i, m in enumerate(a.materials)},
+                                     cache)
+    check = _read_check(r, data)
+    scene = _assemble(r, objects, replace(a, sources=[path.resolve(), *sources]), cache)
+    return replace(scene, check=check)
+
+
+def _read_head(r: _Reader, data: dict, shading: str | None) -> Assembly:
+    """The tables before the objects, checked in the loader's order: the top-level keys,
+    ``description``, ``[render]``, ``[physical]``, the views (their image sizes too), the
+    lights and the materials; as an ``Assembly`` whose ``sources`` are still empty (every
+    reader of a TOML scene starts with this)."""
     r.keys(data, _TOP_KEYS, "")
     if "description" in data:
         r.string(data["description"], "description")
@@ -194,12 +207,7 @@ def load_scene(path, *, shading: str | None = None, cache=None) -> Scene:
             raise SceneError(f"{r.path}: {e}", field=e.field) from None
     lights = _read_lights(r, data, settings.shading, look.light_scale)
     materials = _read_materials(r, data)
-    objects, sources = _read_objects(r, data, {m.name: i for i, m in enumerate(materials)},
-                                     cache)
-    check = _read_check(r, data)
-    scene = _assemble(r, objects, Assembly(cameras, settings, lights, materials, look.ambient,
-                                           [path.resolve(), *sources]), cache)
-    return replace(scene, check=check)
+    return Assembly(cameras, settings, lights, materials, look.ambient, [])
 
 
 def _read_toml(path: Path) -> dict:

@@ -35,9 +35,7 @@ from .model import (
     FACT_FIELDS,
     ObjectInfo,
     Scene,
-    SceneError,
     stored_facts,
-    validate_image_size,
     with_facts,
 )
 
@@ -91,23 +89,8 @@ def load_toml(path: Path, data: dict, shading: str | None, cache) -> Scene:
     """``loader.load_scene(path, shading=shading, cache=cache)`` of the parsed file ``data``
     with its geometry through the scene entry (module docstring)."""
     r = loader._Reader(path)
-    r.keys(data, loader._TOP_KEYS, "")
-    if "description" in data:
-        r.string(data["description"], "description")
-    settings = loader._read_render(r, data, shading)
-    look = loader._read_physical(r, data, settings)
-    settings = replace(settings, background=look.background)
-    cameras = loader._read_views(r, data)
-    for i, cam in enumerate(cameras):
-        try:
-            validate_image_size(cam.width, cam.height, settings.spp,
-                                f"views[{i}]" if "views" in data else "camera")
-        except SceneError as e:
-            raise SceneError(f"{r.path}: {e}", field=e.field) from None
-    lights = loader._read_lights(r, data, settings.shading, look.light_scale)
-    materials = loader._read_materials(r, data)
-    index = {m.name: i for i, m in enumerate(materials)}
-    a = loader.Assembly(cameras, settings, lights, materials, look.ambient, [])
+    a = loader._read_head(r, data, shading)
+    index = {m.name: i for i, m in enumerate(a.materials)}
     key = entry_key(path, data, index)
     got = cache.get("scene", key) if key is not None else None
     scene = _from_entry(got, r, data, a) if got is not None else None
