@@ -122,6 +122,18 @@ def process_rows(ctx: Context, name: str, size: int, pycache: Path) -> dict:
     return row
 
 
+def _median_build(build) -> tuple[float, object]:
+    """The median ``build_seconds`` of ``REPEATS`` calls of ``build`` (a device build, after
+    its warm-up; the device idle before each), and the last tree."""
+    import drjit as dr
+    times = []
+    for _ in range(REPEATS):
+        dr.sync_thread()
+        tree = build()
+        times.append(tree.build_seconds)
+    return statistics.median(times), tree
+
+
 def _mitsuba_build(scene) -> float:
     """Seconds of Mitsuba's scene build on ``scene``'s triangles: ``mi.load_dict`` plus the
     first ``ray_test`` of one ray (OptiX builds its acceleration structure lazily, at the
@@ -147,7 +159,6 @@ def _mitsuba_build(scene) -> float:
 
 def build_row(ctx: Context, name: str, pycache: Path) -> dict:
     """The measurements of one scene (see the module docstring)."""
-    import drjit as dr
 
     from reference import mitsuba_variant
     from renderer.accel.bvh_build import build_bvh
@@ -160,31 +171,19 @@ def build_row(ctx: Context, name: str, pycache: Path) -> dict:
     F = scene.face_count
     row["triangles"] = F
     build_device(scene.vertices, scene.faces, ctx.backend)          # warm-up: compilation
-    times = []
-    for _ in range(REPEATS):
-        dr.sync_thread()
-        dev = build_device(scene.vertices, scene.faces, ctx.backend)
-        times.append(dev.build_seconds)
-    row["device_s"] = statistics.median(times)
+    row["device_s"], dev = _median_build(lambda: build_device(scene.vertices, scene.faces,
+                                                              ctx.backend))
     row["device_mtris_s"] = F / row["device_s"] / 1e6
     row["device_sah_cost"], row["device_levels"] = dev.sah_cost, dev.levels
-    times = []
-    for _ in range(REPEATS):
-        dr.sync_thread()
-        times.append(build_device(scene.vertices, scene.faces, ctx.backend,
-                                  raw=True).build_seconds)
-    row["device_raw_s"] = statistics.median(times)
+    row["device_raw_s"], _ = _median_build(lambda: build_device(
+        scene.vertices, scene.faces, ctx.backend, raw=True))
     phases = {}
     build_device(scene.vertices, scene.faces, ctx.backend, phases=phases)
     row["device_phases_s"] = phases          # one more build, waiting at each phase's end
     build_ploc(scene.vertices, scene.faces, ctx.backend)            # warm-up: compilation
-    times = []
     pl_stats = {}
-    for _ in range(REPEATS):
-        dr.sync_thread()
-        pl = build_ploc(scene.vertices, scene.faces, ctx.backend, stats=pl_stats)
-        times.append(pl.build_seconds)
-    row["ploc_s"] = statistics.median(times)
+    row["ploc_s"], pl = _median_build(lambda: build_ploc(scene.vertices, scene.faces,
+                                                         ctx.backend, stats=pl_stats))
     row["ploc_mtris_s"] = F / row["ploc_s"] / 1e6
     row["ploc_sah_cost"], row["ploc_levels"] = pl.sah_cost, pl.levels
     phases = {}
@@ -192,12 +191,8 @@ def build_row(ctx: Context, name: str, pycache: Path) -> dict:
     row["ploc_phases_s"] = phases
     build_ploc(scene.vertices, scene.faces, ctx.backend, cuts=False)             # warm-up
     row["ploc_cut"] = bool(pl_stats.get("cut"))
-    times = []
-    for _ in range(REPEATS):
-        dr.sync_thread()
-        whole = build_ploc(scene.vertices, scene.faces, ctx.backend, cuts=False)
-        times.append(whole.build_seconds)
-    row["ploc_nocut_s"] = statistics.median(times)
+    row["ploc_nocut_s"], whole = _median_build(lambda: build_ploc(
+        scene.vertices, scene.faces, ctx.backend, cuts=False))
     row["ploc_nocut_mtris_s"] = F / row["ploc_nocut_s"] / 1e6
     row["ploc_nocut_sah_cost"] = whole.sah_cost
     sah = build_bvh(scene.vertices, scene.faces)
