@@ -11,11 +11,13 @@ builder's tree (``device_build.build_device``) for the SAH-cost comparison and t
 fallback, ``bvh_arrays.sah_cost`` (the host's sum) for the device-summed SAH cost."""
 import math
 
+import drjit as dr
 import numpy as np
 import pytest
 from accel_util import assert_same_hits, hits, random_rays, scene_from_arrays, soup
 from test_device_build import child_boxes_nest, morton_chain
 
+import renderer.accel.ploc as ploc
 from renderer.accel import BruteForce, build_accelerator
 from renderer.accel.builders import DEVICE_BUILD, binary_tree, builder, tree_key
 from renderer.accel.bvh_arrays import sah_cost
@@ -212,3 +214,26 @@ def test_device_builders_refuse_bad_input_in_one_error(build):
     if build is build_ploc:
         with pytest.raises(ValueError, match="radius"):
             build(V, faces, "llvm", radius=0)
+
+
+@pytest.mark.parametrize("w,k,radius,block,steps", [
+    (1000, 1000, 8, 64, 4), (1000, 613, 8, 64, 2), (257, 250, 3, 5, 2), (50, 50, 16, 64, 1),
+    (3000, 2999, 8, 1, 3), (3, 2, 8, 64, 1), (1200, 1200, 1, 7, 2), (640, 640, 8, 64, 0)])
+def test_windowed_search_is_the_per_cluster_search(w, k, radius, block, steps):
+    """``ploc._nearest_window`` answers ``ploc._nearest``'s neighbours bit for bit, lanes past
+    the count included, on boxes on a coarse grid (``steps`` per unit: many equal areas,
+    so the pair order's ties decide) and on random ones (``steps`` 0)."""
+    m = ploc._module("llvm")
+    rng = np.random.default_rng(w + k + radius)
+    lo = rng.random((w, 3))
+    ext = rng.random((w, 3))
+    if steps:
+        lo, ext = np.round(lo * steps) / steps, np.round(ext * steps) / steps
+    lo, hi = lo.astype(np.float32), (lo + ext).astype(np.float32)
+    c_box = [m.Float(np.ascontiguousarray(x[:, a])) for x in (lo, hi) for a in range(3)]
+    kk = dr.opaque(m.UInt32, k, 1)
+    per_cluster = ploc._nearest(m, c_box, kk, radius).numpy()
+    windowed = ploc._nearest_window(m, c_box, kk, radius, block).numpy()
+    assert np.array_equal(windowed, per_cluster)
+    assert np.array_equal(per_cluster[k:], np.arange(k, w))
+    assert (per_cluster[:k] != np.arange(k)).all()      # every cluster found a neighbour

@@ -30,7 +30,7 @@ POSITIONS = ploc._positions               # and the triangle order
 _REFERENCE = {}                           # case -> the reference build
 
 
-def _cluster_reference(m, slo, shi, radius, every, freeze, progress):
+def _cluster_reference(m, slo, shi, radius, every, freeze, progress, window=0):
     """The clustering loop of ``build_ploc`` before the device-side count (``every`` and
     ``freeze`` unused): one ``dr.compress`` count read per iteration."""
     Float, UInt32 = m.Float, m.UInt32
@@ -201,3 +201,21 @@ def test_clustering_builds_the_reference_tree(monkeypatch, case, every, freeze):
     assert prog_new == prog_ref
     if case.startswith("fallback"):
         assert st_ref["fallback"]
+
+
+@pytest.mark.parametrize("window", [3, 64])
+@pytest.mark.parametrize("every,freeze", [(1, False), (4, False)])
+@pytest.mark.parametrize("case", list(CASES))
+def test_windowed_search_builds_the_reference_tree(monkeypatch, case, every, freeze, window):
+    """The CPU backend's neighbour search (``ploc.WINDOW``: a lane per run of clusters,
+    each pair's area once) at every width, against the reference loop."""
+    make, kw = CASES[case]
+    V, faces = make()
+    if case not in _REFERENCE:
+        _REFERENCE[case] = _build(monkeypatch, V, faces, _cluster_reference, 1, **kw)
+    ref, st_ref, prog_ref = _REFERENCE[case]
+    monkeypatch.setitem(ploc.WINDOW, "llvm", window)
+    monkeypatch.setattr(ploc, "WINDOW_MIN", 1)
+    new, st_new, prog_new = _build(monkeypatch, V, faces, CLUSTER, every, freeze, **kw)
+    _assert_same(new, ref)
+    assert (st_new, prog_new) == (st_ref, prog_ref)

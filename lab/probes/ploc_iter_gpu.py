@@ -140,6 +140,13 @@ for name in args.scenes:
         ts = [plain_build(V, F, freeze) for _ in range(args.repeats)]
         row[f"freeze={freeze} median_ms"] = statistics.median(ts)
         row[f"freeze={freeze} all_ms"] = ts
+    keep = ploc.WINDOW[args.backend]
+    for blk in (64, 16):
+        ploc.WINDOW[args.backend] = blk
+        plain_build(V, F, False)
+        ts = [plain_build(V, F, False) for _ in range(args.repeats)]
+        row[f"window={blk} median_ms"] = statistics.median(ts)
+    ploc.WINDOW[args.backend] = keep
     for freeze in (False, True):
         dr.set_flag(dr.JitFlag.KernelHistory, True)
         row[f"freeze={freeze} profile"] = one_build(V, F, freeze)

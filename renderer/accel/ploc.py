@@ -89,6 +89,16 @@ READ_EVERY = {"llvm": 1, "cuda": 4}
 #: tracing; off on the GPU until measured there (the replay builds the same tree on the
 #: CPU backend: ``test_ploc_reference.py``).
 FREEZE = {"llvm": False, "cuda": False}
+#: Clusters per lane of the neighbour search, per backend (``_nearest_window``: each pair's
+#: area computed once, one box gather per cluster), or 0 for one lane per cluster
+#: (``_nearest``). The CPU backend's search costs its gathers; the GPU's costs little
+#: beside its iteration's launches and wants a lane per cluster.
+WINDOW = {"llvm": 64, "cuda": 0}
+#: ... for arrays at least this wide (narrower ones have too few lanes of blocks to fill
+#: the CPU's threads, and search faster a cluster per lane), and never in a frozen
+#: iteration (its replays run at other widths, which the windowed search's lane count, a
+#: fraction of the width, does not follow).
+WINDOW_MIN = 1 << 15
 
 
 def _half_area(lo, hi):
@@ -152,7 +162,73 @@ def _nearest(m, c_box, k, radius: int):
     return state[2]
 
 
-def _pairs(m, radius: int, c_box, made_d, f_d):
+def _nearest_window(m, c_box, k, radius: int, block: int):
+    """``_nearest``'s answer (``k``: here a one-lane UInt32), bit for bit, with each pair's
+    area computed once: lane ``b`` walks the clusters ``[b * block - radius, (b + 1) *
+    block)`` in order, keeping the boxes of the ``radius + 1`` clusters from the current
+    one on and their best candidates so far in its loop state. At cluster ``c`` it
+    computes the areas of ``(c, c + d)`` for ``d = 1 .. radius`` and offers each to both
+    ends; ``c``'s answer is then final (its left candidates came at earlier steps: the
+    walk starts ``radius`` clusters early) and is written where ``c`` lies in the lane's
+    block. A cluster gets its left candidates before its right ones and keeps a candidate
+    only for a strictly lower (area, tie) key, as ``_nearest`` does, so equal keys keep
+    the left candidate there too. One box gather per cluster instead of ``12 * radius``:
+    for the CPU backend, whose search kernels cost their gathers."""
+    Float, UInt32 = m.Float, m.UInt32
+    w = dr.width(c_box[0])
+    lanes = (w + block - 1) // block
+    blk = dr.opaque(UInt32, block)       # one kernel for every block size
+    start = dr.arange(UInt32, lanes) * blk
+    end = dr.minimum(start + blk, k)
+    first = dr.select(start > radius, start - radius, 0)
+    out = dr.arange(UInt32, w)
+    n = radius + 1
+
+    def box_at(c):
+        ok = c < k
+        return [dr.gather(Float, c_box[x], c, ok) for x in range(6)]
+
+    # slot s: the cluster first + s; its box (6 Floats) and best (area, index, tie)
+    boxes = []
+    for s in range(n):
+        boxes += box_at(first + s)
+    inf = dr.full(Float, dr.inf, lanes)
+    bests = []
+    for s in range(n):
+        bests += [Float(inf), first + s, dr.full(UInt32, 0xFFFFFFFF, lanes)]
+
+    def body(c, *state):
+        bx = [list(state[6 * s:6 * s + 6]) for s in range(n)]
+        bt = [list(state[6 * n + 3 * s:6 * n + 3 * s + 3]) for s in range(n)]
+        for d in range(1, n):
+            ok = c + d < k
+            lo = [dr.minimum(bx[0][x], bx[d][x]) for x in range(3)]
+            hi = [dr.maximum(bx[0][3 + x], bx[d][3 + x]) for x in range(3)]
+            area = _half_area(lo, hi)
+            tie = UInt32((d << 1)) | (c & 1)          # the lower index is c for both ends
+            for s, j in ((0, c + d), (d, c)):
+                best, best_j, best_t = bt[s]
+                better = ok & ((area < best) | ((area == best) & (tie < best_t)))
+                bt[s] = [dr.select(better, area, best), dr.select(better, j, best_j),
+                         dr.select(better, tie, best_t)]
+        dr.scatter(out, bt[0][1], c, c >= start)
+        nxt = c + n
+        new_box = box_at(nxt)
+        state = []
+        for s in range(1, n):
+            state += bx[s]
+        state += new_box
+        for s in range(1, n):
+            state += bt[s]
+        state += [Float(inf), nxt, dr.full(UInt32, 0xFFFFFFFF, lanes)]
+        return (c + 1, *state)
+
+    dr.while_loop(state=(UInt32(first), *boxes, *bests),
+                  cond=lambda c, *_: c < end, body=body, label="ploc_nearest_window")
+    return out
+
+
+def _pairs(m, radius: int, c_box, made_d, f_d, block: int = 0):
     """The first half of a clustering iteration over the clusters with boxes ``c_box`` (6
     Floats), lanes past the count ``f_d - made_d`` idle (``made_d``: the nodes made so
     far, ``f_d``: the triangles, one-lane UInt32 each): each cluster's nearest neighbour
@@ -163,7 +239,8 @@ def _pairs(m, radius: int, c_box, made_d, f_d):
     UInt32, UInt64 = m.UInt32, m.UInt64
     i = dr.arange(UInt32, dr.width(c_box[0]))
     k = dr.gather(UInt32, f_d, i & 0) - dr.gather(UInt32, made_d, i & 0)
-    best_j = _nearest(m, c_box, k, radius)
+    best_j = (_nearest_window(m, c_box, f_d - made_d, radius, block) if block else
+              _nearest(m, c_box, k, radius))
     dr.eval(best_j)
     mutual = dr.gather(UInt32, best_j, best_j) == i
     merge = mutual & (i < best_j)                   # idle lanes: best_j == i
@@ -223,7 +300,8 @@ def _merge(m, c, pair, made_d, f_d, n, t):
 #: iterations after the first replay the recorded kernels, widths may change).
 _PAIRS, _MERGE = dr.freeze(_pairs), dr.freeze(_merge)
 
-def _cluster(m, slo, shi, radius: int, every: int, freeze: bool, progress) -> Clusters:
+def _cluster(m, slo, shi, radius: int, every: int, freeze: bool, progress,
+             window: int = 0) -> Clusters:
     """Cluster the sorted triangles (boxes ``slo``, ``shi``: 3 Floats each) until one
     cluster is left (see the module docstring). The cluster count lives on the device (the
     nodes made so far, a one-lane array): each iteration compacts the clusters by a prefix
@@ -251,7 +329,8 @@ def _cluster(m, slo, shi, radius: int, every: int, freeze: bool, progress) -> Cl
     f_d = dr.opaque(UInt32, F, 1)
     pairs, merge = (_PAIRS, _MERGE) if freeze else (_pairs, _merge)
     while True:
-        best_j, ex, made_new = pairs(m, radius, tuple(c_box), made_d, f_d)
+        best_j, ex, made_new = pairs(m, radius, tuple(c_box), made_d, f_d,
+                                     window if w >= WINDOW_MIN and not freeze else 0)
         pending.append(made_new)
         it_next = it + len(pending)
         done = False
@@ -432,7 +511,8 @@ def _device_tree(job: _Job, lo, hi, info: dict):
         _phase(phases, "Morton codes and sort", t_phase)
 
     # ---- 2. clustering -----------------------------------------------------------------------
-    cl = _cluster(m, slo, shi, radius, READ_EVERY[backend], FREEZE[backend], progress)
+    cl = _cluster(m, slo, shi, radius, READ_EVERY[backend], FREEZE[backend], progress,
+                  WINDOW[backend])
     n_ch, n_box, n_cnt, batches = cl.ch, cl.box, cl.cnt, cl.batches
     info["iterations"] = cl.iterations
     if phases is not None:
