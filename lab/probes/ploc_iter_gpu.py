@@ -46,9 +46,8 @@ def timed(name, fn):
     return run
 
 
-real = (ploc._pairs, ploc._merge, ploc._PAIRS, ploc._MERGE)
-ploc._pairs, ploc._merge = timed("pairs", real[0]), timed("merge", real[1])
-ploc._PAIRS, ploc._MERGE = timed("pairs", real[2]), timed("merge", real[3])
+ploc._pairs, ploc._merge = timed("pairs", ploc._pairs), timed("merge", ploc._merge)
+ploc._BLOCK = timed("block", ploc._BLOCK)
 
 
 def launch_cost(n_kernels=200, width=1000):
@@ -114,18 +113,26 @@ def one_build(V, F, freeze):
     by = collections.Counter(str(k.get("type")).split(".")[-1] for k in hist)
     return {"wall_ms": 1e3 * wall, "phases_ms": {k: 1e3 * v for k, v in ph.items()},
             "host_pairs_ms": 1e3 * clock["pairs"], "host_merge_ms": 1e3 * clock["merge"],
-            "iterations": clock["pairs calls"],
+            "host_block_ms": 1e3 * clock["block"], "iterations": clock["pairs calls"],
+            "blocks": clock["block calls"],
             "kernel_exec_ms": sum(k.get("execution_time", 0) for k in hist),
             "kernels": len(hist), "kernel_types": dict(by)}
 
 
-def plain_build(V, F, freeze):
+def plain_build(V, F, freeze, every=None):
     ploc.FREEZE[args.backend] = freeze
+    ploc.READ_EVERY[args.backend] = every or EVERY
     dr.sync_thread()
     t = time.perf_counter()
-    ploc.build_ploc(V, F, args.backend, cuts=False)
+    a = ploc.build_ploc(V, F, args.backend, cuts=False)
     dr.sync_thread()
-    return 1e3 * (time.perf_counter() - t)
+    ms = 1e3 * (time.perf_counter() - t)
+    ploc.READ_EVERY[args.backend] = EVERY
+    trees.add(hash(a.boxes.tobytes() + a.children.tobytes() + a.order.tobytes()))
+    return ms
+
+
+EVERY = ploc.READ_EVERY[args.backend]
 
 
 out["launch"] = launch_cost()
@@ -134,19 +141,20 @@ for name in args.scenes:
     s = load_scene(ROOT / "scenes" / f"{name}.toml")
     V, F = np.asarray(s.vertices, np.float32), np.asarray(s.faces)
     row = {"triangles": len(F)}
-    for freeze in (False, True):
-        plain_build(V, F, freeze)
-        plain_build(V, F, freeze)
-        ts = [plain_build(V, F, freeze) for _ in range(args.repeats)]
-        row[f"freeze={freeze} median_ms"] = statistics.median(ts)
-        row[f"freeze={freeze} all_ms"] = ts
-    keep = ploc.WINDOW[args.backend]
-    for blk in (64, 16):
-        ploc.WINDOW[args.backend] = blk
-        plain_build(V, F, False)
-        ts = [plain_build(V, F, False) for _ in range(args.repeats)]
-        row[f"window={blk} median_ms"] = statistics.median(ts)
-    ploc.WINDOW[args.backend] = keep
+    trees = set()
+    # a fresh process's first build (the recording included), then the warm builds,
+    # the variants interleaved round by round
+    variants = [(False, None), (True, None), (True, 8), (False, 8)]
+    for freeze, every in variants:
+        row[f"freeze={freeze} every={every} first_ms"] = plain_build(V, F, freeze, every)
+    samples = {v: [] for v in variants}
+    for _ in range(args.repeats):
+        for v in variants:
+            samples[v].append(plain_build(V, F, *v))
+    for (freeze, every), ts in samples.items():
+        row[f"freeze={freeze} every={every} median_ms"] = statistics.median(ts)
+        row[f"freeze={freeze} every={every} all_ms"] = ts
+    row["same_tree"] = len(trees) == 1
     for freeze in (False, True):
         dr.set_flag(dr.JitFlag.KernelHistory, True)
         row[f"freeze={freeze} profile"] = one_build(V, F, freeze)

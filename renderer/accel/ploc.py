@@ -22,8 +22,9 @@ Steps, each a few Dr.Jit kernels over all triangles, clusters or nodes:
    new nodes and compacts the list into arrays as wide as the last count the host read
    (lanes past the count idle), and the host reads the counts every ``READ_EVERY``
    iterations, one transfer for all of them (on the CPU after each, so its arrays shrink
-   each time). With ``FREEZE`` an iteration's two halves replay their recorded kernels
-   (``dr.freeze``) instead of being traced again;
+   each time). With ``FREEZE`` the iterations between two reads replay one recording
+   (``dr.freeze``) instead of being traced again, compacting within two arrays of one
+   width that the host narrows after each read;
 3. triangle order: a node's first child starts where the node starts, its second after
    the first's triangles, so every subtree is a contiguous run of the triangle order; each
    node's start and depth are sums over its ancestors, taken by pointer jumping;
@@ -84,10 +85,10 @@ MASK = NODE - 1
 #: ``HEIGHT_CHECK``): the CPU backend reads after every iteration, so its arrays shrink
 #: each time; the GPU runs several iterations ahead of the host.
 READ_EVERY = {"llvm": 1, "cuda": 4}
-#: Whether the iterations replay recorded kernels (``dr.freeze``: no tracing after the
-#: first) per backend. Off on the CPU, whose iteration costs its kernels, not its
-#: tracing; off on the GPU until measured there (the replay builds the same tree on the
-#: CPU backend: ``test_ploc_reference.py``).
+#: Whether the ``READ_EVERY`` iterations between two reads replay one recording
+#: (``_cluster_blocks``) per backend. Off on the CPU, whose iteration costs its kernels,
+#: not its tracing; off on the GPU until measured there (the replay builds the same tree
+#: on the CPU backend: ``test_ploc_reference.py``).
 FREEZE = {"llvm": False, "cuda": False}
 #: Clusters per lane of the neighbour search, per backend (``_nearest_window``: each pair's
 #: area computed once, one box gather per cluster), or 0 for one lane per cluster
@@ -296,9 +297,70 @@ def _merge(m, c, pair, made_d, f_d, n, t):
     dr.eval(n_ch, n_box, n_cnt, t)
 
 
-#: The two halves of an iteration, traced once per input layout (``dr.freeze``: the
-#: iterations after the first replay the recorded kernels, widths may change).
-_PAIRS, _MERGE = dr.freeze(_pairs), dr.freeze(_merge)
+def _block(m, radius: int, every: int, c, u, n, made_d, f_d):
+    """``every`` clustering iterations at one width: each one's ``_pairs`` and ``_merge``
+    over the clusters ``c``, compacted into ``u`` (arrays like ``c``), the two swapping
+    roles after each iteration. Answers the clusters after the last iteration (``c`` or
+    ``u``, written in place) and the nodes made after each iteration (one-lane UInt32
+    each). Run through ``dr.freeze`` (``_BLOCK``): one recording replayed at every width."""
+    made = []
+    for _ in range(every):
+        best_j, ex, made_new = _pairs(m, radius, c[1], made_d, f_d)
+        _merge(m, c, (best_j, ex), made_d, f_d, n, u)
+        c, u = u, c
+        made_d = made_new
+        made.append(made_new)
+    return c, made
+
+
+_BLOCK = dr.freeze(_block)
+
+
+def _cluster_blocks(m, slo, shi, radius: int, every: int, progress) -> Clusters:
+    """``_cluster`` (the same nodes, batches, stats and progress calls) with its
+    ``every`` iterations between two host reads replayed as one recording (``_BLOCK``):
+    the clusters are compacted within two arrays of one width, which the host narrows to
+    the count it read after each block (one gather kernel). For the GPU, whose
+    iterations cost their kernels' tracing and launches more than their work."""
+    Float, UInt32 = m.Float, m.UInt32
+    F = dr.width(slo[0])
+    n_in = F - 1
+    n = (tuple(dr.zeros(UInt32, n_in) for _ in range(2)),
+         tuple(dr.zeros(Float, n_in) for _ in range(6)), dr.zeros(UInt32, n_in))
+    c = (dr.arange(UInt32, F), tuple(dr.gather(Float, x, dr.arange(UInt32, F))
+                                     for x in slo + shi),
+         dr.full(UInt32, 1, F), dr.zeros(UInt32, F))
+    u = (dr.zeros(UInt32, F), tuple(dr.zeros(Float, F) for _ in range(6)),
+         dr.zeros(UInt32, F), dr.zeros(UInt32, F))
+    made_d = dr.zeros(UInt32, 1)
+    dr.eval(c, u, n, made_d)
+    f_d = dr.opaque(UInt32, F, 1)
+    batches, made, it = [], 0, 0
+    bail = TALL * MAX_LEVELS
+    log_f = math.log(F)
+    while True:
+        c, made_list = _BLOCK(m, radius, every, c, u, n, made_d, f_d)
+        for x in _read_back(made_list):
+            it += 1
+            now = int(x[0])
+            batches.append((made, now - made))
+            made = now
+            if progress is not None:
+                progress(round(MAX_LEVELS * (1.0 - math.log(max(F - made, 1)) / log_f)))
+            if F - made <= 1:
+                return Clusters(n[0], n[1], n[2], batches, it, False)
+        if it % HEIGHT_CHECK == 0 and int(dr.max(c[3])[0]) > bail:
+            return Clusters(n[0], n[1], n[2], batches, it, True)
+        made_d = made_list[-1]
+        w_next = max(F - made, 1)
+        idx = dr.arange(UInt32, w_next)
+        flat = [c[0], *c[1], c[2], c[3]]
+        narrow = [dr.gather(type(x), x, idx) for x in flat]
+        spare = [dr.gather(type(x), x, idx) for x in flat]    # the other array of the pair
+        dr.eval(narrow, spare)
+        c = (narrow[0], tuple(narrow[1:7]), narrow[7], narrow[8])
+        u = (spare[0], tuple(spare[1:7]), spare[7], spare[8])
+
 
 def _cluster(m, slo, shi, radius: int, every: int, freeze: bool, progress,
              window: int = 0) -> Clusters:
@@ -308,7 +370,11 @@ def _cluster(m, slo, shi, radius: int, every: int, freeze: bool, progress,
     sum into arrays as wide as the last count read, lanes past the count idle, and the
     host reads the nodes made every ``every`` iterations (a divisor of ``HEIGHT_CHECK``),
     with the tallest cluster's height every ``HEIGHT_CHECK``. ``progress`` as
-    ``build_ploc``'s, called for each iteration at the next read."""
+    ``build_ploc``'s, called for each iteration at the next read. ``freeze``: the
+    iterations between two reads replay one recording (``_cluster_blocks``).
+    ``window``: ``WINDOW``'s run of clusters per search lane (0: one cluster)."""
+    if freeze:
+        return _cluster_blocks(m, slo, shi, radius, every, progress)
     Float, UInt32 = m.Float, m.UInt32
     F = dr.width(slo[0])
     n_in = F - 1                                          # inner nodes of the full tree
@@ -327,10 +393,9 @@ def _cluster(m, slo, shi, radius: int, every: int, freeze: bool, progress,
     bail = TALL * MAX_LEVELS
     log_f = math.log(F)
     f_d = dr.opaque(UInt32, F, 1)
-    pairs, merge = (_PAIRS, _MERGE) if freeze else (_pairs, _merge)
     while True:
-        best_j, ex, made_new = pairs(m, radius, tuple(c_box), made_d, f_d,
-                                     window if w >= WINDOW_MIN and not freeze else 0)
+        best_j, ex, made_new = _pairs(m, radius, tuple(c_box), made_d, f_d,
+                                      window if w >= WINDOW_MIN else 0)
         pending.append(made_new)
         it_next = it + len(pending)
         done = False
@@ -349,14 +414,10 @@ def _cluster(m, slo, shi, radius: int, every: int, freeze: bool, progress,
                     done = True
                     break
             pending, w_next = [], max(F - made, 1)
-        new = dr.zeros if freeze else dr.empty     # (frozen: an empty input re-records)
-        t = (new(UInt32, w_next), tuple(new(Float, w_next) for _ in range(6)),
-             new(UInt32, w_next), new(UInt32, w_next))
-        # (a compaction into narrower arrays, after a read, is traced: a frozen one would
-        # be recorded anew for each pair of widths)
-        (merge if w_next == w else _merge)(m, (c_ref, tuple(c_box), c_cnt, c_h),
-                                           (best_j, ex), made_d, f_d,
-                                           (tuple(n_ch), tuple(n_box), n_cnt), t)
+        t = (dr.empty(UInt32, w_next), tuple(dr.empty(Float, w_next) for _ in range(6)),
+             dr.empty(UInt32, w_next), dr.empty(UInt32, w_next))
+        _merge(m, (c_ref, tuple(c_box), c_cnt, c_h), (best_j, ex), made_d, f_d,
+               (tuple(n_ch), tuple(n_box), n_cnt), t)
         if done:
             return Clusters(n_ch, n_box, n_cnt, batches, it, False)
         if (it_next % HEIGHT_CHECK == 0 and it_next % every == 0
