@@ -84,12 +84,13 @@ MASK = NODE - 1
 #: Iterations between two host reads of the cluster count, per backend (a divisor of
 #: ``HEIGHT_CHECK``): the CPU backend reads after every iteration, so its arrays shrink
 #: each time; the GPU runs several iterations ahead of the host.
-READ_EVERY = {"llvm": 1, "cuda": 4}
+READ_EVERY = {"llvm": 1, "cuda": 8}
 #: Whether the ``READ_EVERY`` iterations between two reads replay one recording
-#: (``_cluster_blocks``) per backend. Off on the CPU, whose iteration costs its kernels,
-#: not its tracing; off on the GPU until measured there (the replay builds the same tree
-#: on the CPU backend: ``test_ploc_reference.py``).
-FREEZE = {"llvm": False, "cuda": False}
+#: (``_cluster_blocks``) per backend: on the GPU, whose iterations cost the host's tracing
+#: and launches more than their kernels (a replay launches without tracing), not on the
+#: CPU, whose iterations cost their kernels and whose arrays shrink every iteration
+#: (``lab/notes/device-build.md``). The same tree either way (``test_ploc_reference.py``).
+FREEZE = {"llvm": False, "cuda": True}
 #: Clusters per lane of the neighbour search, per backend (``_nearest_window``: each pair's
 #: area computed once, one box gather per cluster), or 0 for one lane per cluster
 #: (``_nearest``). The CPU backend's search costs its gathers; the GPU's costs little
@@ -313,7 +314,10 @@ def _block(m, radius: int, every: int, c, u, n, made_d, f_d):
     return c, made
 
 
-_BLOCK = dr.freeze(_block)
+#: (A block whose replay Dr.Jit's dry run rejects for new inputs is recorded again, at the
+#: cost of one trace; a process that builds many trees does so several times, which is
+#: no fault, so Dr.Jit's warning about it is off.)
+_BLOCK = dr.freeze(_block, warn_after=1 << 30)
 
 
 def _cluster_blocks(m, slo, shi, radius: int, every: int, progress) -> Clusters:
