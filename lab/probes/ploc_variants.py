@@ -41,6 +41,7 @@ ap.add_argument("--size", type=int, default=512)
 ap.add_argument("--frames", type=int, default=20)
 ap.add_argument("--rounds", type=int, default=2)
 ap.add_argument("--variants", default=",".join(VARIANTS))
+ap.add_argument("--accel", default=None, help="the accelerator (default: the backend's)")
 ap.add_argument("--out", default=None)
 args = ap.parse_args()
 names = args.variants.split(",")
@@ -66,7 +67,7 @@ for name in args.scenes:
             tree, _ = builders.binary_tree(sc, args.backend, build=build)
             build_ms = 1e3 * (time.perf_counter() - t)
             res = frozen_frame_ms(sc.with_settings(build=build), backend=args.backend,
-                                  accel=None, frames=args.frames)
+                                  accel=args.accel, frames=args.frames)
             if ref is None:
                 ref = res["image"]
             r = rows.setdefault(label, {"sah_cost": tree.sah_cost, "levels": tree.levels,
