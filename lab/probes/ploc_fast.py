@@ -162,15 +162,13 @@ def scene_row(name: str) -> dict:
         variants.append(("frozen" if not ploc.FREEZE[be] else "traced", ploc.READ_EVERY[be],
                          not ploc.FREEZE[be], ploc._nearest))
     for tag, every, freeze, nearest in variants:
-        keep = (ploc.READ_EVERY[be], ploc.FREEZE[be], ploc._nearest, ploc._PAIRS,
-                ploc._MERGE)
+        keep = (ploc.READ_EVERY[be], ploc.FREEZE[be], ploc._nearest, ploc._BLOCK)
         ploc.READ_EVERY[be], ploc.FREEZE[be], ploc._nearest = every, freeze, nearest
-        ploc._PAIRS, ploc._MERGE = dr.freeze(ploc._pairs), dr.freeze(ploc._merge)
+        ploc._BLOCK = dr.freeze(ploc._block, warn_after=1 << 30)
         a, s, ts = timed(lambda: build_ploc(V, Fa, args.backend))
         ph = {}
         build_ploc(V, Fa, args.backend, stats={"phases": ph})
-        (ploc.READ_EVERY[be], ploc.FREEZE[be], ploc._nearest, ploc._PAIRS,
-         ploc._MERGE) = keep
+        ploc.READ_EVERY[be], ploc.FREEZE[be], ploc._nearest, ploc._BLOCK = keep
         row[tag] = {"s": s, "mtri_s": F / s / 1e6, "same_tree": same(a, trees["new"]),
                     "phases_ms": {k: v * 1e3 for k, v in ph.items()}}
         print(f"    {tag:9s} {s * 1e3:7.1f} ms same={row[tag]['same_tree']} " + ", ".join(
