@@ -601,7 +601,8 @@ def _device_tree(job: _Job, lo, hi, info: dict):
     roots = None
     info["rebuilt"] = 0
     if levels > MAX_LEVELS:
-        roots, inside = _deep_subtrees(m, batches, n_ch, n_cnt, n_depth, leaf_size)
+        roots, inside = _deep_subtrees(m, batches, n_ch, n_cnt, n_depth, leaf_size,
+                                       FREEZE[backend])
         info["rebuilt"] = int(dr.sum(dr.select(roots, UInt32(1), UInt32(0)))[0])
         kept &= ~inside
         if phases is not None:
@@ -689,39 +690,76 @@ def _write_box(m, boxes_d, at, lo, hi, pad):
     return d[0] * d[1] + d[1] * d[2] + d[2] * d[0]
 
 
-def _deep_subtrees(m, batches, n_ch, n_cnt, n_depth, leaf_size):
+def _deep_heights(m, c, ok, n_ch, n_cnt, n_depth, height, roots, leaf_size):
+    """One batch of ``_deep_subtrees``' bottom-up pass over the nodes ``c`` (UInt32; where
+    ``ok``): each node's height (inner levels below it, rebuilds done) and whether it is
+    rebuilt, from its children's rows (earlier batches), written to ``height`` and
+    ``roots``."""
+    UInt32, Bool = m.UInt32, m.Bool
+    h = []
+    for s in range(2):
+        r = dr.gather(UInt32, n_ch[s], c, ok)
+        idx = r & MASK
+        is_node = ok & ((r & NODE) != 0)
+        cc = dr.gather(UInt32, n_cnt, idx, is_node)
+        inner = is_node & (cc > leaf_size)
+        h.append(dr.select(inner, dr.select(dr.gather(Bool, roots, idx, inner),
+                                            _levels_needed(cc, leaf_size),
+                                            dr.gather(UInt32, height, idx, inner)), 0))
+    n = dr.gather(UInt32, n_cnt, c, ok)
+    d = dr.gather(UInt32, n_depth, c, ok)
+    hc = dr.maximum(h[0], h[1]) + 1
+    big = n > leaf_size
+    rebuild = big & (d + hc > MAX_LEVELS) & (d + _levels_needed(n, leaf_size) <= MAX_LEVELS)
+    # one kernel per batch: it reads the rows of earlier batches (its children) and
+    # writes its own
+    dr.scatter(height, dr.select(big, hc, 0), c, ok)
+    dr.scatter(roots, rebuild, c, ok)
+
+
+def _deep_batch(m, bounds, k, n_ch, n_cnt, n_depth, height, roots, leaf_size):
+    """``_deep_heights`` over batch ``k`` (a one-lane UInt32, incremented here) of
+    ``bounds`` (each batch's first node and the next batch's, UInt32 pairs), as one
+    kernel over all nodes (those outside the batch idle): replayed by ``_DEEP_BATCH``
+    with the same inputs for every batch."""
+    UInt32 = m.UInt32
+    n = dr.arange(UInt32, dr.width(n_cnt))
+    lo = dr.gather(UInt32, bounds, 2 * k)
+    hi = dr.gather(UInt32, bounds, 2 * k + 1)
+    _deep_heights(m, n, (n >= lo) & (n < hi), n_ch, n_cnt, n_depth, height, roots,
+                  leaf_size)
+    dr.eval(height, roots)
+    dr.scatter(k, k + 1, UInt32(0))      # after the batch's kernel has read it
+    dr.eval(k)
+
+
+_DEEP_BATCH = dr.freeze(_deep_batch, warn_after=1 << 30)
+
+
+def _deep_subtrees(m, batches, n_ch, n_cnt, n_depth, leaf_size, freeze: bool = False):
     """The nodes whose subtrees are rebuilt balanced so that no inner node lies deeper than
     ``MAX_LEVELS`` levels: bottom up (first iteration's nodes first), a node whose subtree,
     with the rebuilds below it, still reaches too deep is rebuilt when a balanced tree over
     its triangles fits below its level (else an ancestor is). Answers the Bool arrays
     (over the nodes) ``roots`` (rebuilt nodes) and ``inside`` (nodes below a root, which
-    leave the tree)."""
+    leave the tree). ``freeze`` (``FREEZE``): each batch's kernel runs over all nodes and
+    replays one recording (``_DEEP_BATCH``) instead of being traced."""
     UInt32, Bool = m.UInt32, m.Bool
     n_in = dr.width(n_cnt)
     height = dr.zeros(UInt32, n_in)       # inner levels from the node down, rebuilds done
     roots = dr.zeros(Bool, n_in)
-    for b0, cnt in batches:
-        c = dr.opaque(UInt32, b0) + dr.arange(UInt32, cnt)
-        h = []
-        for s in range(2):
-            r = dr.gather(UInt32, n_ch[s], c)
-            idx = r & MASK
-            is_node = (r & NODE) != 0
-            cc = dr.gather(UInt32, n_cnt, idx, is_node)
-            inner = is_node & (cc > leaf_size)
-            h.append(dr.select(inner, dr.select(dr.gather(Bool, roots, idx, inner),
-                                                _levels_needed(cc, leaf_size),
-                                                dr.gather(UInt32, height, idx, inner)), 0))
-        n = dr.gather(UInt32, n_cnt, c)
-        d = dr.gather(UInt32, n_depth, c)
-        hc = dr.maximum(h[0], h[1]) + 1
-        big = n > leaf_size
-        rebuild = big & (d + hc > MAX_LEVELS) & (d + _levels_needed(n, leaf_size) <= MAX_LEVELS)
-        # one kernel per batch: it reads the rows of earlier batches (its children) and
-        # writes its own
-        dr.scatter(height, dr.select(big, hc, 0), c)
-        dr.scatter(roots, rebuild, c)
-        dr.eval(height, roots)
+    if freeze:
+        bounds = UInt32(np.array([[b0, b0 + cnt] for b0, cnt in batches],
+                                 np.uint32).ravel())
+        k = dr.opaque(UInt32, 0, 1)
+        dr.eval(height, roots, bounds)
+        for _ in batches:
+            _DEEP_BATCH(m, bounds, k, tuple(n_ch), n_cnt, n_depth, height, roots, leaf_size)
+    else:
+        for b0, cnt in batches:
+            _deep_heights(m, dr.opaque(UInt32, b0) + dr.arange(UInt32, cnt), True, n_ch,
+                          n_cnt, n_depth, height, roots, leaf_size)
+            dr.eval(height, roots)
     inside = _below_any(m, n_ch, roots, len(batches))
     roots &= ~inside
     dr.eval(roots)
