@@ -13,21 +13,20 @@ Steps, each a few Dr.Jit kernels over all triangles, clusters or nodes:
    are large);
 2. clustering: the sorted triangles are the first clusters. Each iteration, every cluster
    finds its nearest neighbour among the ``radius`` clusters on either side of it in the
-   list (one symbolic loop over the distance; on the CPU, over wide arrays, one loop per
-   run of ``WINDOW`` clusters that computes each pair's area once): the one whose union
-   box has the smallest surface area (ties ordered by a fixed total order on pairs, so the
-   nearest-neighbour graph has no cycles longer than two and the closest pair is always
-   mutual). Mutual
-   pairs merge into a new node that takes the lower one's place; the higher one leaves the
-   list, until one cluster is left. A node's box is its children's union, its count the
-   sum of theirs. The count of nodes made stays on the device: one prefix sum numbers the
-   new nodes and compacts the list into arrays as wide as the last count the host read
-   (lanes past the count idle), and the host reads the counts every ``READ_EVERY``
+   list (one symbolic loop over the distance; on the CPU, over wide arrays, one loop per run
+   of ``WINDOW`` clusters that computes each pair's area once): the one whose union box has
+   the smallest surface area (ties ordered by a fixed total order on pairs, so the nearest-
+   neighbour graph has no cycles longer than two and the closest pair is always mutual).
+   Mutual pairs merge into a new node that takes the lower one's place; the higher one
+   leaves the list, until one cluster is left. A node's box is its children's union, its
+   count the sum of theirs. The count of nodes made stays on the device: one prefix sum
+   numbers the new nodes and compacts the list into arrays as wide as the last count the
+   host read (lanes past the count idle), and the host reads the counts every ``READ_EVERY``
    iterations, one transfer for all of them (on the CPU after each, so its arrays shrink
    each time). With ``FREEZE`` the iterations between two reads replay one recording
-   (``dr.freeze``) instead of being traced again, compacting within two arrays of one
-   width that the host narrows after each read (and step 4's bottom-up pass replays one
-   recording per batch);
+   (``dr.freeze``) instead of being traced again, compacting within two arrays of one width
+   that the host narrows after each read (and step 4's bottom-up pass replays one recording
+   per batch);
 3. triangle order: a node's first child starts where the node starts, its second after
    the first's triangles, so every subtree is a contiguous run of the triangle order; each
    node's start and depth are sums over its ancestors, taken by pointer jumping;
