@@ -70,6 +70,10 @@ def test_sigint_early_exits_130_with_one_line(tmp_path, delay):
         _, err = proc.communicate(timeout=60)
     finally:
         proc.kill()
+    if proc.returncode == 0 and not err and list(out.glob("*.png")):
+        # the signal reached a process already past its last write (exiting: its outputs
+        # are whole, as they are written by rename), the same race as the poll above
+        pytest.skip("the render finished before the signal")
     _check(proc.returncode, err)
 
 

@@ -692,12 +692,13 @@ def _write_box(m, boxes_d, at, lo, hi, pad):
     return d[0] * d[1] + d[1] * d[2] + d[2] * d[0]
 
 
-def _deep_heights(m, c, ok, n_ch, n_cnt, n_depth, height, roots, leaf_size):
+def _deep_heights(m, c, ok, tree, height, roots, leaf_size):
     """One batch of ``_deep_subtrees``' bottom-up pass over the nodes ``c`` (UInt32; where
-    ``ok``): each node's height (inner levels below it, rebuilds done) and whether it is
-    rebuilt, from its children's rows (earlier batches), written to ``height`` and
-    ``roots``."""
+    ``ok``) of ``tree`` = (the 2 child references, counts, depths): each node's height
+    (inner levels below it, rebuilds done) and whether it is rebuilt, from its children's
+    rows (earlier batches), written to ``height`` and ``roots``."""
     UInt32, Bool = m.UInt32, m.Bool
+    n_ch, n_cnt, n_depth = tree
     h = []
     for s in range(2):
         r = dr.gather(UInt32, n_ch[s], c, ok)
@@ -719,17 +720,16 @@ def _deep_heights(m, c, ok, n_ch, n_cnt, n_depth, height, roots, leaf_size):
     dr.scatter(roots, rebuild, c, ok)
 
 
-def _deep_batch(m, bounds, k, n_ch, n_cnt, n_depth, height, roots, leaf_size):
+def _deep_batch(m, bounds, k, tree, height, roots, leaf_size):
     """``_deep_heights`` over batch ``k`` (a one-lane UInt32, incremented here) of
     ``bounds`` (each batch's first node and the next batch's, UInt32 pairs), as one
     kernel over all nodes (those outside the batch idle): replayed by ``_DEEP_BATCH``
     with the same inputs for every batch."""
     UInt32 = m.UInt32
-    n = dr.arange(UInt32, dr.width(n_cnt))
+    n = dr.arange(UInt32, dr.width(tree[1]))
     lo = dr.gather(UInt32, bounds, 2 * k)
     hi = dr.gather(UInt32, bounds, 2 * k + 1)
-    _deep_heights(m, n, (n >= lo) & (n < hi), n_ch, n_cnt, n_depth, height, roots,
-                  leaf_size)
+    _deep_heights(m, n, (n >= lo) & (n < hi), tree, height, roots, leaf_size)
     dr.eval(height, roots)
     dr.scatter(k, k + 1, UInt32(0))      # after the batch's kernel has read it
     dr.eval(k)
@@ -756,11 +756,12 @@ def _deep_subtrees(m, batches, n_ch, n_cnt, n_depth, leaf_size, freeze: bool = F
         k = dr.opaque(UInt32, 0, 1)
         dr.eval(height, roots, bounds)
         for _ in batches:
-            _DEEP_BATCH(m, bounds, k, tuple(n_ch), n_cnt, n_depth, height, roots, leaf_size)
+            _DEEP_BATCH(m, bounds, k, (tuple(n_ch), n_cnt, n_depth), height, roots,
+                        leaf_size)
     else:
         for b0, cnt in batches:
-            _deep_heights(m, dr.opaque(UInt32, b0) + dr.arange(UInt32, cnt), True, n_ch,
-                          n_cnt, n_depth, height, roots, leaf_size)
+            _deep_heights(m, dr.opaque(UInt32, b0) + dr.arange(UInt32, cnt), True,
+                          (n_ch, n_cnt, n_depth), height, roots, leaf_size)
             dr.eval(height, roots)
     inside = _below_any(m, n_ch, roots, len(batches))
     roots &= ~inside
