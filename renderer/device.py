@@ -7,8 +7,9 @@ float32 (default) or float64 for every floating-point array, so the same code re
 double precision. The LLVM backend is refused before any kernel where the libLLVM Dr.Jit
 loaded cannot run it (``llvm_problem``: one line with the fix). The renderer takes its
 reciprocals from here (``rcp``, ``rsqrt``, ``normalize``): Dr.Jit's own are float32-accurate
-for float64 arrays on CUDA. Its ``syntax`` is ``dr.syntax`` applied at a function's first
-call, so a process pays the source transformation only for the kernels it traces.
+for float64 arrays on CUDA, and its float32 ``rsqrt`` on LLVM depends on the CPU. Its
+``syntax`` is ``dr.syntax`` applied at a function's first call, so a process pays the
+source transformation only for the kernels it traces.
 """
 from __future__ import annotations
 
@@ -174,10 +175,19 @@ def array3(t: Types, rows) -> object:
 # reciprocal: about float32's accuracy in a float64 render (Möller–Trumbore's distances on
 # rays from 10^4 radii away came out 2e-7 too short, so a BVH that culled by its padded
 # boxes disagreed with brute force). These helpers divide instead for float64
-# (``div.rn.f64``, correctly rounded) and keep Dr.Jit's own operations for float32. The
-# LLVM backend already divides for ``dr.rcp``, so its results are bitwise unchanged.
+# (``div.rn.f64``, correctly rounded) and keep Dr.Jit's own operations for float32 on
+# CUDA. The LLVM backend already divides for ``dr.rcp``; its float32 ``dr.rsqrt`` starts
+# from the CPU's estimate instruction (``vrsqrtps`` with AVX2, ``vrsqrt14ps`` with
+# AVX-512) and refines it, so its last bits, and an ill-conditioned pixel of a glass
+# bunny, depended on the CPU. On LLVM ``rsqrt`` is ``1 / sqrt(x)``, two correctly rounded
+# operations: the same image on every CPU (the bundled scenes' renders are bitwise equal
+# at 8 and 16 lanes).
 def _double(x) -> bool:
     return dr.type_v(x) == dr.VarType.Float64
+
+
+def _llvm(x) -> bool:
+    return dr.backend_v(x) == dr.JitBackend.LLVM
 
 
 def rcp(x):
@@ -187,8 +197,11 @@ def rcp(x):
 
 def rsqrt(x):
     """``1 / sqrt(x)``: in float64 ``sqrt(1 / x)`` (Dr.Jit's own float64 formula, with an
-    exact reciprocal); ``dr.rsqrt`` in float32."""
-    return dr.sqrt(1.0 / x) if _double(x) else dr.rsqrt(x)
+    exact reciprocal); in float32 ``1 / sqrt(x)`` on LLVM (the same bits on every CPU),
+    ``dr.rsqrt`` on CUDA."""
+    if _double(x):
+        return dr.sqrt(1.0 / x)
+    return 1.0 / dr.sqrt(x) if _llvm(x) else dr.rsqrt(x)
 
 
 def normalize(v):
