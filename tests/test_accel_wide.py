@@ -100,6 +100,21 @@ def test_collapse_keeps_a_small_stack_bound(width):
 
 
 @pytest.mark.parametrize("width", [4, 8])
+def test_collapse_fills_the_room_of_a_larger_stack(width):
+    """A tree at its stack bound (the binary tree's levels) leaves the deep paths' nodes no
+    room for more than 2 children; the traversal's stack of twice that fills them, still
+    within the bound it was given."""
+    V, faces = soup(3000, seed=2)
+    a = build_bvh(V, faces)
+    tight = collapse(a, width, stack_size=a.levels)
+    roomy = collapse(a, width, stack_size=2 * a.levels)
+    check_wide(roomy, a)
+    assert tight.max_stack <= a.levels < roomy.max_stack <= 2 * a.levels
+    assert roomy.node_count < tight.node_count
+    assert np.mean(roomy.refs != DONE) > np.mean(tight.refs != DONE)
+
+
+@pytest.mark.parametrize("width", [4, 8])
 def test_quantised_boxes_contain_the_float_boxes(width):
     V, faces = grid(16)
     V = V * np.float32(1000.0) + np.float32(12345.0)        # large offsets: float rounding

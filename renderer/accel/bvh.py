@@ -5,9 +5,8 @@ xyz, hi xyz, child B lo xyz, hi xyz, as ``BVHArrays.boxes``), ``children`` UInt3
 inner node (the node references of ``renderer.accel.layout``).
 
 Traversal is one symbolic loop per query with a per-ray stack of ``STACK_SIZE`` UInt32
-(``dr.alloc_local``). The stack is kept at 32 entries = 128 bytes because larger local
-arrays crash Dr.Jit 1.5.0's LLVM backend (drjit issue #532); the builder bounds the number
-of inner-node levels by the same number, so the stack cannot overflow. Each iteration does
+(``dr.alloc_local``); the builder bounds the number of inner-node levels by
+``MAX_LEVELS`` (at most ``STACK_SIZE``), so the stack cannot overflow. Each iteration does
 a node step (when no leaf triangles are pending) and a triangle step (one pending leaf
 triangle); each step is a real branch (``traverse.masked_step``). Traversal order
 and culling never change which triangle wins (nearest ``t``, then smallest original face

@@ -14,8 +14,8 @@ Boxes are computed in float32 from the float32 vertices and padded by ``pad_boxe
 traversal recomputes them over the same tree with ``refit_boxes`` (float64 from the float64
 vertices for float64 renders), padded for the reach of the scene's ray origins
 (``triangle.pad_extent``: the watertight test and the slab test's FMA form need it). The
-number of inner-node levels is bounded by ``MAX_LEVELS`` (= the traversal's ``STACK_SIZE``,
-switching to median splits near the limit; the optimisation keeps the bound), so the
+number of inner-node levels is bounded by ``MAX_LEVELS`` (the most entries the binary
+traversal pushes; median splits near the limit; the optimisation keeps the bound), so the
 traversal stack cannot overflow.
 """
 from __future__ import annotations

@@ -3,8 +3,10 @@
 A node reference (a BVH's children, a traversal's current node and stack entries) is a
 UInt32: an inner-node index, a packed leaf ``LEAF_BIT | (count - 1) << COUNT_SHIFT |
 first`` (``count`` triangles from position ``first`` of the accelerator's triangle
-order), or ``DONE``. A traversal's stack holds ``STACK_SIZE`` references, and the builders
-bound a tree's inner levels by the same number, so the stack cannot overflow.
+order), or ``DONE``. A traversal's stack holds ``STACK_SIZE`` references. The builders
+bound a binary tree's inner levels by ``MAX_LEVELS``, which the binary traversal's stack
+holds; the wide collapse expands a node's children only while the pushes they need stay
+within ``STACK_SIZE`` (``wide.collapse``), so no stack can overflow.
 """
 from __future__ import annotations
 
@@ -15,10 +17,11 @@ COUNT_SHIFT = 27
 FIRST_MASK = (1 << COUNT_SHIFT) - 1
 MAX_LEAF = 16                # leaf size limit of the packed reference (4 count bits)
 DONE = 0xFFFFFFFF            # "no node left" sentinel of the traversal
-#: UInt32 entries per ray: 128 bytes, the largest local array Dr.Jit 1.5's LLVM backend
-#: compiles (drjit issue #532).
-STACK_SIZE = 32
-MAX_LEVELS = STACK_SIZE      # inner levels of a tree; the stack never holds more entries
+#: UInt32 entries per ray (256 bytes, left uninitialised: Dr.Jit 1.5's LLVM backend
+#: crashed on zero-filled local arrays over 128 bytes, drjit issue #532, and a stack needs
+#: no fill). Twice ``MAX_LEVELS``: the room a wide collapse fills with children.
+STACK_SIZE = 64
+MAX_LEVELS = 32              # inner levels of a binary tree, the most its traversal pushes
 
 
 def leaf_ref(first, count):

@@ -11,7 +11,9 @@ order and the hits are bitwise those of the binary BVH and of brute force.
 Stack bound: a closest-hit node step pushes at most ``children - 1`` entries. The
 conversion only expands a child when ``pushes so far + (children - 1) + levels still
 needed below`` stays within ``STACK_SIZE`` (the binary tree's own bound: a subtree of ``L``
-inner levels never needs more than ``L`` entries), so the 32-entry stack cannot overflow.
+inner levels never needs more than ``L`` entries), so the stack cannot overflow. The
+stack holds twice the binary tree's ``MAX_LEVELS``: a tree at that bound (Conference's
+are) would otherwise leave a node on the deep paths no room for more than 2 children.
 
 Node layout on the device (default, ``quantized``): ``nodes`` UInt32,
 ``record_words(width)`` per node (12 for 4 children, 16 for 8): the node's origin and the
