@@ -19,9 +19,13 @@ MAX_LEAF = 16                # leaf size limit of the packed reference (4 count 
 DONE = 0xFFFFFFFF            # "no node left" sentinel of the traversal
 #: UInt32 entries per ray (256 bytes, left uninitialised: Dr.Jit 1.5's LLVM backend
 #: crashed on zero-filled local arrays over 128 bytes, drjit issue #532, and a stack needs
-#: no fill). Twice ``MAX_LEVELS``: the room a wide collapse fills with children.
+#: no fill): ``MAX_LEVELS`` and the room a wide collapse fills with children on a tree's
+#: deepest paths.
 STACK_SIZE = 64
-MAX_LEVELS = 32              # inner levels of a binary tree, the most its traversal pushes
+#: Inner levels of a binary tree, the most its traversal pushes: above the depth PLOC's
+#: clustering reaches on the bundled scenes (Conference's 36), so that no subtree of theirs
+#: is rebuilt to fit, with 16 entries of ``STACK_SIZE`` left at least.
+MAX_LEVELS = 48
 
 
 def leaf_ref(first, count):

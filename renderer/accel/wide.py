@@ -12,8 +12,8 @@ Stack bound: a closest-hit node step pushes at most ``children - 1`` entries. Th
 conversion only expands a child when ``pushes so far + (children - 1) + levels still
 needed below`` stays within ``STACK_SIZE`` (the binary tree's own bound: a subtree of ``L``
 inner levels never needs more than ``L`` entries), so the stack cannot overflow. The
-stack holds twice the binary tree's ``MAX_LEVELS``: a tree at that bound (Conference's
-are) would otherwise leave a node on the deep paths no room for more than 2 children.
+stack holds more than the binary trees' ``MAX_LEVELS``: a stack no deeper than a tree
+leaves the nodes on its deepest paths no room for more than 2 children.
 
 Node layout on the device (default, ``quantized``): ``nodes`` UInt32,
 ``record_words(width)`` per node (12 for 4 children, 16 for 8): the node's origin and the
