@@ -258,3 +258,22 @@ def test_throughput_run_refuses_bad_input_in_one_line(tmp_path, capsys):
         assert e.value.code == 2
         assert bad[0] in capsys.readouterr().err
     assert not (tmp_path / "new").exists()
+
+
+def test_interleaved_frames_time_each_scene_in_every_round():
+    """The build part's frames: each tree's frozen frame timed once per round, the scenes
+    in turn; each result is that scene's own image (not its neighbour's), equal to what
+    ``frozen_frame_ms`` renders alone, and the median of its rounds."""
+    from evaluation.bench.frames import frozen_frame_ms, interleaved_frame_ms
+    box = load_scene(ROOT / "scenes/cornell_box.toml").with_size(24, 24)
+    sphere = load_scene(ROOT / "scenes/cornell_sphere.toml").with_size(24, 24)
+    got = interleaved_frame_ms({"box": box, "sphere": sphere}, backend="llvm", accel=None,
+                               frames=2, warmup=1, rounds=3)
+    assert list(got) == ["box", "sphere"]
+    for label, sc in (("box", box), ("sphere", sphere)):
+        r = got[label]
+        alone = frozen_frame_ms(sc, backend="llvm", accel=None, frames=1, warmup=0)
+        assert np.array_equal(r["image"], alone["image"]) and r["image"].max() > 0.05
+        assert len(r["rounds_kernel_ms"]) == 3 and r["frozen_equals_traced"]
+        assert r["frozen_kernel_ms"] == float(np.median(r["rounds_kernel_ms"]))
+    assert not np.array_equal(got["box"]["image"], got["sphere"]["image"])

@@ -18,7 +18,9 @@ Per scene (``SCENES``; quick: ``QUICK_SCENES``), in one process on the same tria
   Embree on the CPU, forced by a first trace: ``_mitsuba_build``), first and second build;
 - the SAH cost of the three trees, and a Whitted frame (the scene's first view at
   ``Context.frame_size``², the backend's accelerator, frozen: median kernel ms) over each,
-  with whether the images are bitwise the SAH tree's;
+  the three timed in turn for ``FRAME_ROUNDS`` rounds (the median of the rounds' medians,
+  so a drifting machine's drift falls on the three trees alike), with whether the images
+  are bitwise the SAH tree's;
 - the process start-to-first-image: ``whitted render SCENE --size N×N`` (``PROCESS_SIZE``)
   with the SAH build and no cache (the tool before the device build and the cache, once),
   with ``--build auto`` and an empty cache (cold), then again (from the cache), the median
@@ -51,6 +53,8 @@ REPEATS = 5
 PROCESS_SIZE = 1024
 #: Cold and cached processes per scene (medians); the SAH process without a cache runs once.
 PROCESS_REPEATS = 3
+#: Rounds of the three trees' frames, taken in turn (``frames.interleaved_frame_ms``).
+FRAME_ROUNDS = 3
 
 
 def _load(ctx: Context, name: str):
@@ -165,7 +169,7 @@ def build_row(ctx: Context, name: str, pycache: Path) -> dict:
     from renderer.accel.device_build import build_device
     from renderer.accel.ploc import build_ploc
 
-    from .frames import frozen_frame_ms
+    from .frames import interleaved_frame_ms
     row = {"scene": name, "load_avg_1min": os.getloadavg()[0]}
     scene, row["load_s"] = _load(ctx, name)
     F = scene.face_count
@@ -206,11 +210,11 @@ def build_row(ctx: Context, name: str, pycache: Path) -> dict:
     row["speedup_vs_sah"] = row["sah_s"] / row["device_s"]
     row["vs_mitsuba"] = row["mitsuba_build_again_s"] / row["device_s"]
     # a Whitted frame over each tree: the builder is picked through the scene's settings
-    frames = {}
-    for build in ("sah", "radix", "ploc"):
-        sc = scene.with_settings(build=build).with_size(ctx.frame_size)
-        frames[build] = frozen_frame_ms(sc, backend=ctx.backend, accel=None,
-                                        frames=ctx.frames)
+    frames = interleaved_frame_ms(
+        {b: scene.with_settings(build=b).with_size(ctx.frame_size)
+         for b in ("sah", "radix", "ploc")},
+        backend=ctx.backend, accel=None, frames=ctx.frames, rounds=FRAME_ROUNDS)
+    row["frame_rounds_kernel_ms"] = {b: f["rounds_kernel_ms"] for b, f in frames.items()}
     row["frame_ms_sah"] = frames["sah"]["frozen_kernel_ms"]
     row["frame_ms_device"] = frames["radix"]["frozen_kernel_ms"]
     row["frame_ms_ploc"] = frames["ploc"]["frozen_kernel_ms"]
