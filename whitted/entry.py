@@ -6,7 +6,10 @@ second, during which Python's own SIGINT handler would raise ``KeyboardInterrupt
 some import and print a traceback. ``main`` installs a handler first, with nothing heavy
 imported yet: a SIGINT while starting prints one line and exits with 130
 (``options.EXIT["interrupted"]``) at once; ``whitted.cli.main`` then takes SIGINT over for
-the command itself.
+the command itself. Until the handler is in place the module imports only what the
+interpreter has loaded already (``os``, ``sys``) and ``signal``: a module-level import of
+``tempfile`` or ``threading`` (shutil, zlib, random: some milliseconds) would leave a
+window in which a Ctrl-C prints a traceback.
 
 Dr.Jit prints its own complaints about an unusable libLLVM while it is imported (two lines,
 then a ``TypeError`` or an LLVM abort at the first kernel); the entry point imports it with
@@ -18,8 +21,6 @@ from __future__ import annotations
 import os
 import signal
 import sys
-import tempfile
-import threading
 
 #: ``whitted.options.EXIT["interrupted"]`` (not imported: options imports the renderer).
 INTERRUPTED = 130
@@ -51,6 +52,8 @@ def _import_drjit_quietly() -> None:
     except OSError:                      # no stderr to capture
         import drjit  # noqa: F401
         return
+    import tempfile  # after the handler: it imports shutil, zlib, random
+
     with tempfile.TemporaryFile() as tmp:
         os.dup2(tmp.fileno(), 2)
         _stderr_fd = saved
@@ -80,8 +83,10 @@ def main(argv: list[str] | None = None) -> int:
     """Install the start-up SIGINT handler, import Dr.Jit (``_import_drjit_quietly``) and
     ``whitted.cli``, and run its ``main``; a ``QUICK_EXIT`` command run as the process
     (``argv`` None) ends it with its exit code."""
-    if threading.current_thread() is threading.main_thread():
+    try:
         signal.signal(signal.SIGINT, _interrupted_while_starting)
+    except ValueError:                   # not the main thread: its caller owns SIGINT
+        pass
     _import_drjit_quietly()
     from .cli import main as cli_main
     code = cli_main(argv)
