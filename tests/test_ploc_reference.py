@@ -30,9 +30,9 @@ POSITIONS = ploc._positions               # and the triangle order
 _REFERENCE = {}                           # case -> the reference build
 
 
-def _cluster_reference(m, slo, shi, radius, every, freeze, progress, window=0):
-    """The clustering loop of ``build_ploc`` before the device-side count (``every`` and
-    ``freeze`` unused): one ``dr.compress`` count read per iteration."""
+def _cluster_reference(m, slo, shi, radius, every, freeze, progress, window=0, reads=(1,)):
+    """The clustering loop of ``build_ploc`` before the device-side count (``every``,
+    ``freeze`` and ``reads`` unused): one ``dr.compress`` count read per iteration."""
     Float, UInt32 = m.Float, m.UInt32
     F = dr.width(slo[0])
     n_in = F - 1
@@ -140,12 +140,13 @@ def _positions_reference(m, cl):
     return n_first, n_depth, t_pos
 
 
-def _build(monkeypatch, V, faces, cluster, every, freeze=False, **kw):
+def _build(monkeypatch, V, faces, cluster, every, freeze=False, reads=(1,), **kw):
     monkeypatch.setattr(ploc, "_cluster", cluster)
     monkeypatch.setattr(ploc, "_positions", POSITIONS if cluster is CLUSTER else
                         _positions_reference)
     monkeypatch.setitem(ploc.READ_EVERY, "llvm", every)
     monkeypatch.setitem(ploc.FREEZE, "llvm", freeze)
+    monkeypatch.setitem(ploc.READ_BLOCKS, "llvm", reads)
     st, prog = {}, []
     a = build_ploc(V, faces, "llvm", stats=st, progress=prog.append, **kw)
     return a, st, prog
@@ -186,16 +187,18 @@ CASES = {
 }
 
 
-@pytest.mark.parametrize("every,freeze", [(1, False), (4, False), (8, False), (1, True),
-                                          (4, True), (8, True)])
+@pytest.mark.parametrize("every,freeze,reads", [
+    (1, False, (1,)), (4, False, (1,)), (8, False, (1,)), (1, True, (1,)), (4, True, (1,)),
+    (8, True, (1,)), (4, True, (1, 3, 2)), (8, True, ploc.READ_BLOCKS["cuda"])])
 @pytest.mark.parametrize("case", list(CASES))
-def test_clustering_builds_the_reference_tree(monkeypatch, case, every, freeze):
+def test_clustering_builds_the_reference_tree(monkeypatch, case, every, freeze, reads):
     make, kw = CASES[case]
     V, faces = make()
     if case not in _REFERENCE:
         _REFERENCE[case] = _build(monkeypatch, V, faces, _cluster_reference, 1, **kw)
     ref, st_ref, prog_ref = _REFERENCE[case]
-    new, st_new, prog_new = _build(monkeypatch, V, faces, CLUSTER, every, freeze, **kw)
+    new, st_new, prog_new = _build(monkeypatch, V, faces, CLUSTER, every, freeze, reads,
+                                   **kw)
     _assert_same(new, ref)
     assert st_new == st_ref
     assert prog_new == prog_ref

@@ -160,6 +160,16 @@ def as_pairs(t: Types, words: np.ndarray, copy: bool = True):
     return array_type(t, "UInt64")(w.view(np.uint64).reshape(-1))
 
 
+def device_pairs(t: Types, x):
+    """A 32-bit device array ``x`` (Float or UInt32 of even width) as the UInt64 array that
+    ``gather_pairs`` reads, made on the device: word ``2 i`` the low half of pair ``i``
+    (``as_pairs`` of the same words on the host)."""
+    UInt32, UInt64 = t.UInt32, array_type(t, "UInt64")
+    w = x if isinstance(x, UInt32) else dr.reinterpret_array(UInt32, x)
+    i = dr.arange(UInt32, dr.width(w) // 2) * 2
+    return UInt64(dr.gather(UInt32, w, i)) | (UInt64(dr.gather(UInt32, w, i + 1)) << 32)
+
+
 def uses_pairs(t: Types) -> bool:
     """Whether the traversals of ``t`` read their float32/UInt32 records through 64-bit
     gathers (``gather_pairs``): on LLVM in float32 (float64 records are 64-bit already;

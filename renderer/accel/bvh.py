@@ -27,6 +27,7 @@ from .base import (
     Ray,
     array_type,
     as_pairs,
+    device_pairs,
     gather_floats,
     gather_pairs,
     traversal_triangles,
@@ -214,6 +215,60 @@ class BVH(Accelerator):
         info = dict(info)
         return cls(nodes, children, tri_data, tris, backend=t.backend, precision=t.precision,
                    intersection=info["intersection"], info=info, tri_trav=tri_trav,
+                   reach=float(info["reach"]))
+
+    @classmethod
+    def from_device_tree(cls, scene, t: Types, tree, *, intersection: str = DEFAULT_ROUTINE,
+                         extent: float | None = None,
+                         triangles: dict | None = None) -> "BVH":
+        """The accelerator of a tree its builder left on the device
+        (``device_build.DeviceTree``), made there in float32: the arrays ``from_layout``
+        uploads for ``host_layout(scene, t, tree.host(), ...)``, bit for bit, without the
+        tree's copy to the host. The nodes are the build's own boxes where no ray origin
+        lies away from 0, else its unpadded boxes padded for ``extent`` on the device
+        (``DeviceTree.padded``: ``traversal_boxes``' float32 rule); the triangles are
+        ``triangle_arrays`` in face order (``triangles``: where the caller has them),
+        uploaded and gathered into the tree's order there."""
+        if t.is_double:
+            raise ValueError("from_device_tree: a float32 accelerator (float64 refits its "
+                             "boxes on the host)")
+        triangle_routine(intersection)
+        extent = pad_extent(scene, intersection) if extent is None else extent
+        nodes = tree.padded(extent) if box_reach(scene, intersection) > 0 else tree.boxes
+        arrays = triangles or triangle_arrays(scene, False, None, routine=intersection)
+        face_data, face_tris = device_triangles(t, arrays)
+        order = tree.order
+        rows = dr.arange(t.UInt32, dr.width(order) * STRIDE)
+        tri_data = dr.gather(t.Float, face_data,
+                             dr.gather(t.UInt32, order, rows // STRIDE) * STRIDE
+                             + rows % STRIDE)
+        normals = ("n0" in arrays)
+        gather3 = lambda v: dr.gather(t.Array3f, v, order)  # noqa: E731
+        tris = DeviceTriangles(
+            ng=gather3(face_tris.ng),
+            n0=gather3(face_tris.n0) if normals else face_tris.n0,
+            n1=gather3(face_tris.n1) if normals else face_tris.n1,
+            n2=gather3(face_tris.n2) if normals else face_tris.n2,
+            material=dr.gather(t.UInt32, face_tris.material, order),
+            smooth=dr.gather(t.Bool, face_tris.smooth, order), order=t.UInt32(order))
+        children = tree.children
+        if uses_pairs(t):
+            nodes, children = device_pairs(t, nodes), device_pairs(t, children)
+        tri_trav = device_pairs(t, tri_data) if uses_pairs(t) else None
+        dr.eval(nodes, children, tri_data, tri_trav, tris)
+        leaf_count, sah, _ = tree.summary()
+        F = max(scene.face_count, 1)
+        info = {
+            "accel": "bvh", "intersection": intersection,
+            "build_seconds": tree.build_seconds, "triangles": scene.face_count,
+            "nodes": tree.node_count, "leaves": leaf_count, "levels": tree.levels,
+            "sah_cost": sah, "leaf_size": LEAF_SIZE, "bins": BINS,
+            "node_bytes_per_triangle": tree.node_count * (12 * 4 + 8) / F,
+            "traversal_triangle_bytes_per_triangle": STRIDE * 4,
+            "reach": origin_reach(scene, intersection),
+        }
+        return cls(nodes, children, tri_data, tris, backend=t.backend, precision=t.precision,
+                   intersection=intersection, info=info, tri_trav=tri_trav,
                    reach=float(info["reach"]))
 
     def counts(self, ray: Ray, active=True, any_hit: bool = False):

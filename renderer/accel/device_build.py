@@ -29,6 +29,7 @@ from __future__ import annotations
 import importlib
 import math
 import time
+from dataclasses import dataclass, field
 
 import drjit as dr
 import numpy as np
@@ -153,6 +154,30 @@ def _read_back(parts):
     return out
 
 
+def _summary_words(m, scene_box, area):
+    """The scene box ``(s_lo, s_hi)`` (3 one-lane Floats each) and the SAH area (one-lane
+    Float64) as 8 UInt32 words (lo, hi, the area's two words), evaluated."""
+    bits = dr.reinterpret_array(m.UInt64, area)
+    small = dr.zeros(m.UInt32, 8)
+    for k, x in enumerate(list(scene_box[0]) + list(scene_box[1])):
+        dr.scatter(small, dr.reinterpret_array(m.UInt32, x), k)
+    dr.scatter(small, m.UInt32(bits & 0xFFFFFFFF), 6)
+    dr.scatter(small, m.UInt32(bits >> 32), 7)
+    dr.eval(small)
+    return small
+
+
+def _summary(small_h: np.ndarray) -> tuple:
+    """``(bounds, sah_cost)`` from ``_summary_words``' host copy."""
+    small_h = np.ascontiguousarray(small_h, np.uint32)
+    b_lo, b_hi = small_h[:3].view(np.float32), small_h[3:6].view(np.float32)
+    area_h = float(small_h[6:8].view(np.float64)[0])
+    bounds = (b_lo.astype(np.float64), b_hi.astype(np.float64))
+    dd = bounds[1] - bounds[0]
+    root = float(dd[0] * dd[1] + dd[1] * dd[2] + dd[2] * dd[0])
+    return bounds, ((C_TRAV * root + area_h) / root if root > 0 else 0.0)
+
+
 def host_arrays(boxes_d, refs_d, order_d, raw_d, scene_box, area, levels: int) -> BVHArrays:
     """The host ``BVHArrays`` of a tree built on the device: its padded node boxes
     (``boxes_d``, 12 Floats a node), child references (``refs_d``, 2 UInt32 a node),
@@ -162,28 +187,80 @@ def host_arrays(boxes_d, refs_d, order_d, raw_d, scene_box, area, levels: int) -
     (``_read_back``) brings all of them."""
     n = dr.width(refs_d) // 2
     m = _module("cuda" if dr.backend_v(boxes_d) == dr.JitBackend.CUDA else "llvm")
-    bits = dr.reinterpret_array(m.UInt64, area)
-    small = dr.zeros(m.UInt32, 8)                 # scene box lo, hi; the area's two words
-    for k, x in enumerate(list(scene_box[0]) + list(scene_box[1])):
-        dr.scatter(small, dr.reinterpret_array(m.UInt32, x), k)
-    dr.scatter(small, m.UInt32(bits & 0xFFFFFFFF), 6)
-    dr.scatter(small, m.UInt32(bits >> 32), 7)
-    dr.eval(small)
+    small = _summary_words(m, scene_box, area)
     host = _read_back([boxes_d, refs_d, order_d, small]
                       + ([raw_d] if raw_d is not None else []))
     boxes = np.asarray(host[0], np.float32).reshape(n, 12)
     ch = np.asarray(host[1], np.uint32).reshape(n, 2)
     order = np.asarray(host[2], np.int64)
-    small_h = np.ascontiguousarray(host[3], np.uint32)
-    b_lo, b_hi = small_h[:3].view(np.float32), small_h[3:6].view(np.float32)
-    area_h = float(small_h[6:8].view(np.float64)[0])
+    bounds, sah = _summary(host[3])
     leaf_count = int(np.count_nonzero(ch & np.uint32(LEAF_BIT)))
-    bounds = (b_lo.astype(np.float64), b_hi.astype(np.float64))
-    dd = bounds[1] - bounds[0]
-    root = float(dd[0] * dd[1] + dd[1] * dd[2] + dd[2] * dd[0])
-    sah = (C_TRAV * root + area_h) / root if root > 0 else 0.0
     raw_h = np.asarray(host[4], np.float32).reshape(n, 12) if raw_d is not None else None
     return BVHArrays(boxes, ch, order, levels, leaf_count, sah, 0.0, bounds, raw=raw_h)
+
+
+@dataclass
+class DeviceTree:
+    """A tree built on the device and left there: ``host_arrays``' arguments (padded node
+    boxes ``boxes``, 12 Floats a node; child references ``children``, 2 UInt32 a node;
+    the triangle order ``order``, UInt32; the unpadded boxes ``raw``; the scene box and
+    the SAH area on the device; ``levels``) and the build's seconds. An accelerator is
+    made from it on the device (``bvh.BVH.from_device_tree``); ``host()`` copies it back
+    once (one read) for a cache entry or a host consumer."""
+
+    boxes: object
+    children: object
+    order: object
+    raw: object
+    scene_box: tuple
+    area: object
+    levels: int
+    build_seconds: float = 0.0
+    _host: BVHArrays | None = field(default=None, repr=False)
+
+    @property
+    def node_count(self) -> int:
+        return dr.width(self.children) // 2
+
+    def summary(self) -> tuple:
+        """``(leaf_count, sah_cost, bounds)`` (as ``BVHArrays``') from one small read; the
+        tree stays on the device."""
+        if self._host is not None:
+            return self._host.leaf_count, self._host.sah_cost, self._host.bounds
+        m = _module("cuda" if dr.backend_v(self.children) == dr.JitBackend.CUDA else "llvm")
+        leaves = dr.sum(dr.select((self.children & LEAF_BIT) != 0, m.UInt32(1), 0))
+        dr.eval(leaves)
+        small, leaves = _read_back([_summary_words(m, self.scene_box, self.area), leaves])
+        bounds, sah = _summary(small)
+        return int(leaves[0]), sah, bounds
+
+    def padded(self, extent: float):
+        """The node boxes the traversal reads for a scene of padding extent ``extent``
+        (``triangle.pad_extent``): the unpadded boxes grown by ``bvh_build.pad_boxes``'s
+        rule in float32 (the same operations as ``pad_refit`` on the host), infinite where
+        the build's own box is (an empty child); a Float of 12 per node, evaluated."""
+        m = _module("cuda" if dr.backend_v(self.raw) == dr.JitBackend.CUDA else "llvm")
+        Float, UInt32 = m.Float, m.UInt32
+        i = dr.arange(UInt32, dr.width(self.raw) // 6) * 6      # a child box each
+        lo = [dr.gather(Float, self.raw, i + a) for a in range(3)]
+        hi = [dr.gather(Float, self.raw, i + 3 + a) for a in range(3)]
+        real = dr.isfinite(dr.gather(Float, self.boxes, i))
+        u32 = float(32 * unit_roundoff(False))
+        out = dr.empty(Float, dr.width(self.raw))
+        for a in range(3):
+            e = (dr.maximum(abs(lo[a]), abs(hi[a])) + extent) * u32
+            dr.scatter(out, dr.select(real, lo[a] - e, dr.inf), i + a)
+            dr.scatter(out, dr.select(real, hi[a] + e, dr.inf), i + 3 + a)
+        dr.eval(out)
+        return out
+
+    def host(self) -> BVHArrays:
+        """The ``BVHArrays`` of this tree (copied back at the first call)."""
+        if self._host is None:
+            self._host = host_arrays(self.boxes, self.children, self.order, self.raw,
+                                     self.scene_box, self.area, self.levels)
+            self._host.build_seconds = self.build_seconds
+        return self._host
 
 
 def checked_input(vertices, faces, leaf_size: int) -> tuple:

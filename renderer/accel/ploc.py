@@ -61,6 +61,7 @@ import numpy as np
 from . import presplit
 from .bvh_build import C_TRAV, LEAF_SIZE, MAX_LEVELS, BVHArrays
 from .device_build import (
+    DeviceTree,
     _levels_needed,
     _module,
     _phase,
@@ -93,6 +94,12 @@ READ_EVERY = {"llvm": 1, "cuda": 8}
 #: CPU, whose iterations cost their kernels and whose arrays shrink every iteration
 #: (``lab/notes/device-build.md``). The same tree either way (``test_ploc_reference.py``).
 FREEZE = {"llvm": False, "cuda": True}
+#: With ``FREEZE``: how many blocks of ``READ_EVERY`` iterations run between the first,
+#: second, ... host read of the count (the last repeats). Each read waits for the device
+#: and narrows the arrays to the count it read: early on the count falls by about 8x per
+#: block, so narrowing pays; later the blocks run on a few thousand clusters, where a
+#: wider array costs less than a wait (``lab/notes/device-build.md``).
+READ_BLOCKS = {"llvm": (1,), "cuda": (1, 1, 2, 4)}
 #: Clusters per lane of the neighbour search, per backend (``_nearest_window``: each pair's
 #: area computed once, one box gather per cluster), or 0 for one lane per cluster
 #: (``_nearest``). The CPU backend's search costs its gathers; the GPU's costs little
@@ -304,8 +311,9 @@ def _block(m, radius: int, every: int, c, u, n, made_d, f_d):
     """``every`` clustering iterations at one width: each one's ``_pairs`` and ``_merge``
     over the clusters ``c``, compacted into ``u`` (arrays like ``c``), the two swapping
     roles after each iteration. Answers the clusters after the last iteration (``c`` or
-    ``u``, written in place) and the nodes made after each iteration (one-lane UInt32
-    each). Run through ``dr.freeze`` (``_BLOCK``): one recording replayed at every width."""
+    ``u``, written in place), the nodes made after each iteration (one-lane UInt32 each)
+    and the tallest cluster's height after the last (one-lane UInt32). Run through
+    ``dr.freeze`` (``_BLOCK``): one recording replayed at every width."""
     made = []
     for _ in range(every):
         best_j, ex, made_new = _pairs(m, radius, c[1], made_d, f_d)
@@ -313,7 +321,9 @@ def _block(m, radius: int, every: int, c, u, n, made_d, f_d):
         c, u = u, c
         made_d = made_new
         made.append(made_new)
-    return c, made
+    tallest = dr.max(c[3])
+    dr.eval(tallest)
+    return c, made, tallest
 
 
 #: (A block whose replay Dr.Jit's dry run rejects for new inputs is recorded again, at the
@@ -322,12 +332,18 @@ def _block(m, radius: int, every: int, c, u, n, made_d, f_d):
 _BLOCK = dr.freeze(_block, warn_after=1 << 30)
 
 
-def _cluster_blocks(m, slo, shi, radius: int, every: int, progress) -> Clusters:
+def _cluster_blocks(m, slo, shi, radius: int, every: int, progress,
+                    reads: tuple = (1,)) -> Clusters:
     """``_cluster`` (the same nodes, batches, stats and progress calls) with its
     ``every`` iterations between two host reads replayed as one recording (``_BLOCK``):
     the clusters are compacted within two arrays of one width, which the host narrows to
-    the count it read after each block (one gather kernel). For the GPU, whose
-    iterations cost their kernels' tracing and launches more than their work."""
+    the count it read after each read (one gather kernel). ``reads``: how many blocks run
+    between the first, second, ... read (the last repeats; ``READ_BLOCKS``): the blocks
+    between two reads run at the width of the last one, and one read brings every
+    block's counts and tallest height (``_cluster``'s height check after each block whose
+    last iteration is a multiple of ``HEIGHT_CHECK``, in order). For the GPU, whose
+    iterations cost their kernels' tracing and launches more than their work, and whose
+    reads cost a wait each."""
     Float, UInt32 = m.Float, m.UInt32
     F = dr.width(slo[0])
     n_in = F - 1
@@ -344,20 +360,26 @@ def _cluster_blocks(m, slo, shi, radius: int, every: int, progress) -> Clusters:
     batches, made, it = [], 0, 0
     bail = TALL * MAX_LEVELS
     log_f = math.log(F)
-    while True:
-        c, made_list = _BLOCK(m, radius, every, c, u, n, made_d, f_d)
-        for x in _read_back(made_list):
-            it += 1
-            now = int(x[0])
-            batches.append((made, now - made))
-            made = now
-            if progress is not None:
-                progress(round(MAX_LEVELS * (1.0 - math.log(max(F - made, 1)) / log_f)))
-            if F - made <= 1:
-                return Clusters(n[0], n[1], n[2], batches, it, False)
-        if it % HEIGHT_CHECK == 0 and int(dr.max(c[3])[0]) > bail:
-            return Clusters(n[0], n[1], n[2], batches, it, True)
-        made_d = made_list[-1]
+    for r in range(1 << 30):
+        pending = []                                   # (made after each, tallest) a block
+        for _ in range(reads[min(r, len(reads) - 1)]):
+            out, made_list, tallest = _BLOCK(m, radius, every, c, u, n, made_d, f_d)
+            c, u = (out, u) if every % 2 == 0 else (out, c)    # (written in place)
+            made_d = made_list[-1]
+            pending.append((made_list, tallest))
+        host = _read_back([x for ml, h in pending for x in (*ml, h)])
+        for b in range(len(pending)):
+            for x in host[b * (every + 1):b * (every + 1) + every]:
+                it += 1
+                now = int(x[0])
+                batches.append((made, now - made))
+                made = now
+                if progress is not None:
+                    progress(round(MAX_LEVELS * (1.0 - math.log(max(F - made, 1)) / log_f)))
+                if F - made <= 1:
+                    return Clusters(n[0], n[1], n[2], batches, it, False)
+            if it % HEIGHT_CHECK == 0 and int(host[b * (every + 1) + every][0]) > bail:
+                return Clusters(n[0], n[1], n[2], batches, it, True)
         w_next = max(F - made, 1)
         idx = dr.arange(UInt32, w_next)
         flat = [c[0], *c[1], c[2], c[3]]
@@ -366,10 +388,11 @@ def _cluster_blocks(m, slo, shi, radius: int, every: int, progress) -> Clusters:
         dr.eval(narrow, spare)
         c = (narrow[0], tuple(narrow[1:7]), narrow[7], narrow[8])
         u = (spare[0], tuple(spare[1:7]), spare[7], spare[8])
+    raise AssertionError("unreachable")
 
 
 def _cluster(m, slo, shi, radius: int, every: int, freeze: bool, progress,
-             window: int = 0) -> Clusters:
+             window: int = 0, reads: tuple = (1,)) -> Clusters:
     """Cluster the sorted triangles (boxes ``slo``, ``shi``: 3 Floats each) until one
     cluster is left (see the module docstring). The cluster count lives on the device (the
     nodes made so far, a one-lane array): each iteration compacts the clusters by a prefix
@@ -377,10 +400,11 @@ def _cluster(m, slo, shi, radius: int, every: int, freeze: bool, progress,
     host reads the nodes made every ``every`` iterations (a divisor of ``HEIGHT_CHECK``),
     with the tallest cluster's height every ``HEIGHT_CHECK``. ``progress`` as
     ``build_ploc``'s, called for each iteration at the next read. ``freeze``: the
-    iterations between two reads replay one recording (``_cluster_blocks``).
-    ``window``: ``WINDOW``'s run of clusters per search lane (0: one cluster)."""
+    iterations between two reads replay one recording (``_cluster_blocks``), ``reads``
+    (``READ_BLOCKS``) of them between two reads. ``window``: ``WINDOW``'s run of clusters
+    per search lane (0: one cluster)."""
     if freeze:
-        return _cluster_blocks(m, slo, shi, radius, every, progress)
+        return _cluster_blocks(m, slo, shi, radius, every, progress, reads)
     Float, UInt32 = m.Float, m.UInt32
     F = dr.width(slo[0])
     n_in = F - 1                                          # inner nodes of the full tree
@@ -469,7 +493,8 @@ def _positions(m, cl: Clusters):
 
 def build_ploc(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm", *,
                leaf_size: int = LEAF_SIZE, radius: int = RADIUS, cuts: bool = True,
-               progress=None, stats: dict | None = None) -> BVHArrays:
+               progress=None, stats: dict | None = None,
+               output: str = "host") -> BVHArrays | DeviceTree:
     """Build a BVH over ``faces`` (int (F, 3)) of ``vertices`` (float (V, 3)) on ``backend``
     ("cuda" or "llvm"; see the module docstring). ``leaf_size``: most triangles per leaf
     (1..16); ``radius``: the nearest-neighbour search radius (1..64); ``cuts``: False builds
@@ -486,9 +511,14 @@ def build_ploc(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm", *
     A scene of at most ``leaf_size`` triangles gets ``build_bvh``'s single-leaf tree.
     The tree carries its unpadded child boxes too (``BVHArrays.raw``, what
     ``bvh_build.raw_boxes`` computes on the host), so the traversal pads them for its ray
-    origins without a host refit."""
+    origins without a host refit. ``output``: "host" answers the ``BVHArrays``; "device"
+    leaves a tree of whole triangles on the device (a ``DeviceTree``, not copied back;
+    its ``build_seconds`` end when the device has it), and answers the ``BVHArrays``
+    only where the tree holds cut triangles, is the radix fallback or a single leaf."""
     if not 1 <= radius <= 64:
         raise ValueError(f"radius: expected 1..64, got {radius}")
+    if output not in ("host", "device"):
+        raise ValueError(f"output: expected 'host' or 'device', got {output!r}")
     m = _module(backend)
     t_start = time.perf_counter()
     Vn, Fn, small = checked_input(vertices, faces, leaf_size)
@@ -519,6 +549,13 @@ def build_ploc(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm", *
     del lo, hi
     info["cut"] = refs is not None
     # ---- the host arrays ---------------------------------------------------------------------
+    if output == "device" and refs is None and not isinstance(tree, BVHArrays):
+        out = DeviceTree(*tree)
+        dr.sync_thread()                 # the tree is there: the build's time ends
+        out.build_seconds = time.perf_counter() - t_start
+        if phases is not None:
+            _phase(phases, "host copy", t_phase)
+        return out
     arrays = tree if isinstance(tree, BVHArrays) else host_arrays(*tree)
     if refs is not None:                  # reference positions to faces, with their cells
         arrays.cells = (refs.cell_lo[arrays.order], refs.cell_hi[arrays.order])
@@ -579,7 +616,7 @@ def _device_tree(job: _Job, lo, hi, info: dict):
 
     # ---- 2. clustering -----------------------------------------------------------------------
     cl = _cluster(m, slo, shi, radius, READ_EVERY[backend], FREEZE[backend], progress,
-                  WINDOW[backend])
+                  WINDOW[backend], READ_BLOCKS[backend])
     n_ch, n_box, n_cnt, batches = cl.ch, cl.box, cl.cnt, cl.batches
     info["iterations"] = cl.iterations
     if phases is not None:
