@@ -85,3 +85,37 @@ def test_float64_is_refused():
     dev = build_ploc(sc.vertices, sc.faces, "llvm", cuts=False, output="device")
     with pytest.raises(ValueError, match="float32"):
         BVH.from_device_tree(sc, types("llvm", "float64"), dev)
+
+
+@pytest.mark.parametrize("background", [False, True])
+def test_render_path_takes_the_device_tree(tmp_path, monkeypatch, background):
+    """``Renderer`` with a PLOC tree and the binary BVH makes the accelerator from the
+    device tree (no ``host_layout`` on its path), draws the SAH tree's image, and leaves
+    a tree and a layout entry that a second renderer reads back into the same image."""
+    import renderer.accel.builders as builders
+    from renderer.accel.cache import TreeCache
+    from renderer.render import Renderer, RenderOptions
+    sc = load_scene(ROOT / "scenes" / "bunny.toml").with_size(48)
+    sah = Renderer(sc, RenderOptions(backend="llvm", accel="bvh"), build="sah").render()
+    made = []
+    real = BVH.from_device_tree.__func__
+    monkeypatch.setattr(BVH, "from_device_tree", classmethod(
+        lambda cls, *a, **k: made.append(1) or real(cls, *a, **k)))
+    for cache in (None, TreeCache(tmp_path / "cache", background=background)):
+        made.clear()
+        r = Renderer(sc, RenderOptions(backend="llvm", accel="bvh", cache=cache),
+                     build="device")
+        assert made == [1] and r.arrays.accel.info["tree_build"] == "device"
+        np.testing.assert_array_equal(r.render().image, sah.image)
+    cache.flush()
+    kinds = sorted(p.name.split("-")[0] for p in (tmp_path / "cache").iterdir())
+    assert kinds == ["layout", "tree"]
+    made.clear()
+    hit = Renderer(sc, RenderOptions(backend="llvm", accel="bvh", cache=cache),
+                   build="device")
+    assert made == [] and hit.arrays.accel.info["layout_cached"]
+    np.testing.assert_array_equal(hit.render().image, sah.image)
+    assert builders.on_device(builders.LayoutRequest("bvh", BVH, 2, "watertight"),
+                              types("llvm", "float32"))
+    assert not builders.on_device(builders.LayoutRequest("bvh", BVH, 2, "watertight"),
+                                  types("llvm", "float64"))

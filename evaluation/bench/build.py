@@ -10,7 +10,10 @@ Per scene (``SCENES``; quick: ``QUICK_SCENES``), in one process on the same tria
   ``ploc_nocut_*``: "auto"'s tree for a first image), all on the backend's Dr.Jit, from
   the host's vertex and face arrays to the host's ``BVHArrays`` (the triangles' upload
   and the tree's copy back
-  included, as Mitsuba's build below includes its mesh upload); the radix tree also with
+  included, as Mitsuba's build below includes its mesh upload); PLOC without cuts also
+  to the tree left on the device (``output="device"``, ``ploc_device_*``: the tree the
+  binary BVH's accelerator is made from, as Mitsuba's build leaves its structure on the
+  device: the upload included, no copy back); the radix tree also with
   ``raw=True`` (also copying back the unpadded boxes, what ``whitted render`` asks for so
   the traversal pads them without a host refit);
 - the host SAH build (``bvh_build.build_bvh``, one build): seconds, M triangles/s;
@@ -198,6 +201,9 @@ def build_row(ctx: Context, name: str, pycache: Path) -> dict:
     row["ploc_nocut_s"], whole = _median_build(lambda: build_ploc(
         scene.vertices, scene.faces, ctx.backend, cuts=False))
     row["ploc_nocut_mtris_s"] = F / row["ploc_nocut_s"] / 1e6
+    row["ploc_device_s"], _ = _median_build(lambda: build_ploc(
+        scene.vertices, scene.faces, ctx.backend, cuts=False, output="device"))
+    row["ploc_device_mtris_s"] = F / row["ploc_device_s"] / 1e6
     row["ploc_nocut_sah_cost"] = whole.sah_cost
     sah = build_bvh(scene.vertices, scene.faces)
     row["sah_s"] = sah.build_seconds
@@ -264,15 +270,17 @@ def markdown(rows: list[dict]) -> list[str]:
               _get(r, "ploc_mtris_s", ".2f"),
               ("yes" if r["ploc_cut"] else "no") if "ploc_cut" in r else "-",
               _get(r, "ploc_nocut_s", ".3f"), _get(r, "ploc_nocut_mtris_s", ".2f"),
+              _get(r, "ploc_device_s", ".4f"), _get(r, "ploc_device_mtris_s", ".1f"),
               f"{r['sah_s']:.2f}", f"{r['sah_mtris_s']:.3f}",
               f"{r['mitsuba_build_s']:.3f} / {r['mitsuba_build_again_s']:.3f}",
               f"{r['mitsuba_mtris_s']:.2f}", f"{r['load_avg_1min']:.1f}"] for r in rows]
     out = table("Build: device (Dr.Jit: radix, PLOC) vs host SAH vs Mitsuba's scene build, "
                 "one process",
                 ["scene", "triangles", "radix s", "radix M/s", "radix + raw boxes s", "PLOC s",
-                 "PLOC M/s", "PLOC cut", "PLOC no cuts s", "PLOC no cuts M/s", "SAH s",
+                 "PLOC M/s", "PLOC cut", "PLOC no cuts s", "PLOC no cuts M/s",
+                 "PLOC no cuts, on device s", "on device M/s", "SAH s",
                  "SAH M/s", "Mitsuba s (1st / 2nd)", "Mitsuba M/s", "load avg"],
-                "lrrrrrrlrrrrrrr", cells)
+                "lrrrrrrlrrrrrrrrr", cells)
     names = list(rows[0].get("device_phases_s", {})) if rows else []
     cells = [[r["scene"]] + [f"{1e3 * r['device_phases_s'].get(n, 0.0):.1f}" for n in names]
              for r in rows if r.get("device_phases_s")]

@@ -1,8 +1,9 @@
 """Where a CUDA PLOC build (``build_ploc(cuts=False)``, ``auto``'s first-image tree) of a large
 scene spends its time outside the kernels: the host's input check, the vertex/face upload,
-the tree's copy back to the host, against the same build left on the device; kernels per
-build and their summed device time (``dr.kernel_history``); the clustering with the count
-read every 8 and every 16 iterations; Mitsuba's scene build (OptiX) on the same triangles.
+the tree's copy back to the host, against the same build left on the device
+(``output="device"``); kernels per build and their summed device time
+(``dr.kernel_history``); the device build with several schedules of count reads
+(``ploc.READ_BLOCKS``); Mitsuba's scene build (OptiX) on the same triangles.
 Medians of ``--repeats`` after two warm-up builds, ``dr.sync_thread`` around each. Usage:
 
     python lab/probes/device_tree.py --backend cuda [--repeats 9] [--out DIR] SCENE...
@@ -45,61 +46,54 @@ def med(fn, n=args.repeats):
     return round(statistics.median(ts) * 1e3, 3), round(min(ts) * 1e3, 3)
 
 
-def device_only(V, F):
-    Vn, Fn, _ = db.checked_input(V, F, 2)
-    job = ploc._Job(m, Vn, Fn, 2, ploc.RADIUS, None, None, [0.0])
-    lo, hi = db.triangle_boxes(m, Vn, Fn)
-    tree = ploc._device_tree(job, lo, hi, {})
-    dr.eval(tree[0], tree[1], tree[2], tree[3])
-    return tree
-
-
 def upload(V, F):
     v = m.Float(np.ascontiguousarray(V, np.float32).reshape(-1))
     f = m.UInt32(np.ascontiguousarray(F).reshape(-1).view(np.uint32))
     dr.eval(v, f)
 
 
-rows = []
-for name in args.scenes:
+def probe(name: str) -> dict:
     scene = load_scene(ROOT / "scenes" / f"{name}.toml")
     V, F = scene.vertices, scene.faces
     row = {"scene": name, "triangles": int(F.shape[0]), "load": os.getloadavg()[0]}
+    host = lambda: ploc.build_ploc(V, F, args.backend, cuts=False)  # noqa: E731
+    dev = lambda: ploc.build_ploc(V, F, args.backend, cuts=False,  # noqa: E731
+                                  output="device")
     for _ in range(2):
-        ploc.build_ploc(V, F, args.backend, cuts=False)
-        device_only(V, F)
-    row["full_ms"] = med(lambda: ploc.build_ploc(V, F, args.backend, cuts=False))
-    row["device_ms"] = med(lambda: device_only(V, F))
+        host()
+        dev()
+    variants = {"host": host, "device": dev}
+    schedules = {"reads 1": (1,), "reads 1,1,2,4": (1, 1, 2, 4), "reads 1,2,4,8": (1, 2, 4, 8),
+                 "reads 1,1,1,2": (1, 1, 1, 2)}
+    keep = ploc.READ_BLOCKS[args.backend]
+    for tag, sched in schedules.items():
+        ploc.READ_BLOCKS[args.backend] = sched
+        dev()
+        row[f"device_{tag}_ms"] = med(dev)
+    ploc.READ_BLOCKS[args.backend] = keep
+    for tag, fn in variants.items():          # the kept schedule, last: the bench's view
+        row[f"{tag}_ms"] = med(fn)
+    row["build_seconds_device_ms"] = statistics.median(dev().build_seconds * 1e3
+                                                       for _ in range(args.repeats))
     row["checked_input_ms"] = med(lambda: db.checked_input(V, F, 2))
     row["upload_ms"] = med(lambda: upload(V, F))
     Vn, Fn, _ = db.checked_input(V, F, 2)
     row["boxes_ms"] = med(lambda: db.triangle_boxes(m, Vn, Fn))
-    tree = device_only(V, F)
-    row["host_copy_ms"] = med(lambda: db.host_arrays(*tree))
-    row["bytes_back"] = sum(dr.width(x) * 4 for x in tree[:4])
+    tree = dev()
+    row["host_copy_ms"] = med(lambda: db.host_arrays(tree.boxes, tree.children, tree.order,
+                                                     tree.raw, tree.scene_box, tree.area,
+                                                     tree.levels))
     dr.set_flag(dr.JitFlag.KernelHistory, True)
     dr.kernel_history()
-    device_only(V, F)
+    dev()
     dr.sync_thread()
     hist = dr.kernel_history()
     dr.set_flag(dr.JitFlag.KernelHistory, False)
     row["kernels"] = len(hist)
     row["kernel_ms"] = round(sum(h.get("execution_time", 0.0) for h in hist), 3)
-    row["kernel_types"] = {}
-    for h in hist:
-        k = str(h.get("type"))
-        row["kernel_types"][k] = row["kernel_types"].get(k, 0) + 1
     stats = {}
     ploc.build_ploc(V, F, args.backend, cuts=False, stats=stats)
     row["iterations"] = stats.get("iterations")
-    old = dict(ploc.READ_EVERY), ploc.HEIGHT_CHECK
-    ploc.READ_EVERY["cuda"], ploc.HEIGHT_CHECK = 16, 16
-    device_only(V, F)
-    device_only(V, F)
-    row["device_read16_ms"] = med(lambda: device_only(V, F))
-    ploc.READ_EVERY.update(old[0])
-    ploc.HEIGHT_CHECK = old[1]
-    row["device_again_ms"] = med(lambda: device_only(V, F))
     if args.mitsuba:
         from evaluation.bench.build import _mitsuba_build
         from reference import mitsuba_variant
@@ -107,8 +101,10 @@ for name in args.scenes:
         _mitsuba_build(scene)
         row["mitsuba_ms"] = sorted(round(_mitsuba_build(scene) * 1e3, 3) for _ in range(5))
     print(json.dumps(row), flush=True)
-    rows.append(row)
+    return row
 
+
+rows = [probe(name) for name in args.scenes]
 if args.out:
     Path(args.out).mkdir(parents=True, exist_ok=True)
     (Path(args.out) / f"device_tree-{args.backend}.json").write_text(json.dumps(rows, indent=1))

@@ -38,7 +38,7 @@ import numpy as np
 from ..scene.model import TREE_BUILDS, any_smooth, layout_inputs, triangles_digest
 from .bvh_build import LEAF_SIZE, BVHArrays, build_bvh, raw_boxes
 from .cache import CacheWarning, TreeCache, code_version, content_key
-from .device_build import build_device
+from .device_build import DeviceTree, build_device
 from .layout import COUNT_SHIFT, DONE, FIRST_MASK, LEAF_BIT, MAX_LEAF
 from .ploc import build_ploc
 from .triangle import STRIDE, pad_extent, permuted, triangle_arrays
@@ -111,12 +111,14 @@ def tree_key(scene, build: str, leaf_size: int = LEAF_SIZE, triangles: str | Non
 
 def binary_tree(scene, backend: str, *, build: str = "sah", cache: TreeCache | None = None,
                 frames: int | None = None, leaf_size: int = LEAF_SIZE, progress=None,
-                triangles: str | None = None) -> tuple[BVHArrays, TreeInfo]:
+                triangles: str | None = None,
+                device: bool = False) -> tuple[BVHArrays | DeviceTree, TreeInfo]:
     """``scene``'s binary tree from ``build`` (a value of ``BUILDS``) on ``backend``,
     through ``cache`` (None: no cache). ``frames``: how many frames the caller renders
     (None: unknown), for "auto". ``progress(build, levels_done)``: None, or called after
     each level of the build that runs (at most ``MAX_LEVELS``). ``triangles``:
-    ``triangles_key(scene)`` where the caller has it."""
+    ``triangles_key(scene)`` where the caller has it. ``device``: a tree PLOC builds may
+    stay on the device (a ``DeviceTree``, copied back only for the cache entry)."""
     check_build(build)
     t0 = time.perf_counter()
     keys = {}
@@ -141,7 +143,8 @@ def binary_tree(scene, backend: str, *, build: str = "sah", cache: TreeCache | N
     how = builder(chosen)
     if how == "ploc":
         a = build_ploc(scene.vertices, scene.faces, backend, leaf_size=leaf_size, cuts=cuts,
-                       progress=progress and (lambda k: progress(chosen, k)))
+                       progress=progress and (lambda k: progress(chosen, k)),
+                       output="device" if device else "host")
     elif how == "radix":
         a = build_device(scene.vertices, scene.faces, backend, leaf_size=leaf_size,
                          progress=progress and (lambda k: progress(chosen, k)), raw=True)
@@ -150,9 +153,11 @@ def binary_tree(scene, backend: str, *, build: str = "sah", cache: TreeCache | N
                       progress=progress and (lambda k: progress("sah", k)))
     seconds = time.perf_counter() - t0
     if cache is not None:
-        a = with_raw(a, scene)
+        h = with_raw(a.host() if isinstance(a, DeviceTree) else a, scene)
         cache.put("tree", keys.get(chosen) or tree_key(scene, chosen, leaf_size, tri, cuts),
-                  *_to_entry(a))
+                  *_to_entry(h))
+        if not isinstance(a, DeviceTree):
+            a = h
     return a, TreeInfo(chosen, False, seconds)
 
 
@@ -341,8 +346,11 @@ def tree_accelerator(scene, t, req: LayoutRequest, build_request) -> object:
         t.backend == "cuda" and scene.face_count >= OVERLAP_MIN_TRIANGLES) else None
     tree, how = binary_tree(scene, t.backend, build=build, cache=cache,
                             frames=build_request.frames, progress=build_request.progress,
-                            triangles=tri)
+                            triangles=tri, device=on_device(req, t))
     t1 = time.perf_counter()
+    if isinstance(tree, DeviceTree):
+        return _from_device_tree(scene, t, req, tree, how, packing, cache,
+                                 (tri, extent, build != "auto"), t1)
     kw = {} if req.width == 2 else {"width": req.width}
     tris = permuted(packing.result(), tree.order) if packing is not None else None
     arrays, info = req.cls.host_layout(scene, t, tree, intersection=req.intersection,
@@ -356,6 +364,41 @@ def tree_accelerator(scene, t, req: LayoutRequest, build_request) -> object:
     acc.info["upload_seconds"] = time.perf_counter() - t1
     acc.info.update(tree_build=how.build, tree_cached=how.cached, tree_seconds=how.seconds,
                     layout_cached=False, layout_seconds=t2 - t1)
+    return acc
+
+
+def on_device(req: LayoutRequest, t) -> bool:
+    """Whether ``tree_accelerator`` makes ``req``'s accelerator from a tree left on the
+    device (``device_build.DeviceTree``): the binary BVH in float32 (the wide layouts are
+    collapsed on the host; float64 boxes are refitted there)."""
+    return req.width == 2 and not t.is_double and hasattr(req.cls, "from_device_tree")
+
+
+def _from_device_tree(scene, t, req: LayoutRequest, tree: DeviceTree, how: TreeInfo,
+                      packing, cache, key_parts: tuple, t1: float):
+    """``tree_accelerator``'s accelerator from a tree on the device (``req.cls.
+    from_device_tree``: the tree is not copied back for it). With a cache, the layout
+    entry is the host layout of the tree's copy (``DeviceTree.host``, which the tree
+    entry already read), made and written on the cache's writer thread."""
+    tri, extent, cuts = key_parts
+    tris = packing.result() if packing is not None else None
+    acc = req.cls.from_device_tree(scene, t, tree, intersection=req.intersection,
+                                   extent=extent, triangles=tris)
+    t2 = time.perf_counter()
+    if cache is not None:
+        key = layout_key(scene, tree_key(scene, how.build, LEAF_SIZE, tri, cuts), req, t,
+                         extent)
+        h = tree.host()
+
+        def entry():
+            arrays, info = req.cls.host_layout(
+                scene, t, h, intersection=req.intersection, extent=extent,
+                triangles=permuted(tris, h.order) if tris is not None else None)
+            return arrays, {"info": info}
+        cache.put_made("layout", key, entry)
+    acc.info["upload_seconds"] = t2 - t1
+    acc.info.update(tree_build=how.build, tree_cached=how.cached, tree_seconds=how.seconds,
+                    layout_cached=False, layout_seconds=0.0)
     return acc
 
 

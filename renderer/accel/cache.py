@@ -224,6 +224,18 @@ class TreeCache:
             return True
         return self._write(kind, key, arrays, meta)
 
+    def put_made(self, kind: str, key: str, make) -> bool:
+        """``put`` of the entry ``make()`` answers (``(arrays, meta)``): with
+        ``background``, ``make`` runs on the writer thread too, so host work that only the
+        entry needs stays off the caller's path (it must not use Dr.Jit)."""
+        if self.background:
+            th = threading.Thread(target=lambda: self._write(kind, key, *make()),
+                                  name=f"cache {kind}")
+            th.start()
+            self._pending.append(th)
+            return True
+        return self._write(kind, key, *make())
+
     def flush(self) -> None:
         """Wait for the writes ``put`` handed to threads (``background``)."""
         while self._pending:

@@ -34,6 +34,7 @@ from dataclasses import dataclass, field
 import drjit as dr
 import numpy as np
 
+from .. import parallel
 from ..device import host_array
 from .bvh_build import C_TRAV, LEAF_SIZE, MAX_LEVELS, BVHArrays, build_bvh
 from .traverse import COUNT_SHIFT, LEAF_BIT, MAX_LEAF
@@ -263,6 +264,20 @@ class DeviceTree:
         return self._host
 
 
+def _indices_within(Fn: np.ndarray, V: int) -> bool:
+    """Whether every index of ``Fn`` lies in ``[0, V)``: the rows' minimum and maximum
+    over spans on the host threads (``renderer.parallel``)."""
+    flat = Fn.reshape(-1) if Fn.flags.c_contiguous else np.ascontiguousarray(Fn).reshape(-1)
+    bad = []
+
+    def span(lo, hi):
+        part = flat[lo:hi]
+        if int(part.min()) < 0 or int(part.max()) >= V:
+            bad.append((lo, hi))
+    parallel.for_spans(flat.size, span)
+    return not bad
+
+
 def checked_input(vertices, faces, leaf_size: int) -> tuple:
     """What a device builder starts from: ``(Vn, Fn, small)``, the vertices as contiguous
     float32 and the faces as given; ``small`` is ``build_bvh``'s single-leaf tree for a
@@ -279,7 +294,7 @@ def checked_input(vertices, faces, leaf_size: int) -> tuple:
     if F <= leaf_size:
         return Vn, Fn, build_bvh(Vn, Fn.astype(np.int64), leaf_size=leaf_size, spatial=0.0,
                                  optimize=0)
-    if Fn.size and (int(Fn.min()) < 0 or int(Fn.max()) >= Vn.shape[0]):
+    if Fn.size and not _indices_within(Fn, Vn.shape[0]):
         raise ValueError(f"faces: indices must lie in [0, {Vn.shape[0]})")
     if MAX_LEVELS < math.ceil(math.log2(math.ceil(F / leaf_size))) + 1:
         raise ValueError(f"faces: {F} triangles need more than {MAX_LEVELS} BVH levels")
