@@ -61,6 +61,21 @@ def test_throughput_rows_are_the_stored_tables_best_over_mitsuba():
     assert gpu.device == "NVIDIA H200" and "49 of 49 rows ≥ 1.5×" in gpu.result
 
 
+def test_build_rows_are_the_stored_tables_device_build_against_mitsuba():
+    for path, name in (("h200/build/bench-cuda.json", "BVH build, GPU"),
+                       ("cpu/build/bench-llvm.json", "BVH build, CPU")):
+        r = row(name)
+        assert r.file == path and r.kind == "build"
+        ours = md_column((RESULTS / path).with_suffix(".md"), "on device M/s")
+        theirs = {cells[0]: v for cells, v in
+                  md_column((RESULTS / path).with_suffix(".md"), "Mitsuba M/s")}
+        assert len(ours) == 4
+        cell = rt.read_row(r, RESULTS)
+        for cells, rate in ours:
+            assert f"{cells[0]} {rate} vs {theirs[cells[0]]}" in cell.result, cell.result
+        assert "4 scenes" in cell.conditions
+
+
 def test_peer_row_is_the_stored_tables_frame_ratio_at_depth_2():
     rows = md_column(RESULTS / "h200/peer/bench-cuda.md", "ours faster (frame)")
     frame = [float(c.rstrip("×")) for cells, c in rows if cells[1] == "2" and cells[2] == "1024²"]

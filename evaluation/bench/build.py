@@ -270,7 +270,7 @@ def markdown(rows: list[dict]) -> list[str]:
               _get(r, "ploc_mtris_s", ".2f"),
               ("yes" if r["ploc_cut"] else "no") if "ploc_cut" in r else "-",
               _get(r, "ploc_nocut_s", ".3f"), _get(r, "ploc_nocut_mtris_s", ".2f"),
-              _get(r, "ploc_device_s", ".4f"), _get(r, "ploc_device_mtris_s", ".1f"),
+              _get(r, "ploc_device_s", ".4f"), _get(r, "ploc_device_mtris_s", ".2f"),
               f"{r['sah_s']:.2f}", f"{r['sah_mtris_s']:.3f}",
               f"{r['mitsuba_build_s']:.3f} / {r['mitsuba_build_again_s']:.3f}",
               f"{r['mitsuba_mtris_s']:.2f}", f"{r['load_avg_1min']:.1f}"] for r in rows]

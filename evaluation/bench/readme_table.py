@@ -155,9 +155,28 @@ def read_first_image(result: dict) -> Cell:
                 result["device"].get("device", "?"), _date(result))
 
 
+def read_build(result: dict) -> Cell:
+    """The ``build`` part's PLOC build without cuts to the tree left on the device (what the
+    render path makes the binary BVH from), against Mitsuba's own scene build on the same
+    triangles in the same process (its second build), in M triangles/s per scene, largest
+    first."""
+    rows = sorted((r for r in result["build"] if r.get("ploc_device_mtris_s") is not None),
+                  key=lambda r: -r["triangles"])
+    if not rows:
+        raise KeyError("ploc_device_mtris_s")
+    text = "; ".join(f"{r['scene']} {r['ploc_device_mtris_s']:.2f} vs "
+                     f"{r['mitsuba_mtris_s']:.2f}" for r in rows)
+    return Cell(f"M triangles/s, ours vs its: {text}",
+                f"{len(rows)} scenes ({rows[-1]['triangles']:,}–{rows[0]['triangles']:,} "
+                "triangles), PLOC without cuts, from host arrays to a tree on the device, "
+                "upload included, median of 5 builds", result["device"].get("device", "?"),
+                _date(result))
+
+
 #: How a row's file is read, by the row's ``kind``.
 READERS: dict[str, Callable[[dict], Cell]] = {"throughput": read_throughput, "peer": read_peer,
-                                              "first_image": read_first_image}
+                                              "first_image": read_first_image,
+                                              "build": read_build}
 
 #: The rows' file inside the results folder.
 ROWS_FILE = "readme_table.toml"

@@ -239,7 +239,7 @@ def _nearest_window(m, c_box, k, radius: int, block: int):
     return out
 
 
-def _pairs(m, radius: int, c_box, made_d, f_d, block: int = 0):
+def _pairs(m, radius: int, c_box, made_d, f_d, block: int = 0, count: bool = True):
     """The first half of a clustering iteration over the clusters with boxes ``c_box`` (6
     Floats), lanes past the count ``f_d - made_d`` idle (``made_d``: the nodes made so
     far, ``f_d``: the triangles, one-lane UInt32 each): each cluster's nearest neighbour
@@ -259,6 +259,9 @@ def _pairs(m, radius: int, c_box, made_d, f_d, block: int = 0):
     flags = (UInt64(dr.select(merge, UInt32(1), 0)) << 32) | UInt64(dr.select(gone,
                                                                              UInt32(1), 0))
     ex = dr.prefix_reduce(dr.ReduceOp.Add, flags, exclusive=True)
+    if not count:                           # (``_merge`` counts: one kernel less)
+        dr.eval(best_j, ex)
+        return best_j, ex, None
     last = f_d - made_d - 1                 # the last cluster's lane: the scan's total
     made_new = made_d + UInt32((dr.gather(UInt64, ex, last) + dr.gather(UInt64, flags, last))
                                >> 32)
@@ -266,13 +269,16 @@ def _pairs(m, radius: int, c_box, made_d, f_d, block: int = 0):
     return best_j, ex, made_new
 
 
-def _merge(m, c, pair, made_d, f_d, n, t):
+def _merge(m, c, pair, made_d, f_d, n, t, count: bool = False):
     """The second half of a clustering iteration: the mutual pairs of ``pair`` = (best_j,
     ex) (``_pairs``) among the clusters ``c`` = (references, 6 boxes, counts, heights)
     merge into new nodes, scattered into ``n`` = (2 child references, 6 boxes, counts)
     from node ``made_d`` on, and the clusters that stay (the merged ones at the lower lane
     of their pair) are compacted into ``t`` (arrays like ``c``, at least as wide as the
-    clusters left), one kernel for both."""
+    clusters left), one kernel for both. ``count``: the same kernel also answers the nodes
+    made after the iteration (a one-lane UInt32, written by the last cluster's lane: the
+    node number a merge there would take), which ``_pairs(count=False)`` left out; else
+    None."""
     Float, UInt32 = m.Float, m.UInt32
     c_ref, c_box, c_cnt, c_h = c
     n_ch, n_box, n_cnt = n
@@ -304,7 +310,12 @@ def _merge(m, c, pair, made_d, f_d, n, t):
         dr.scatter(t_box[x], dr.select(merge, u_box[x], c_box[x]), pos, keep)
     dr.scatter(t_cnt, dr.select(merge, u_cnt, c_cnt), pos, keep)
     dr.scatter(t_h, dr.select(merge, dr.maximum(c_h, o_h) + 1, c_h), pos, keep)
-    dr.eval(n_ch, n_box, n_cnt, t)
+    made_new = None
+    if count:
+        made_new = dr.empty(UInt32, 1)      # (the last cluster never merges as the lower)
+        dr.scatter(made_new, node, i & 0, i + 1 == k)
+    dr.eval(n_ch, n_box, n_cnt, t, made_new)
+    return made_new
 
 
 def _block(m, radius: int, every: int, c, u, n, made_d, f_d):
@@ -316,8 +327,8 @@ def _block(m, radius: int, every: int, c, u, n, made_d, f_d):
     ``dr.freeze`` (``_BLOCK``): one recording replayed at every width."""
     made = []
     for _ in range(every):
-        best_j, ex, made_new = _pairs(m, radius, c[1], made_d, f_d)
-        _merge(m, c, (best_j, ex), made_d, f_d, n, u)
+        best_j, ex, _ = _pairs(m, radius, c[1], made_d, f_d, count=False)
+        made_new = _merge(m, c, (best_j, ex), made_d, f_d, n, u, count=True)
         c, u = u, c
         made_d = made_new
         made.append(made_new)
