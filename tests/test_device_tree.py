@@ -1,4 +1,4 @@
-"""A tree left on the device by its builder (``ploc.build_ploc(output="device")``, a
+"""A tree left on the device by its builder (``ploc.build_ploc_device``, a
 ``device_build.DeviceTree``) is the tree the host build answers, and the accelerator made
 from it on the device (``BVH.from_device_tree``) holds the arrays the host path uploads
 (``BVH.host_layout`` of the copied-back tree, then ``from_layout``), bit for bit, with and
@@ -15,7 +15,7 @@ from accel_util import soup
 import renderer.accel.bvh as bvh_mod
 from renderer.accel import BVH
 from renderer.accel.device_build import DeviceTree
-from renderer.accel.ploc import build_ploc
+from renderer.accel.ploc import build_ploc, build_ploc_device
 from renderer.device import types
 from renderer.scene import load_scene
 
@@ -33,7 +33,7 @@ def _same(x, y, what):
 def test_device_output_is_the_host_tree(backend, name):
     sc = load_scene(ROOT / "scenes" / f"{name}.toml")
     host = build_ploc(sc.vertices, sc.faces, backend, cuts=False)
-    dev = build_ploc(sc.vertices, sc.faces, backend, cuts=False, output="device")
+    dev = build_ploc_device(sc.vertices, sc.faces, backend, cuts=False)
     assert isinstance(dev, DeviceTree) and dev.build_seconds > 0
     leaves, sah, bounds = dev.summary()          # before any copy back
     back = dev.host()
@@ -47,9 +47,9 @@ def test_device_output_is_the_host_tree(backend, name):
 
 def test_device_output_falls_back_to_host_arrays():
     V, faces = soup(2, seed=1)                   # a single leaf: the host's tree
-    assert not isinstance(build_ploc(V, faces, "llvm", output="device"), DeviceTree)
-    with pytest.raises(ValueError, match="output"):
-        build_ploc(V, faces, "llvm", output="gpu")
+    assert not isinstance(build_ploc_device(V, faces, "llvm"), DeviceTree)
+    with pytest.raises(TypeError):
+        build_ploc_device(V, faces, "llvm", output="gpu")
 
 
 @pytest.mark.parametrize("pairs", [True, False])
@@ -63,7 +63,7 @@ def test_accelerator_from_the_device_tree_is_the_host_layouts(monkeypatch, backe
     monkeypatch.setattr(base, "uses_pairs", lambda t: pairs)
     sc = load_scene(ROOT / "scenes" / f"{name}.toml")
     t = types(backend, "float32")
-    dev = build_ploc(sc.vertices, sc.faces, backend, cuts=False, output="device")
+    dev = build_ploc_device(sc.vertices, sc.faces, backend, cuts=False)
     acc = BVH.from_device_tree(sc, t, dev)
     arrays, info = BVH.host_layout(sc, t, dev.host())
     ref = BVH.from_layout(t, arrays, info)
@@ -82,7 +82,7 @@ def test_accelerator_from_the_device_tree_is_the_host_layouts(monkeypatch, backe
 
 def test_float64_is_refused():
     sc = load_scene(ROOT / "scenes" / "bunny.toml")
-    dev = build_ploc(sc.vertices, sc.faces, "llvm", cuts=False, output="device")
+    dev = build_ploc_device(sc.vertices, sc.faces, "llvm", cuts=False)
     with pytest.raises(ValueError, match="float32"):
         BVH.from_device_tree(sc, types("llvm", "float64"), dev)
 

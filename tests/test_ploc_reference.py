@@ -30,9 +30,9 @@ POSITIONS = ploc._positions               # and the triangle order
 _REFERENCE = {}                           # case -> the reference build
 
 
-def _cluster_reference(m, slo, shi, radius, every, freeze, progress, window=0, reads=(1,)):
-    """The clustering loop of ``build_ploc`` before the device-side count (``every``,
-    ``freeze`` and ``reads`` unused): one ``dr.compress`` count read per iteration."""
+def _cluster_reference(m, slo, shi, radius, progress, backend):
+    """The clustering loop of ``build_ploc`` before the device-side count (the backend's
+    schedule unused): one ``dr.compress`` count read per iteration."""
     Float, UInt32 = m.Float, m.UInt32
     F = dr.width(slo[0])
     n_in = F - 1

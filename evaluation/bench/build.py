@@ -11,7 +11,7 @@ Per scene (``SCENES``; quick: ``QUICK_SCENES``), in one process on the same tria
   the host's vertex and face arrays to the host's ``BVHArrays`` (the triangles' upload
   and the tree's copy back
   included, as Mitsuba's build below includes its mesh upload); PLOC without cuts also
-  to the tree left on the device (``output="device"``, ``ploc_device_*``: the tree the
+  to the tree left on the device (``build_ploc_device``, ``ploc_device_*``: the tree the
   binary BVH's accelerator is made from, as Mitsuba's build leaves its structure on the
   device: the upload included, no copy back); the radix tree also with
   ``raw=True`` (also copying back the unpadded boxes, what ``whitted render`` asks for so
@@ -170,7 +170,7 @@ def build_row(ctx: Context, name: str, pycache: Path) -> dict:
     from reference import mitsuba_variant
     from renderer.accel.bvh_build import build_bvh
     from renderer.accel.device_build import build_device
-    from renderer.accel.ploc import build_ploc
+    from renderer.accel.ploc import build_ploc, build_ploc_device
 
     from .frames import interleaved_frame_ms
     row = {"scene": name, "load_avg_1min": os.getloadavg()[0]}
@@ -201,8 +201,8 @@ def build_row(ctx: Context, name: str, pycache: Path) -> dict:
     row["ploc_nocut_s"], whole = _median_build(lambda: build_ploc(
         scene.vertices, scene.faces, ctx.backend, cuts=False))
     row["ploc_nocut_mtris_s"] = F / row["ploc_nocut_s"] / 1e6
-    row["ploc_device_s"], _ = _median_build(lambda: build_ploc(
-        scene.vertices, scene.faces, ctx.backend, cuts=False, output="device"))
+    row["ploc_device_s"], _ = _median_build(lambda: build_ploc_device(
+        scene.vertices, scene.faces, ctx.backend, cuts=False))
     row["ploc_device_mtris_s"] = F / row["ploc_device_s"] / 1e6
     row["ploc_nocut_sah_cost"] = whole.sah_cost
     sah = build_bvh(scene.vertices, scene.faces)

@@ -1,7 +1,7 @@
 """Where a CUDA PLOC build (``build_ploc(cuts=False)``, ``auto``'s first-image tree) of a large
 scene spends its time outside the kernels: the host's input check, the vertex/face upload,
 the tree's copy back to the host, against the same build left on the device
-(``output="device"``); kernels per build and their summed device time
+(``build_ploc_device``); kernels per build and their summed device time
 (``dr.kernel_history``); the device build with several schedules of count reads
 (``ploc.READ_BLOCKS``); Mitsuba's scene build (OptiX) on the same triangles.
 Medians of ``--repeats`` after two warm-up builds, ``dr.sync_thread`` around each. Usage:
@@ -57,8 +57,7 @@ def probe(name: str) -> dict:
     V, F = scene.vertices, scene.faces
     row = {"scene": name, "triangles": int(F.shape[0]), "load": os.getloadavg()[0]}
     host = lambda: ploc.build_ploc(V, F, args.backend, cuts=False)  # noqa: E731
-    dev = lambda: ploc.build_ploc(V, F, args.backend, cuts=False,  # noqa: E731
-                                  output="device")
+    dev = lambda: ploc.build_ploc_device(V, F, args.backend, cuts=False)  # noqa: E731
     for _ in range(2):
         host()
         dev()

@@ -40,7 +40,7 @@ from .bvh_build import LEAF_SIZE, BVHArrays, build_bvh, raw_boxes
 from .cache import CacheWarning, TreeCache, code_version, content_key
 from .device_build import DeviceTree, build_device
 from .layout import COUNT_SHIFT, DONE, FIRST_MASK, LEAF_BIT, MAX_LEAF
-from .ploc import build_ploc
+from .ploc import build_ploc, build_ploc_device
 from .triangle import STRIDE, pad_extent, permuted, triangle_arrays
 from .wide import record_words
 
@@ -110,17 +110,18 @@ def tree_key(scene, build: str, leaf_size: int = LEAF_SIZE, triangles: str | Non
 
 
 def binary_tree(scene, backend: str, *, build: str = "sah", cache: TreeCache | None = None,
-                frames: int | None = None, leaf_size: int = LEAF_SIZE, progress=None,
-                triangles: str | None = None,
+                frames: int | None = None, progress=None, triangles: str | None = None,
                 device: bool = False) -> tuple[BVHArrays | DeviceTree, TreeInfo]:
-    """``scene``'s binary tree from ``build`` (a value of ``BUILDS``) on ``backend``,
-    through ``cache`` (None: no cache). ``frames``: how many frames the caller renders
+    """``scene``'s binary tree from ``build`` (a value of ``BUILDS``) on ``backend``, of
+    the accelerators' leaf size (``LEAF_SIZE``), through ``cache`` (None: no cache).
+    ``frames``: how many frames the caller renders
     (None: unknown), for "auto". ``progress(build, levels_done)``: None, or called after
     each level of the build that runs (at most ``MAX_LEVELS``). ``triangles``:
     ``triangles_key(scene)`` where the caller has it. ``device``: a tree PLOC builds may
     stay on the device (a ``DeviceTree``, copied back only for the cache entry)."""
     check_build(build)
     t0 = time.perf_counter()
+    leaf_size = LEAF_SIZE
     keys = {}
     tri = (triangles or triangles_key(scene)) if cache is not None else None
     if cache is not None:
@@ -142,9 +143,9 @@ def binary_tree(scene, backend: str, *, build: str = "sah", cache: TreeCache | N
                 return a, TreeInfo(chosen, True, time.perf_counter() - t0)
     how = builder(chosen)
     if how == "ploc":
-        a = build_ploc(scene.vertices, scene.faces, backend, leaf_size=leaf_size, cuts=cuts,
-                       progress=progress and (lambda k: progress(chosen, k)),
-                       output="device" if device else "host")
+        a = (build_ploc_device if device else build_ploc)(
+            scene.vertices, scene.faces, backend, leaf_size=leaf_size, cuts=cuts,
+            progress=progress and (lambda k: progress(chosen, k)))
     elif how == "radix":
         a = build_device(scene.vertices, scene.faces, backend, leaf_size=leaf_size,
                          progress=progress and (lambda k: progress(chosen, k)), raw=True)
@@ -350,7 +351,7 @@ def tree_accelerator(scene, t, req: LayoutRequest, build_request) -> object:
     t1 = time.perf_counter()
     if isinstance(tree, DeviceTree):
         return _from_device_tree(scene, t, req, tree, how, packing, cache,
-                                 (tri, extent, build != "auto"), t1)
+                                 (tri, extent, build != "auto"))
     kw = {} if req.width == 2 else {"width": req.width}
     tris = permuted(packing.result(), tree.order) if packing is not None else None
     arrays, info = req.cls.host_layout(scene, t, tree, intersection=req.intersection,
@@ -375,11 +376,12 @@ def on_device(req: LayoutRequest, t) -> bool:
 
 
 def _from_device_tree(scene, t, req: LayoutRequest, tree: DeviceTree, how: TreeInfo,
-                      packing, cache, key_parts: tuple, t1: float):
+                      packing, cache, key_parts: tuple):
     """``tree_accelerator``'s accelerator from a tree on the device (``req.cls.
     from_device_tree``: the tree is not copied back for it). With a cache, the layout
     entry is the host layout of the tree's copy (``DeviceTree.host``, which the tree
     entry already read), made and written on the cache's writer thread."""
+    t1 = time.perf_counter()
     tri, extent, cuts = key_parts
     tris = packing.result() if packing is not None else None
     acc = req.cls.from_device_tree(scene, t, tree, intersection=req.intersection,

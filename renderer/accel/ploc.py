@@ -402,20 +402,20 @@ def _cluster_blocks(m, slo, shi, radius: int, every: int, progress,
     raise AssertionError("unreachable")
 
 
-def _cluster(m, slo, shi, radius: int, every: int, freeze: bool, progress,
-             window: int = 0, reads: tuple = (1,)) -> Clusters:
+def _cluster(m, slo, shi, radius: int, progress, backend: str) -> Clusters:
     """Cluster the sorted triangles (boxes ``slo``, ``shi``: 3 Floats each) until one
     cluster is left (see the module docstring). The cluster count lives on the device (the
     nodes made so far, a one-lane array): each iteration compacts the clusters by a prefix
     sum into arrays as wide as the last count read, lanes past the count idle, and the
-    host reads the nodes made every ``every`` iterations (a divisor of ``HEIGHT_CHECK``),
-    with the tallest cluster's height every ``HEIGHT_CHECK``. ``progress`` as
-    ``build_ploc``'s, called for each iteration at the next read. ``freeze``: the
-    iterations between two reads replay one recording (``_cluster_blocks``), ``reads``
-    (``READ_BLOCKS``) of them between two reads. ``window``: ``WINDOW``'s run of clusters
-    per search lane (0: one cluster)."""
-    if freeze:
-        return _cluster_blocks(m, slo, shi, radius, every, progress, reads)
+    host reads the nodes made every ``READ_EVERY[backend]`` iterations (a divisor of
+    ``HEIGHT_CHECK``), with the tallest cluster's height every ``HEIGHT_CHECK``.
+    ``progress`` as ``build_ploc``'s, called for each iteration at the next read. With
+    ``FREEZE[backend]`` the iterations between two reads replay one recording
+    (``_cluster_blocks``), ``READ_BLOCKS[backend]`` of them between two reads; else the
+    neighbour search takes ``WINDOW[backend]``'s run of clusters per lane (0: one)."""
+    every, window = READ_EVERY[backend], WINDOW[backend]
+    if FREEZE[backend]:
+        return _cluster_blocks(m, slo, shi, radius, every, progress, READ_BLOCKS[backend])
     Float, UInt32 = m.Float, m.UInt32
     F = dr.width(slo[0])
     n_in = F - 1                                          # inner nodes of the full tree
@@ -504,8 +504,7 @@ def _positions(m, cl: Clusters):
 
 def build_ploc(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm", *,
                leaf_size: int = LEAF_SIZE, radius: int = RADIUS, cuts: bool = True,
-               progress=None, stats: dict | None = None,
-               output: str = "host") -> BVHArrays | DeviceTree:
+               progress=None, stats: dict | None = None) -> BVHArrays:
     """Build a BVH over ``faces`` (int (F, 3)) of ``vertices`` (float (V, 3)) on ``backend``
     ("cuda" or "llvm"; see the module docstring). ``leaf_size``: most triangles per leaf
     (1..16); ``radius``: the nearest-neighbour search radius (1..64); ``cuts``: False builds
@@ -522,14 +521,36 @@ def build_ploc(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm", *
     A scene of at most ``leaf_size`` triangles gets ``build_bvh``'s single-leaf tree.
     The tree carries its unpadded child boxes too (``BVHArrays.raw``, what
     ``bvh_build.raw_boxes`` computes on the host), so the traversal pads them for its ray
-    origins without a host refit. ``output``: "host" answers the ``BVHArrays``; "device"
-    leaves a tree of whole triangles on the device (a ``DeviceTree``, not copied back;
-    its ``build_seconds`` end when the device has it), and answers the ``BVHArrays``
-    only where the tree holds cut triangles, is the radix fallback or a single leaf."""
+    origins without a host refit. ``build_ploc_device`` leaves the tree on the device."""
+    return _build(vertices, faces, backend,
+                  _Options(leaf_size, radius, cuts, progress, stats), False)
+
+
+def build_ploc_device(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm",
+                      **options) -> BVHArrays | DeviceTree:
+    """``build_ploc`` (the same keyword ``options``) leaving a tree of whole triangles on
+    the device: a ``DeviceTree``, not copied back, its ``build_seconds`` ending when the
+    device has it; the ``BVHArrays`` only where the tree holds cut triangles, is the
+    radix fallback or a single leaf."""
+    return _build(vertices, faces, backend, _Options(**options), True)
+
+
+@dataclass
+class _Options:
+    """``build_ploc``'s keyword options."""
+
+    leaf_size: int = LEAF_SIZE
+    radius: int = RADIUS
+    cuts: bool = True
+    progress: object = None
+    stats: dict | None = None
+
+
+def _build(vertices, faces, backend: str, o: _Options, device: bool):
+    """``build_ploc`` (``device``: ``build_ploc_device``) with its options ``o``."""
+    leaf_size, radius, cuts, progress, stats = o.leaf_size, o.radius, o.cuts, o.progress, o.stats
     if not 1 <= radius <= 64:
         raise ValueError(f"radius: expected 1..64, got {radius}")
-    if output not in ("host", "device"):
-        raise ValueError(f"output: expected 'host' or 'device', got {output!r}")
     m = _module(backend)
     t_start = time.perf_counter()
     Vn, Fn, small = checked_input(vertices, faces, leaf_size)
@@ -560,7 +581,7 @@ def build_ploc(vertices: np.ndarray, faces: np.ndarray, backend: str = "llvm", *
     del lo, hi
     info["cut"] = refs is not None
     # ---- the host arrays ---------------------------------------------------------------------
-    if output == "device" and refs is None and not isinstance(tree, BVHArrays):
+    if device and refs is None and not isinstance(tree, BVHArrays):
         out = DeviceTree(*tree)
         dr.sync_thread()                 # the tree is there: the build's time ends
         out.build_seconds = time.perf_counter() - t_start
@@ -626,8 +647,7 @@ def _device_tree(job: _Job, lo, hi, info: dict):
         _phase(phases, "Morton codes and sort", t_phase)
 
     # ---- 2. clustering -----------------------------------------------------------------------
-    cl = _cluster(m, slo, shi, radius, READ_EVERY[backend], FREEZE[backend], progress,
-                  WINDOW[backend], READ_BLOCKS[backend])
+    cl = _cluster(m, slo, shi, radius, progress, backend)
     n_ch, n_box, n_cnt, batches = cl.ch, cl.box, cl.cnt, cl.batches
     info["iterations"] = cl.iterations
     if phases is not None:
