@@ -6,11 +6,11 @@ the tree's copy back to the host, against the same build left on the device
 (``ploc.READ_BLOCKS``); Mitsuba's scene build (OptiX) on the same triangles.
 Medians of ``--repeats`` after two warm-up builds, ``dr.sync_thread`` around each. Usage:
 
-    python lab/probes/device_tree.py --backend cuda [--repeats 9] [--out DIR] SCENE...
+    python lab/probes/device_tree.py --backend cuda [--repeats 9] [--mitsuba] [--out DIR]
+        [--scenes bunny_1m,conference,sponza,bunny]
 """
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import statistics
@@ -19,19 +19,18 @@ from pathlib import Path
 
 import drjit as dr
 import numpy as np
+from common import probe_parser
 
 import renderer.accel.device_build as db
 import renderer.accel.ploc as ploc
 from renderer.scene import load_scene
 
 ROOT = Path(__file__).resolve().parents[2]
-ap = argparse.ArgumentParser()
-ap.add_argument("scenes", nargs="+")
-ap.add_argument("--backend", default="cuda")
+ap = probe_parser(__doc__, ["bunny_1m", "conference", "sponza", "bunny"])
 ap.add_argument("--repeats", type=int, default=9)
-ap.add_argument("--out", default=None)
-ap.add_argument("--mitsuba", action="store_true")
+ap.add_argument("--mitsuba", action="store_true", help="also time Mitsuba's scene build")
 args = ap.parse_args()
+args.scenes = args.scenes.split(",")
 m = ploc._module(args.backend)
 
 
