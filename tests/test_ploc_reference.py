@@ -189,7 +189,7 @@ CASES = {
 
 @pytest.mark.parametrize("every,freeze,reads", [
     (1, False, (1,)), (4, False, (1,)), (8, False, (1,)), (1, True, (1,)), (4, True, (1,)),
-    (8, True, (1,)), (4, True, (1, 3, 2)), (8, True, ploc.READ_BLOCKS["cuda"])])
+    (8, True, (1,)), (4, True, (1, 3, 2)), (8, True, (1, 1, 2, 4))])
 @pytest.mark.parametrize("case", list(CASES))
 def test_clustering_builds_the_reference_tree(monkeypatch, case, every, freeze, reads):
     make, kw = CASES[case]

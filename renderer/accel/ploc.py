@@ -96,10 +96,10 @@ READ_EVERY = {"llvm": 1, "cuda": 8}
 FREEZE = {"llvm": False, "cuda": True}
 #: With ``FREEZE``: how many blocks of ``READ_EVERY`` iterations run between the first,
 #: second, ... host read of the count (the last repeats). Each read waits for the device
-#: and narrows the arrays to the count it read: early on the count falls by about 8x per
-#: block, so narrowing pays; later the blocks run on a few thousand clusters, where a
-#: wider array costs less than a wait (``lab/notes/device-build.md``).
-READ_BLOCKS = {"llvm": (1,), "cuda": (1, 1, 2, 4)}
+#: and narrows the arrays to the count it read; with one read a block (its counts and
+#: tallest height together) reading after every block was as fast as any longer schedule
+#: on the GPU (``lab/notes/device-build.md``).
+READ_BLOCKS = {"llvm": (1,), "cuda": (1,)}
 #: Clusters per lane of the neighbour search, per backend (``_nearest_window``: each pair's
 #: area computed once, one box gather per cluster), or 0 for one lane per cluster
 #: (``_nearest``). The CPU backend's search costs its gathers; the GPU's costs little
