@@ -62,7 +62,7 @@ def test_throughput_rows_are_the_stored_tables_best_over_mitsuba():
 
 
 def test_build_rows_are_the_stored_tables_device_build_against_mitsuba():
-    for path, name in (("h200/build/bench-cuda.json", "BVH build, GPU"),
+    for path, name in (("h100/build/bench-cuda.json", "BVH build, GPU"),
                        ("cpu/build/bench-llvm.json", "BVH build, CPU")):
         r = row(name)
         assert r.file == path and r.kind == "build"

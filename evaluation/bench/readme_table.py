@@ -166,11 +166,12 @@ def read_build(result: dict) -> Cell:
         raise KeyError("ploc_device_mtris_s")
     text = "; ".join(f"{r['scene']} {r['ploc_device_mtris_s']:.2f} vs "
                      f"{r['mitsuba_mtris_s']:.2f}" for r in rows)
+    where = ("to a tree on the device, upload included"
+             if result["device"].get("backend") == "cuda" else "to the tree in memory")
     return Cell(f"M triangles/s, ours vs its: {text}",
                 f"{len(rows)} scenes ({rows[-1]['triangles']:,}–{rows[0]['triangles']:,} "
-                "triangles), PLOC without cuts, from host arrays to a tree on the device, "
-                "upload included, median of 5 builds", result["device"].get("device", "?"),
-                _date(result))
+                f"triangles), PLOC without cuts, from host arrays {where}, median of 5 "
+                "builds", result["device"].get("device", "?"), _date(result))
 
 
 #: How a row's file is read, by the row's ``kind``.
