@@ -16,10 +16,11 @@ ROOT = Path(__file__).resolve().parents[1]
 @pytest.mark.slow
 def test_sigint_mid_render_exits_130_quickly_and_leaves_no_file(tmp_path):
     out = tmp_path / "out"
-    # glass bunny 256², 16 spp: about a minute on 2 CPU cores, in 4 bands
+    # glass bunny 512², 64 spp: 40 s to many minutes on 2 CPU cores (256² at 16 spp took
+    # under the 3 s below on a faster 2-core machine), in bands
     proc = subprocess.Popen(
         [sys.executable, "-m", "whitted", "render", "scenes/glass_bunny.toml", "--size",
-         "256x256", "--spp", "16", "--backend", "llvm", "--out", str(out)],
+         "512x512", "--spp", "64", "--backend", "llvm", "--out", str(out)],
         cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     line = ""
     while "secondary rays" not in line:           # the effect lines: rendering starts next
