@@ -281,6 +281,29 @@ def test_background_writes_are_whole_entries_after_flush(tmp_path):
     _same_tree(b, binary_tree(scene, "llvm", build="device")[0])
 
 
+@pytest.mark.parametrize("background", [False, True])
+def test_an_entry_that_cannot_be_made_is_one_warning_and_no_file(tmp_path, background):
+    """``put_made``: the entry's arrays made by a function (on the writer thread with
+    ``background``); one that raises leaves no file and one ``CacheWarning`` naming the
+    error, never an exception out of the thread; one that succeeds is written."""
+    cache = TreeCache(tmp_path / "c", background=background)
+
+    def broken():
+        raise MemoryError("no room for the layout")
+    with warnings.catch_warnings(record=True) as w:
+        warnings.simplefilter("always")
+        cache.put_made("layout", "k" * 64, broken)
+        cache.flush()
+    assert [str(x.message) for x in w if x.category is CacheWarning] == [
+        f"{tmp_path / 'c'}: layout cache entry not made (MemoryError: no room for the "
+        "layout); working without it"]
+    assert not (tmp_path / "c").exists() or not list((tmp_path / "c").iterdir())
+    cache.put_made("layout", "k" * 64, lambda: ({"a": np.arange(5)}, {"n": 5}))
+    cache.flush()
+    got = TreeCache(tmp_path / "c").get("layout", "k" * 64)
+    assert np.array_equal(got["a"], np.arange(5)) and got["meta"] == {"n": 5}
+
+
 # ---- the cached layout: the arrays an accelerator uploads ----------------------------------
 
 def _device_arrays(acc) -> dict:

@@ -227,14 +227,24 @@ class TreeCache:
     def put_made(self, kind: str, key: str, make) -> bool:
         """``put`` of the entry ``make()`` answers (``(arrays, meta)``): with
         ``background``, ``make`` runs on the writer thread too, so host work that only the
-        entry needs stays off the caller's path (it must not use Dr.Jit)."""
+        entry needs stays off the caller's path (it must not use Dr.Jit). An entry that
+        ``make`` fails to make (it raises) is not written: one ``CacheWarning``, False."""
         if self.background:
-            th = threading.Thread(target=lambda: self._write(kind, key, *make()),
+            th = threading.Thread(target=self._write_made, args=(kind, key, make),
                                   name=f"cache {kind}")
             th.start()
             self._pending.append(th)
             return True
-        return self._write(kind, key, *make())
+        return self._write_made(kind, key, make)
+
+    def _write_made(self, kind: str, key: str, make) -> bool:
+        try:
+            arrays, meta = make()
+        except Exception as e:           # a cache entry is never worth a failed render
+            warnings.warn(f"{self.folder}: {kind} cache entry not made ({type(e).__name__}: "
+                          f"{e}); working without it", CacheWarning, stacklevel=2)
+            return False
+        return self._write(kind, key, arrays, meta)
 
     def flush(self) -> None:
         """Wait for the writes ``put`` handed to threads (``background``)."""
