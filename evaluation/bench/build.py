@@ -13,7 +13,9 @@ Per scene (``SCENES``; quick: ``QUICK_SCENES``), in one process on the same tria
   included, as Mitsuba's build below includes its mesh upload); PLOC without cuts also
   to the tree left on the device (``build_ploc_device``, ``ploc_device_*``: the tree the
   binary BVH's accelerator is made from, as Mitsuba's build leaves its structure on the
-  device: the upload included, no copy back); the radix tree also with
+  device: the upload included, no copy back; the accelerator's own steps after it, the
+  boxes padded for the traversal's extent and the packed triangles gathered into the
+  tree's order, are in the process rows, not here); the radix tree also with
   ``raw=True`` (also copying back the unpadded boxes, what ``whitted render`` asks for so
   the traversal pads them without a host refit);
 - the host SAH build (``bvh_build.build_bvh``, one build): seconds, M triangles/s;
