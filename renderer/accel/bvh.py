@@ -125,6 +125,22 @@ def traversal_boxes(a: BVHArrays, scene, t: Types, intersection: str,
     return refit_boxes(a, scene.positions(t.is_double), scene.faces, fdt, extent)
 
 
+def _info(scene, t: Types, intersection: str, tree: tuple) -> dict:
+    """The BVH accelerator's ``info`` (JSON-able; ``reach`` included) for ``scene`` in the
+    precision of ``t``, from its tree's ``(build_seconds, nodes, leaves, levels,
+    sah_cost)``."""
+    build_seconds, nodes, leaves, levels, sah_cost = tree
+    fsize = 8 if t.is_double else 4
+    return {
+        "accel": "bvh", "intersection": intersection, "build_seconds": build_seconds,
+        "triangles": scene.face_count, "nodes": nodes, "leaves": leaves, "levels": levels,
+        "sah_cost": sah_cost, "leaf_size": LEAF_SIZE, "bins": BINS,
+        "node_bytes_per_triangle": nodes * (12 * fsize + 8) / max(scene.face_count, 1),
+        "traversal_triangle_bytes_per_triangle": STRIDE * fsize,
+        "reach": origin_reach(scene, intersection),
+    }
+
+
 @dataclass
 class BVH(Accelerator):
     """Bounding volume hierarchy accelerator (see the module docstring).
@@ -184,17 +200,8 @@ class BVH(Accelerator):
         arrays["nodes"] = np.ascontiguousarray(
             traversal_boxes(a, scene, t, intersection, extent), fdt)
         arrays["children"] = np.ascontiguousarray(a.children, np.uint32)
-        fsize = 8 if t.is_double else 4
-        F = max(scene.face_count, 1)
-        info = {
-            "accel": "bvh", "intersection": intersection, "build_seconds": a.build_seconds,
-            "triangles": scene.face_count, "nodes": a.node_count, "leaves": a.leaf_count,
-            "levels": a.levels, "sah_cost": a.sah_cost, "leaf_size": LEAF_SIZE, "bins": BINS,
-            "node_bytes_per_triangle": a.node_count * (12 * fsize + 8) / F,
-            "traversal_triangle_bytes_per_triangle": STRIDE * fsize,
-            "reach": origin_reach(scene, intersection),
-        }
-        return arrays, info
+        return arrays, _info(scene, t, intersection, (a.build_seconds, a.node_count,
+                                                      a.leaf_count, a.levels, a.sah_cost))
 
     @classmethod
     def from_layout(cls, t: Types, arrays: dict, info: dict, own: bool = False) -> "BVH":
@@ -257,16 +264,8 @@ class BVH(Accelerator):
         tri_trav = device_pairs(t, tri_data) if uses_pairs(t) else None
         dr.eval(nodes, children, tri_data, tri_trav, tris)
         leaf_count, sah, _ = tree.summary()
-        F = max(scene.face_count, 1)
-        info = {
-            "accel": "bvh", "intersection": intersection,
-            "build_seconds": tree.build_seconds, "triangles": scene.face_count,
-            "nodes": tree.node_count, "leaves": leaf_count, "levels": tree.levels,
-            "sah_cost": sah, "leaf_size": LEAF_SIZE, "bins": BINS,
-            "node_bytes_per_triangle": tree.node_count * (12 * 4 + 8) / F,
-            "traversal_triangle_bytes_per_triangle": STRIDE * 4,
-            "reach": origin_reach(scene, intersection),
-        }
+        info = _info(scene, t, intersection, (tree.build_seconds, tree.node_count, leaf_count,
+                                              tree.levels, sah))
         return cls(nodes, children, tri_data, tris, backend=t.backend, precision=t.precision,
                    intersection=intersection, info=info, tri_trav=tri_trav,
                    reach=float(info["reach"]))

@@ -200,6 +200,25 @@ def host_arrays(boxes_d, refs_d, order_d, raw_d, scene_box, area, levels: int) -
     return BVHArrays(boxes, ch, order, levels, leaf_count, sah, 0.0, bounds, raw=raw_h)
 
 
+def write_box(m, boxes_d, at, lo, hi, pad):
+    """Scatter the box ``(lo, hi)`` (3 Floats each) padded by ``pad_boxes``'s rule (``pad``:
+    32 units of roundoff, the scene extent, and None or the Float that gets the unpadded
+    box at the same place) to ``boxes_d[at .. at + 5]``; answers its half surface area
+    (Float64)."""
+    u32, extent, raw_d = pad
+    d = []
+    for a in range(3):                    # pad_boxes: 32 roundoff x (magnitude + extent)
+        e = (dr.maximum(abs(lo[a]), abs(hi[a])) + extent) * u32
+        lo_a, hi_a = lo[a] - e, hi[a] + e
+        dr.scatter(boxes_d, lo_a, at + a)
+        dr.scatter(boxes_d, hi_a, at + 3 + a)
+        if raw_d is not None:
+            dr.scatter(raw_d, lo[a], at + a)
+            dr.scatter(raw_d, hi[a], at + 3 + a)
+        d.append(m.Float64(hi_a - lo_a))
+    return d[0] * d[1] + d[1] * d[2] + d[2] * d[0]
+
+
 @dataclass
 class DeviceTree:
     """A tree built on the device and left there: ``host_arrays``' arguments (padded node
@@ -237,21 +256,17 @@ class DeviceTree:
 
     def padded(self, extent: float):
         """The node boxes the traversal reads for a scene of padding extent ``extent``
-        (``triangle.pad_extent``): the unpadded boxes grown by ``bvh_build.pad_boxes``'s
-        rule in float32 (the same operations as ``pad_refit`` on the host), infinite where
-        the build's own box is (an empty child); a Float of 12 per node, evaluated."""
+        (``triangle.pad_extent``): the unpadded boxes grown by ``write_box``, the device
+        form of ``bvh_build.pad_boxes``' float32 rule (the same operations as ``pad_refit``
+        on the host; a device tree has two leaves at least, so no empty child box); a
+        Float of 12 per node, evaluated."""
         m = _module("cuda" if dr.backend_v(self.raw) == dr.JitBackend.CUDA else "llvm")
         Float, UInt32 = m.Float, m.UInt32
         i = dr.arange(UInt32, dr.width(self.raw) // 6) * 6      # a child box each
         lo = [dr.gather(Float, self.raw, i + a) for a in range(3)]
         hi = [dr.gather(Float, self.raw, i + 3 + a) for a in range(3)]
-        real = dr.isfinite(dr.gather(Float, self.boxes, i))
-        u32 = float(32 * unit_roundoff(False))
         out = dr.empty(Float, dr.width(self.raw))
-        for a in range(3):
-            e = (dr.maximum(abs(lo[a]), abs(hi[a])) + extent) * u32
-            dr.scatter(out, dr.select(real, lo[a] - e, dr.inf), i + a)
-            dr.scatter(out, dr.select(real, hi[a] + e, dr.inf), i + 3 + a)
+        write_box(m, out, i, lo, hi, (float(32 * unit_roundoff(False)), extent, None))
         dr.eval(out)
         return out
 
@@ -267,7 +282,7 @@ class DeviceTree:
 def _indices_within(Fn: np.ndarray, V: int) -> bool:
     """Whether every index of ``Fn`` lies in ``[0, V)``: the rows' minimum and maximum
     over spans on the host threads (``renderer.parallel``)."""
-    flat = Fn.reshape(-1) if Fn.flags.c_contiguous else np.ascontiguousarray(Fn).reshape(-1)
+    flat = Fn.reshape(-1)
     bad = []
 
     def span(lo, hi):

@@ -71,6 +71,7 @@ from .device_build import (
     host_arrays,
     morton_codes,
     triangle_boxes,
+    write_box,
 )
 from .traverse import COUNT_SHIFT, LEAF_BIT
 from .triangle import unit_roundoff
@@ -371,7 +372,8 @@ def _cluster_blocks(m, slo, shi, radius: int, every: int, progress,
     batches, made, it = [], 0, 0
     bail = TALL * MAX_LEVELS
     log_f = math.log(F)
-    for r in range(1 << 30):
+    r = 0                                              # reads so far
+    while True:
         pending = []                                   # (made after each, tallest) a block
         for _ in range(reads[min(r, len(reads) - 1)]):
             out, made_list, tallest = _BLOCK(m, radius, every, c, u, n, made_d, f_d)
@@ -399,7 +401,7 @@ def _cluster_blocks(m, slo, shi, radius: int, every: int, progress,
         dr.eval(narrow, spare)
         c = (narrow[0], tuple(narrow[1:7]), narrow[7], narrow[8])
         u = (spare[0], tuple(spare[1:7]), spare[7], spare[8])
-    raise AssertionError("unreachable")
+        r += 1
 
 
 def _cluster(m, slo, shi, radius: int, progress, backend: str) -> Clusters:
@@ -717,7 +719,7 @@ def _device_tree(job: _Job, lo, hi, info: dict):
                           dr.gather(Float, slo[a], idx, ~is_node)) for a in range(3)]
         hi_c = [dr.select(is_node, dr.gather(Float, n_box[3 + a], idx, is_node),
                           dr.gather(Float, shi[a], idx, ~is_node)) for a in range(3)]
-        half = _write_box(m, boxes_d, 12 * n + 6 * s, lo_c, hi_c, pad)
+        half = write_box(m, boxes_d, 12 * n + 6 * s, lo_c, hi_c, pad)
         area += half * dr.select(inner, 1.0, m.Float64(cnt))
     if roots is not None:                 # their rows are rewritten by the rebuild
         area = dr.select(is_root, 0.0, area)
@@ -739,25 +741,6 @@ def _device_tree(job: _Job, lo, hi, info: dict):
     if phases is not None:
         _phase(phases, "inner nodes", t_phase)
     return boxes_d, refs_d, order_d, raw_d, (s_lo, s_hi), total, levels
-
-
-def _write_box(m, boxes_d, at, lo, hi, pad):
-    """Scatter the box ``(lo, hi)`` (3 Floats each) padded by ``pad_boxes``'s rule (``pad``:
-    32 units of roundoff, the scene extent, and None or the Float that gets the unpadded
-    box at the same place) to ``boxes_d[at .. at + 5]``; answers its half surface area
-    (Float64)."""
-    u32, extent, raw_d = pad
-    d = []
-    for a in range(3):                    # pad_boxes: 32 roundoff x (magnitude + extent)
-        e = (dr.maximum(abs(lo[a]), abs(hi[a])) + extent) * u32
-        lo_a, hi_a = lo[a] - e, hi[a] + e
-        dr.scatter(boxes_d, lo_a, at + a)
-        dr.scatter(boxes_d, hi_a, at + 3 + a)
-        if raw_d is not None:
-            dr.scatter(raw_d, lo[a], at + a)
-            dr.scatter(raw_d, hi[a], at + 3 + a)
-        d.append(m.Float64(hi_a - lo_a))
-    return d[0] * d[1] + d[1] * d[2] + d[2] * d[0]
 
 
 def _deep_heights(m, c, ok, tree, height, roots, leaf_size):
@@ -895,7 +878,7 @@ def _rebuild(m, rb, p_box, boxes_d, refs_d, n_next, leaf_size, pad):
                               cond=lambda j, *_, end=end: j < end, body=body,
                               label="ploc_rebuild_box")
         leaf = c_count <= leaf_size
-        half_area = _write_box(m, boxes_d, 12 * n_row + 6 * side, list(state[1:4]),
+        half_area = write_box(m, boxes_d, 12 * n_row + 6 * side, list(state[1:4]),
                                list(state[4:7]), pad)
         area += dr.sum(half_area * dr.select(leaf, m.Float64(c_count), 1.0))
         ref = dr.select(leaf, LEAF_BIT | ((c_count - 1) << COUNT_SHIFT) | c_first, 0)
