@@ -31,6 +31,9 @@ ap.add_argument("--repeats", type=int, default=9)
 ap.add_argument("--mitsuba", action="store_true", help="also time Mitsuba's scene build")
 args = ap.parse_args()
 args.scenes = args.scenes.split(",")
+missing = [n for n in args.scenes if not (ROOT / "scenes" / f"{n}.toml").is_file()]
+if missing:
+    raise SystemExit(f"error: --scenes: no scenes/{missing[0]}.toml")
 m = ploc._module(args.backend)
 
 
