@@ -383,7 +383,8 @@ def _from_device_tree(scene, t, req: LayoutRequest, tree: DeviceTree, how: TreeI
     entry already read), made and written on the cache's writer thread."""
     t1 = time.perf_counter()
     tri, extent, cuts = key_parts
-    tris = packing.result() if packing is not None else None
+    tris = (packing.result() if packing is not None else   # face order, for both uses
+            triangle_arrays(scene, False, None, routine=req.intersection))
     acc = req.cls.from_device_tree(scene, t, tree, intersection=req.intersection,
                                    extent=extent, triangles=tris)
     t2 = time.perf_counter()
@@ -395,7 +396,7 @@ def _from_device_tree(scene, t, req: LayoutRequest, tree: DeviceTree, how: TreeI
         def entry():
             arrays, info = req.cls.host_layout(
                 scene, t, h, intersection=req.intersection, extent=extent,
-                triangles=permuted(tris, h.order) if tris is not None else None)
+                triangles=permuted(tris, h.order))
             return arrays, {"info": info}
         cache.put_made("layout", key, entry)
     acc.info["upload_seconds"] = t2 - t1
